@@ -1,0 +1,1 @@
+//! The append-only JSON Lines event log.

@@ -1,0 +1,1 @@
+//! CAN: DBC parsing and signal packing/unpacking.

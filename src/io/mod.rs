@@ -1,0 +1,7 @@
+//! Field-bus adapters: CAN signals defined in a DBC file, and Modbus registers.
+//!
+//! Adapters translate between bytes on a bus and [`crate::signals`] values in SI units.
+//! They know nothing of the control laws.
+
+pub mod can;
+pub mod modbus;

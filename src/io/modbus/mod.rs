@@ -1,0 +1,1 @@
+//! Modbus: register encoding and client/server helpers.

@@ -1,0 +1,22 @@
+//! antisurge: real-time anti-surge and active surge control for centrifugal compressor skids.
+//!
+//! Layers, from the inside out:
+//! - [`physics`], [`plant`], [`solver`]: the compressor physics of the seed papers as pure,
+//!   allocation-free functions and small structs (SI units).
+//! - [`surge`]: surge detection (flow reversal, limit cycles), shared by simulation and daemon.
+//! - [`scenario`], [`sim`], [`plot`]: scenario timelines, the in-process simulation that backs
+//!   `antisurge sim`, its trace, summary and pictures.
+//! - [`signals`]: the vocabulary of sensors and actuators every layer shares.
+//! - [`io`]: CAN (DBC) and Modbus adapters; [`events`]: the append-only event log.
+#![forbid(unsafe_op_in_unsafe_fn)]
+
+pub mod events;
+pub mod io;
+pub mod physics;
+pub mod plant;
+pub mod plot;
+pub mod scenario;
+pub mod signals;
+pub mod sim;
+pub mod solver;
+pub mod surge;

@@ -1,0 +1,4 @@
+//! The `antisurge` binary: command-line edge over the library.
+fn main() -> anyhow::Result<()> {
+    Ok(())
+}
