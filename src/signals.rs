@@ -166,7 +166,9 @@ impl ActuatorSet {
 
     /// The members, in [`ActuatorId::ALL`] order.
     pub fn iter(self) -> impl Iterator<Item = ActuatorId> {
-        ActuatorId::ALL.into_iter().filter(move |a| self.contains(*a))
+        ActuatorId::ALL
+            .into_iter()
+            .filter(move |a| self.contains(*a))
     }
 }
 
