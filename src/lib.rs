@@ -11,6 +11,7 @@
 #![forbid(unsafe_op_in_unsafe_fn)]
 
 pub mod config;
+pub mod control;
 pub mod events;
 pub mod io;
 pub mod physics;

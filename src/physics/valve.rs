@@ -7,7 +7,7 @@ use serde::{Deserialize, Serialize};
 /// Inherent valve characteristic: C_v*(l)/C_v,max* as a function of opening l ∈ [0, 1]
 /// (seed 002 §2.3.5).
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
-#[serde(tag = "kind", rename_all = "snake_case", deny_unknown_fields)]
+#[serde(rename_all = "snake_case", deny_unknown_fields)]
 pub enum Characteristic {
     /// C* = C*max · l.
     Linear,

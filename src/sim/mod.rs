@@ -1,1 +1,9 @@
-//! sim
+//! The in-process simulation behind `antisurge sim`: plant + scenario + control core, faster
+//! than real time, with a trace, a summary and pictures.
+
+pub mod runner;
+pub mod summary;
+pub mod trace;
+
+pub use runner::{run, SimOptions, SimResult};
+pub use summary::Summary;

@@ -23,6 +23,12 @@ pub trait OdeSystem<const N: usize> {
     /// Enforce hard constraints after a step (e.g. a check valve's flow cannot go negative,
     /// a valve position stays in 0..1). Default: none.
     fn project(&self, _x: &mut SVector<f64, N>) {}
+
+    /// Absolute error tolerance per state component for adaptive stepping, in that component's
+    /// unit. Default: 1e-6 for every component.
+    fn abs_tolerance(&self) -> [f64; N] {
+        [1e-6; N]
+    }
 }
 
 /// Which fixed-step method a plant uses in real time.
@@ -36,20 +42,31 @@ pub enum Method {
     Rosenbrock,
 }
 
-/// Fixed-step integration settings of a plant.
+/// Integration settings of a plant for one control period.
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct StepSettings {
     /// Integration method.
     #[serde(default)]
     pub method: Method,
-    /// Number of internal sub-steps per control period (≥ 1).
+    /// Number of internal sub-steps per control period (≥ 1) when not adaptive.
     #[serde(default = "one")]
     pub substeps: u32,
+    /// Relative tolerance for error-controlled sub-stepping inside each control period
+    /// (Rosenbrock only). The step adapts between periods; `max_substeps` bounds the work so
+    /// the plant keeps real time.
+    #[serde(default)]
+    pub rtol: Option<f64>,
+    /// Upper bound on sub-steps per control period in adaptive mode.
+    #[serde(default = "default_max_substeps")]
+    pub max_substeps: u32,
 }
 
 fn one() -> u32 {
     1
+}
+fn default_max_substeps() -> u32 {
+    200
 }
 
 impl Default for StepSettings {
@@ -57,7 +74,42 @@ impl Default for StepSettings {
         StepSettings {
             method: Method::Rk4,
             substeps: 1,
+            rtol: None,
+            max_substeps: default_max_substeps(),
         }
+    }
+}
+
+/// Advance `x` from `t_s` by `h_s` with the chosen method: fixed sub-steps, or (Rosenbrock
+/// with `rtol`) error-controlled sub-steps carrying the step size in `h_state_s`.
+pub fn advance_adaptive<const N: usize, S: OdeSystem<N>>(
+    sys: &S,
+    settings: StepSettings,
+    t_s: f64,
+    x: &mut SVector<f64, N>,
+    h_s: f64,
+    h_state_s: &mut f64,
+) {
+    match (settings.method, settings.rtol) {
+        (Method::Rosenbrock, Some(rtol)) => {
+            let tol = Tolerance {
+                rtol,
+                atol: sys.abs_tolerance(),
+            };
+            if !(*h_state_s > 0.0) || *h_state_s > h_s {
+                *h_state_s = h_s;
+            }
+            rosenbrock::integrate_bounded(
+                sys,
+                t_s,
+                x,
+                t_s + h_s,
+                &tol,
+                h_state_s,
+                settings.max_substeps,
+            );
+        }
+        _ => advance(sys, settings, t_s, x, h_s),
     }
 }
 

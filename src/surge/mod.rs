@@ -1,1 +1,332 @@
-//! surge
+//! Surge detection from the compressor flow: flow reversal and sustained limit cycles, with
+//! the cycle frequency. One online detector, allocation-free, used by the simulation summary
+//! and by the daemon's control cycle.
+//!
+//! Method: the flow is split into a slow mean (first-order low-pass) and a deviation. A cycle
+//! is a full down-and-up excursion of the deviation through a hysteresis band of
+//! ± `amplitude_threshold` (relative to the mean flow, with an absolute floor). A cycle
+//! *qualifies* when its period lies in the surge band (seeds: 1–10 Hz; the band is wider to
+//! catch slow deep surge and fast mild surge) and its half peak-to-peak amplitude exceeds the
+//! threshold. A limit cycle is declared after `confirm_cycles` consecutive qualifying cycles
+//! whose amplitude does not decay by more than `decay_tolerance` per cycle: a damped transient
+//! after a disturbance is not surge. Every flow-reversal episode (flow below −reversal
+//! threshold) also counts as a surge cycle unless it is already part of a counted limit cycle.
+
+use serde::{Deserialize, Serialize};
+
+/// Detector settings.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct DetectorConfig {
+    /// Time constant of the mean-flow low-pass, s.
+    #[serde(default = "d_mean_tau")]
+    pub mean_time_constant_s: f64,
+    /// Oscillation threshold as a fraction of the mean flow.
+    #[serde(default = "d_amp_rel")]
+    pub amplitude_threshold_rel: f64,
+    /// Floor of the oscillation threshold, kg/s.
+    #[serde(default = "d_amp_abs")]
+    pub amplitude_threshold_abs_kg_s: f64,
+    /// Flow below −this counts as reversal, kg/s (a small positive number).
+    #[serde(default = "d_rev")]
+    pub reversal_threshold_kg_s: f64,
+    /// Lowest surge frequency accepted, Hz.
+    #[serde(default = "d_fmin")]
+    pub min_frequency_hz: f64,
+    /// Highest surge frequency accepted, Hz.
+    #[serde(default = "d_fmax")]
+    pub max_frequency_hz: f64,
+    /// Consecutive qualifying cycles that confirm a limit cycle.
+    #[serde(default = "d_confirm")]
+    pub confirm_cycles: u32,
+    /// Largest per-cycle amplitude decay (fraction) still considered sustained.
+    #[serde(default = "d_decay")]
+    pub decay_tolerance: f64,
+}
+
+fn d_mean_tau() -> f64 {
+    1.0
+}
+fn d_amp_rel() -> f64 {
+    0.05
+}
+fn d_amp_abs() -> f64 {
+    1e-3
+}
+fn d_rev() -> f64 {
+    1e-3
+}
+fn d_fmin() -> f64 {
+    0.3
+}
+fn d_fmax() -> f64 {
+    30.0
+}
+fn d_confirm() -> u32 {
+    3
+}
+fn d_decay() -> f64 {
+    0.2
+}
+
+impl Default for DetectorConfig {
+    fn default() -> Self {
+        DetectorConfig {
+            mean_time_constant_s: d_mean_tau(),
+            amplitude_threshold_rel: d_amp_rel(),
+            amplitude_threshold_abs_kg_s: d_amp_abs(),
+            reversal_threshold_kg_s: d_rev(),
+            min_frequency_hz: d_fmin(),
+            max_frequency_hz: d_fmax(),
+            confirm_cycles: d_confirm(),
+            decay_tolerance: d_decay(),
+        }
+    }
+}
+
+/// What the detector reports for one update.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Detection {
+    /// Nothing new.
+    None,
+    /// A limit cycle was just confirmed (first surge of an episode).
+    SurgeStarted,
+    /// One more surge cycle counted.
+    SurgeCycle,
+    /// Flow reversal began.
+    ReversalStarted,
+}
+
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+enum Band {
+    Inside,
+    Above,
+    Below,
+}
+
+/// Online surge detector.
+#[derive(Debug, Clone)]
+pub struct SurgeDetector {
+    cfg: DetectorConfig,
+    initialised: bool,
+    mean: f64,
+    band: Band,
+    went_below: bool,
+    last_up_t: f64,
+    cycle_max: f64,
+    cycle_min: f64,
+    run: u32,
+    last_amp: f64,
+    in_limit_cycle: bool,
+    reversing: bool,
+    reversal_in_cycle: bool,
+    /// Surge cycles counted (limit-cycle periods plus isolated reversal episodes).
+    pub surge_cycles: u32,
+    /// Flow-reversal episodes.
+    pub reversals: u32,
+    /// Frequency of the last qualifying cycle, Hz (NaN if none yet).
+    pub frequency_hz: f64,
+    /// Largest qualifying-cycle amplitude seen, kg/s.
+    pub max_amplitude_kg_s: f64,
+    /// Time of the last counted surge cycle or reversal, s (NaN if none).
+    pub last_surge_t_s: f64,
+}
+
+impl SurgeDetector {
+    /// New detector.
+    pub fn new(cfg: DetectorConfig) -> Self {
+        SurgeDetector {
+            cfg,
+            initialised: false,
+            mean: 0.0,
+            band: Band::Inside,
+            went_below: false,
+            last_up_t: f64::NAN,
+            cycle_max: f64::NEG_INFINITY,
+            cycle_min: f64::INFINITY,
+            run: 0,
+            last_amp: 0.0,
+            in_limit_cycle: false,
+            reversing: false,
+            reversal_in_cycle: false,
+            surge_cycles: 0,
+            reversals: 0,
+            frequency_hz: f64::NAN,
+            max_amplitude_kg_s: 0.0,
+            last_surge_t_s: f64::NAN,
+        }
+    }
+
+    /// Whether a limit cycle is in progress.
+    pub fn in_surge(&self) -> bool {
+        self.in_limit_cycle || self.reversing
+    }
+
+    /// Slow mean flow, kg/s.
+    pub fn mean_flow(&self) -> f64 {
+        self.mean
+    }
+
+    /// Feed one flow sample taken at `t_s` (`dt_s` since the previous one).
+    pub fn update(&mut self, t_s: f64, dt_s: f64, m_kg_s: f64) -> Detection {
+        if !m_kg_s.is_finite() {
+            return Detection::None;
+        }
+        if !self.initialised {
+            self.mean = m_kg_s;
+            self.initialised = true;
+        }
+        let a = (dt_s / self.cfg.mean_time_constant_s).min(1.0);
+        self.mean += a * (m_kg_s - self.mean);
+        let mut result = Detection::None;
+
+        // flow reversal episodes (with hysteresis)
+        let rev = self.cfg.reversal_threshold_kg_s;
+        if !self.reversing && m_kg_s < -rev {
+            self.reversing = true;
+            self.reversals += 1;
+            self.reversal_in_cycle = true;
+            if !self.in_limit_cycle {
+                self.surge_cycles += 1;
+                self.last_surge_t_s = t_s;
+            }
+            result = Detection::ReversalStarted;
+        } else if self.reversing && m_kg_s > rev {
+            self.reversing = false;
+        }
+
+        // oscillation cycles around the mean
+        let dev = m_kg_s - self.mean;
+        self.cycle_max = self.cycle_max.max(dev);
+        self.cycle_min = self.cycle_min.min(dev);
+        let h = (self.cfg.amplitude_threshold_rel * self.mean.abs())
+            .max(self.cfg.amplitude_threshold_abs_kg_s);
+        let band = if dev > h {
+            Band::Above
+        } else if dev < -h {
+            Band::Below
+        } else {
+            self.band
+        };
+        if band == Band::Below {
+            self.went_below = true;
+        }
+        if band == Band::Above && self.band != Band::Above && self.went_below {
+            // an upward crossing completes a cycle
+            self.went_below = false;
+            if self.last_up_t.is_finite() {
+                let period = t_s - self.last_up_t;
+                let amp = 0.5 * (self.cycle_max - self.cycle_min);
+                let f = 1.0 / period;
+                let qualifies =
+                    f >= self.cfg.min_frequency_hz && f <= self.cfg.max_frequency_hz && amp > h;
+                if qualifies {
+                    let sustained =
+                        self.run == 0 || amp >= (1.0 - self.cfg.decay_tolerance) * self.last_amp;
+                    self.run = if sustained { self.run + 1 } else { 1 };
+                    self.last_amp = amp;
+                    self.frequency_hz = f;
+                    self.max_amplitude_kg_s = self.max_amplitude_kg_s.max(amp);
+                    if self.in_limit_cycle {
+                        self.surge_cycles += 1;
+                        self.last_surge_t_s = t_s;
+                        result = Detection::SurgeCycle;
+                    } else if self.run >= self.cfg.confirm_cycles {
+                        self.in_limit_cycle = true;
+                        // the confirming cycles count; reversals already counted in them are
+                        // not counted twice
+                        let already = if self.reversal_in_cycle { 1 } else { 0 };
+                        self.surge_cycles += self.run.saturating_sub(already.min(self.run));
+                        self.last_surge_t_s = t_s;
+                        result = Detection::SurgeStarted;
+                    }
+                } else {
+                    self.run = 0;
+                    self.in_limit_cycle = false;
+                }
+            }
+            self.last_up_t = t_s;
+            self.cycle_max = dev;
+            self.cycle_min = dev;
+            self.reversal_in_cycle = false;
+        }
+        // an oscillation that dies out ends the limit cycle
+        if self.in_limit_cycle
+            && self.last_up_t.is_finite()
+            && t_s - self.last_up_t > 2.0 / self.cfg.min_frequency_hz
+        {
+            self.in_limit_cycle = false;
+            self.run = 0;
+        }
+        self.band = band;
+        result
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn run(f: impl Fn(f64) -> f64, t_end: f64) -> SurgeDetector {
+        let mut d = SurgeDetector::new(DetectorConfig::default());
+        let dt = 1e-3;
+        let n = (t_end / dt) as usize;
+        for k in 0..n {
+            let t = k as f64 * dt;
+            d.update(t, dt, f(t));
+        }
+        d
+    }
+
+    #[test]
+    fn steady_flow_is_not_surge() {
+        let d = run(|_| 8.0, 10.0);
+        assert_eq!(d.surge_cycles, 0);
+        assert_eq!(d.reversals, 0);
+        assert!(d.frequency_hz.is_nan());
+    }
+
+    #[test]
+    fn sustained_oscillation_is_counted_with_frequency() {
+        // 4 Hz, ±2 kg/s around 8 kg/s for 5 s: 20 periods
+        let d = run(
+            |t| 8.0 + 2.0 * (2.0 * std::f64::consts::PI * 4.0 * t).sin(),
+            5.0,
+        );
+        assert!((d.frequency_hz - 4.0).abs() < 0.05, "{}", d.frequency_hz);
+        assert!((17..=20).contains(&d.surge_cycles), "{}", d.surge_cycles);
+        assert_eq!(d.reversals, 0);
+    }
+
+    #[test]
+    fn damped_transient_is_not_surge() {
+        // 3 Hz oscillation decaying by 50 % per period
+        let d = run(
+            |t| {
+                8.0 + 3.0
+                    * (-(0.5f64.ln().abs()) * 3.0 * t).exp()
+                    * (2.0 * std::f64::consts::PI * 3.0 * t).sin()
+            },
+            5.0,
+        );
+        assert_eq!(d.surge_cycles, 0);
+    }
+
+    #[test]
+    fn deep_surge_reversals_are_counted_once() {
+        // 2 Hz between −3 and +9 kg/s: reversal every period
+        let d = run(
+            |t| 3.0 + 6.0 * (2.0 * std::f64::consts::PI * 2.0 * t).sin(),
+            5.0,
+        );
+        assert_eq!(d.reversals, 10);
+        assert!((9..=11).contains(&d.surge_cycles), "{}", d.surge_cycles);
+        assert!((d.frequency_hz - 2.0).abs() < 0.05);
+    }
+
+    #[test]
+    fn slow_ramp_is_not_surge() {
+        let d = run(|t| 10.0 - 0.8 * t.min(8.0), 12.0);
+        assert_eq!(d.surge_cycles, 0);
+    }
+}

@@ -1,0 +1,68 @@
+//! Inputs of one control cycle: raw sensor readings with their age, operator inputs, and the
+//! validated, derived measurements the laws see.
+
+use crate::signals::{SensorId, SensorSnapshot};
+
+/// Sensor readings as they arrived, with the age of each (time since it was last updated).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct RawSensors {
+    /// Values in SI units (NaN: absent/invalid).
+    pub values: SensorSnapshot,
+    /// Age of each value, s (∞: never received).
+    pub age_s: [f64; SensorId::COUNT],
+}
+
+impl RawSensors {
+    /// Fresh readings (age 0).
+    pub fn fresh(values: SensorSnapshot) -> Self {
+        RawSensors {
+            values,
+            age_s: [0.0; SensorId::COUNT],
+        }
+    }
+}
+
+/// What the operator (or the DCS) asks for.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct OperatorInputs {
+    /// Speed setpoint, rad/s.
+    pub speed_setpoint_rad_s: f64,
+    /// Throttle opening the process demands, fraction (NaN if unknown). Laws that do not drive
+    /// the throttle ignore it; `throttle-backstep` adds its trim to it.
+    pub throttle_demand: f64,
+    /// Mass-flow setpoint for flow-tracking laws, kg/s (NaN: hold the current flow).
+    pub flow_setpoint_kg_s: f64,
+    /// Recycle valve opening from the manual station, fraction (used in manual mode).
+    pub recycle_manual: f64,
+}
+
+/// Validated measurements and derived quantities for the laws (SI units).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Measurements {
+    /// Cycle time, s.
+    pub t_s: f64,
+    /// Suction pressure, Pa.
+    pub p_suction_pa: f64,
+    /// Discharge pressure, Pa.
+    pub p_discharge_pa: f64,
+    /// Shaft speed, rad/s.
+    pub omega_rad_s: f64,
+    /// Suction temperature, K (nominal if not measured).
+    pub t_suction_k: f64,
+    /// Compressor mass flow used by the laws (per the flow-source setting), kg/s.
+    pub m_kg_s: f64,
+    /// Flow from the orifice, kg/s (NaN if the transmitter is not healthy).
+    pub m_measured_kg_s: f64,
+    /// Flow from the observer, kg/s (NaN if no observer).
+    pub m_observer_kg_s: f64,
+    /// Flow in the map's coordinate (kg/s or m³/s at suction).
+    pub flow_map: f64,
+    /// Pressure ratio p_d/p_s.
+    pub pressure_ratio: f64,
+    /// Recycle valve position, fraction (NaN if absent).
+    pub recycle_position: f64,
+    /// Throttle position, fraction (NaN if absent).
+    pub throttle_position: f64,
+    /// Tip-clearance change (rotor axial position), m (NaN if absent).
+    pub thrust_position_m: f64,
+}

@@ -1,0 +1,124 @@
+//! Input supervision: freshness, range and NaN checks per sensor. The one place that decides
+//! whether an input is usable; the control core derives fallbacks and fail-safe from it.
+
+use super::measurements::RawSensors;
+use crate::signals::SensorId;
+use serde::{Deserialize, Serialize};
+
+/// Limits of one input.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct InputLimits {
+    /// Lowest plausible value (SI).
+    pub min: f64,
+    /// Highest plausible value (SI).
+    pub max: f64,
+    /// Largest age before the value is stale, s.
+    pub timeout_s: f64,
+}
+
+/// Why an input is not usable.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum InputFault {
+    /// Usable.
+    None,
+    /// Not a number.
+    Nan,
+    /// Outside [min, max].
+    OutOfRange,
+    /// Older than the timeout.
+    Stale,
+}
+
+/// Validity of every input after one check.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Validity {
+    /// Fault per sensor (None = usable).
+    pub fault: [InputFault; SensorId::COUNT],
+}
+
+impl Validity {
+    /// Whether a sensor is usable.
+    #[inline]
+    pub fn ok(&self, id: SensorId) -> bool {
+        self.fault[id.index()] == InputFault::None
+    }
+}
+
+/// Per-sensor limits.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Supervisor {
+    /// Limits per sensor (None: sensor not used).
+    pub limits: [Option<InputLimits>; SensorId::COUNT],
+}
+
+impl Supervisor {
+    /// Check all inputs.
+    pub fn check(&self, raw: &RawSensors) -> Validity {
+        let mut fault = [InputFault::None; SensorId::COUNT];
+        for id in SensorId::ALL {
+            let i = id.index();
+            let Some(lim) = self.limits[i] else {
+                fault[i] = InputFault::Nan;
+                continue;
+            };
+            let v = raw.values.values[i];
+            fault[i] = if v.is_nan() {
+                InputFault::Nan
+            } else if raw.age_s[i] > lim.timeout_s {
+                InputFault::Stale
+            } else if v < lim.min || v > lim.max {
+                InputFault::OutOfRange
+            } else {
+                InputFault::None
+            };
+        }
+        Validity { fault }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::signals::SensorSnapshot;
+
+    #[test]
+    fn classifies_faults() {
+        let mut limits = [None; SensorId::COUNT];
+        limits[SensorId::PSuction.index()] = Some(InputLimits {
+            min: 1e4,
+            max: 1e6,
+            timeout_s: 0.01,
+        });
+        limits[SensorId::OrificeDp.index()] = Some(InputLimits {
+            min: -1e3,
+            max: 5e4,
+            timeout_s: 0.01,
+        });
+        limits[SensorId::ShaftSpeed.index()] = Some(InputLimits {
+            min: 0.0,
+            max: 5e3,
+            timeout_s: 0.01,
+        });
+        let sup = Supervisor { limits };
+        let mut v = SensorSnapshot::default();
+        v.set(SensorId::PSuction, 1e5);
+        v.set(SensorId::OrificeDp, 9e4);
+        let mut raw = RawSensors::fresh(v);
+        raw.age_s[SensorId::PSuction.index()] = 0.005;
+        let val = sup.check(&raw);
+        assert!(val.ok(SensorId::PSuction));
+        assert_eq!(
+            val.fault[SensorId::OrificeDp.index()],
+            InputFault::OutOfRange
+        );
+        assert_eq!(val.fault[SensorId::ShaftSpeed.index()], InputFault::Nan);
+        raw.age_s[SensorId::PSuction.index()] = 0.02;
+        assert_eq!(
+            sup.check(&raw).fault[SensorId::PSuction.index()],
+            InputFault::Stale
+        );
+        // an unused sensor is never usable
+        assert!(!sup.check(&raw).ok(SensorId::ThrustPosition));
+    }
+}

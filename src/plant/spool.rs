@@ -1,0 +1,231 @@
+//! Nondimensional spool model (seed 003 eq. 4–6):
+//!
+//! ```text
+//! dω̃/dτ = ā (τ_t − Γ(φ, ω̃)),     Γ = σ φ ω̃          (4)
+//! dφ/dτ = b̄ (ψc(φ, ω̃) − ψ + u₂)                       (5), u₂ = close-coupled valve
+//! dψ/dτ = c̄ (φ − F(γ, ψ)),        F = γ √ψ             (6)
+//! ```
+//! τ is nondimensional time (τ = t / time_scale_s). ψc is the Moore–Greitzer cubic with the
+//! speed scaling of the other plants, in pressure-rise form. The plant reports SI values
+//! through its scales: p_d = p01 + ψ·pressure_scale, m = φ·flow_scale, ω = ω̃·speed_scale,
+//! torque = τ·torque_scale; its SI compressor map is the exact image of ψc.
+//! State x = (ω̃, φ, ψ, throttle position).
+
+use super::file::{MapSpec, PlantDescription, SpoolParams};
+use super::{sensor_snapshot, PlantError, PlantInputs, PlantTruth};
+use crate::physics::characteristic::{MapPoint, MooreGreitzerCubic};
+use crate::physics::compressor_map::{CompressorMap, FlowCoordinate};
+use crate::physics::gas::Gas;
+use crate::physics::orifice::Orifice;
+use crate::physics::smooth_signed_sqrt;
+use crate::signals::{ActuatorId, SensorSnapshot};
+use crate::solver::{self, OdeSystem, StepSettings};
+use nalgebra::SVector;
+
+/// State dimension.
+pub const N: usize = 4;
+
+/// Seed 003 plant.
+#[derive(Debug, Clone)]
+pub struct SpoolPlant {
+    /// Parameters and scales.
+    pub params: SpoolParams,
+    /// Nondimensional characteristic ψc(φ, ω̃) (pressure-rise form).
+    pub cubic: MooreGreitzerCubic,
+    /// The SI image of ψc (pressure ratio versus kg/s and rad/s).
+    pub map: CompressorMap,
+    /// Gas (for the orifice reading).
+    pub gas: Gas,
+    /// Orifice.
+    pub orifice: Orifice,
+    /// Torque limits, nondimensional (min, max).
+    pub torque_limits: (f64, f64),
+    /// Integration settings.
+    pub settings: StepSettings,
+    /// State (ω̃, φ, ψ, throttle position).
+    pub x: SVector<f64, N>,
+    /// Time, s.
+    pub t_s: f64,
+    /// Step size carried between periods by adaptive integration, s.
+    pub h_state_s: f64,
+    torque: f64,
+    ccv: f64,
+    throttle_cmd: f64,
+}
+
+/// Steady-state speed of the spool model: the nominal drive speed in units of speed_scale.
+fn nominal_speed(desc: &PlantDescription, p: &SpoolParams) -> f64 {
+    desc.file.drive.nominal_speed_rad_s / p.speed_scale_rad_s
+}
+
+impl SpoolPlant {
+    /// Build at the steady state for `inputs` at nominal speed.
+    pub fn new(desc: &PlantDescription, inputs: &PlantInputs) -> Result<Self, PlantError> {
+        let f = &desc.file;
+        let params = f.spool.expect("validated: spool present");
+        let cubic = match f.map {
+            MapSpec::Cubic {
+                psi_c0,
+                semi_height,
+                semi_width,
+                omega_ref_rad_s,
+                ..
+            } => MooreGreitzerCubic {
+                psi_c0,
+                semi_height,
+                semi_width,
+                omega_ref: omega_ref_rad_s,
+            },
+            MapSpec::Table { .. } => return Err(PlantError::NoEquilibrium {
+                plant: f.name.clone(),
+                what: "a tabulated map (the spool model needs [map.cubic] in nondimensional units)"
+                    .into(),
+            }),
+        };
+        let map = si_map(&cubic, &params).map_err(|m| PlantError::NoEquilibrium {
+            plant: f.name.clone(),
+            what: m,
+        })?;
+        let ts = params.torque_scale_nm;
+        let mut plant = SpoolPlant {
+            params,
+            cubic,
+            map,
+            gas: f.gas,
+            orifice: f.orifice,
+            torque_limits: (f.drive.min_torque_nm / ts, f.drive.rated_torque_nm / ts),
+            settings: f.integration,
+            x: SVector::zeros(),
+            t_s: 0.0,
+            h_state_s: 0.0,
+            torque: 0.0,
+            ccv: 0.0,
+            throttle_cmd: inputs.throttle_target(),
+        };
+        let w0 = nominal_speed(desc, &params);
+        let eq = plant
+            .equilibria(inputs.throttle_target(), w0)
+            .into_iter()
+            .last()
+            .ok_or_else(|| PlantError::NoEquilibrium {
+                plant: f.name.clone(),
+                what: format!("throttle {:.3}", inputs.throttle_target()),
+            })?;
+        plant.x = eq;
+        plant.torque = plant.params.torque_coefficient * eq[1] * eq[0];
+        Ok(plant)
+    }
+
+    /// ψc and its partial derivatives (nondimensional).
+    #[inline]
+    pub fn psi_c(&self, phi: f64, omega: f64) -> MapPoint {
+        self.cubic.eval(phi, omega, 0.0)
+    }
+
+    /// Throttle function F(γ, ψ) = γ √ψ (seed 003 §III-B, after [3], [11]); smooth through 0.
+    #[inline]
+    pub fn throttle_function(gamma: f64, psi: f64) -> f64 {
+        gamma * smooth_signed_sqrt(psi, 1e4)
+    }
+
+    /// Steady states at speed ω̃ and throttle opening, ordered by flow.
+    pub fn equilibria(&self, throttle: f64, omega: f64) -> Vec<SVector<f64, N>> {
+        let gamma = self.params.gamma_max * throttle;
+        let resid = |phi: f64| Self::throttle_function(gamma, self.psi_c(phi, omega).value) - phi;
+        let hi = 4.0 * self.cubic.peak(omega, 0.0).0.max(1e-6);
+        super::analysis::roots_1d(resid, 1e-6 * hi, hi, 4000)
+            .into_iter()
+            .map(|phi| SVector::<f64, N>::new(omega, phi, self.psi_c(phi, omega).value, throttle))
+            .collect()
+    }
+
+    /// Advance by `dt_s` (seconds) with `inputs` held.
+    pub fn step(&mut self, inputs: &PlantInputs, dt_s: f64) {
+        let (lo, hi) = self.torque_limits;
+        let ts = self.params.torque_scale_nm;
+        self.torque = inputs.drive_torque(lo * ts, hi * ts, self.torque * ts) / ts;
+        let lim = self.params.ccv_max;
+        self.ccv = inputs
+            .command_or(ActuatorId::CloseCoupledValve, 0.0)
+            .clamp(-lim, lim);
+        self.throttle_cmd = inputs.throttle_target();
+        let mut x = self.x;
+        let mut h = self.h_state_s;
+        solver::advance_adaptive(self, self.settings, self.t_s, &mut x, dt_s, &mut h);
+        self.h_state_s = h;
+        self.x = x;
+        self.t_s += dt_s;
+    }
+
+    /// True state in SI units.
+    pub fn truth(&self) -> PlantTruth {
+        let p = &self.params;
+        let x = &self.x;
+        let gamma = p.gamma_max * x[3];
+        PlantTruth {
+            m_kg_s: x[1] * p.flow_scale_kg_s,
+            flow_map: x[1] * p.flow_scale_kg_s,
+            p_suction_pa: p.ambient_pressure_pa,
+            p_discharge_pa: p.ambient_pressure_pa + x[2] * p.pressure_scale_pa,
+            omega_rad_s: x[0] * p.speed_scale_rad_s,
+            t_suction_k: p.ambient_temperature_k,
+            throttle_flow_kg_s: Self::throttle_function(gamma, x[2]) * p.flow_scale_kg_s,
+            throttle_position: x[3],
+            drive_torque_nm: self.torque * p.torque_scale_nm,
+            load_torque_nm: p.torque_coefficient * x[1] * x[0] * p.torque_scale_nm,
+            ccv: self.ccv,
+            ..PlantTruth::NAN
+        }
+    }
+
+    /// Field instrument readings.
+    pub fn sensors(&self) -> SensorSnapshot {
+        let t = self.truth();
+        let dp = self
+            .orifice
+            .dp_pa(&self.gas, t.m_kg_s, t.p_suction_pa, t.t_suction_k);
+        sensor_snapshot(&t, dp)
+    }
+
+    /// Set held inputs without stepping (for analysis): nondimensional torque and CCV.
+    pub fn hold_inputs(&mut self, torque: f64, ccv: f64, throttle_cmd: f64) {
+        self.torque = torque;
+        self.ccv = ccv;
+        self.throttle_cmd = throttle_cmd;
+    }
+}
+
+/// The SI image of the nondimensional cubic: pressure ratio 1 + ψ·p_scale/p01 versus
+/// m = φ·flow_scale and ω = ω̃·speed_scale.
+pub fn si_map(cubic: &MooreGreitzerCubic, p: &SpoolParams) -> Result<CompressorMap, String> {
+    let k = p.pressure_scale_pa / p.ambient_pressure_pa;
+    let si = MooreGreitzerCubic {
+        psi_c0: 1.0 + cubic.psi_c0 * k,
+        semi_height: cubic.semi_height * k,
+        semi_width: cubic.semi_width * p.flow_scale_kg_s,
+        omega_ref: cubic.omega_ref * p.speed_scale_rad_s,
+    };
+    let w = cubic.omega_ref * p.speed_scale_rad_s;
+    CompressorMap::cubic(si, FlowCoordinate::MassKgS, 0.5 * w, 1.5 * w)
+}
+
+impl OdeSystem<N> for SpoolPlant {
+    #[inline]
+    fn rhs(&self, _t: f64, x: &SVector<f64, N>) -> SVector<f64, N> {
+        let p = &self.params;
+        let (w, phi, psi, l) = (x[0], x[1], x[2], x[3]);
+        let inv_t = 1.0 / p.time_scale_s;
+        let gamma = p.gamma_max * l;
+        SVector::<f64, N>::new(
+            inv_t * p.a_bar * (self.torque - p.torque_coefficient * phi * w), // seed 003 eq. 4
+            inv_t * p.b_bar * (self.psi_c(phi, w).value - psi + self.ccv),    // eq. 5
+            inv_t * p.c_bar * (phi - Self::throttle_function(gamma, psi)),    // eq. 6
+            p.throttle.positioner_rate(self.throttle_cmd, l),
+        )
+    }
+
+    fn project(&self, x: &mut SVector<f64, N>) {
+        x[3] = x[3].clamp(0.0, 1.0);
+        x[0] = x[0].max(0.0);
+    }
+}
