@@ -402,7 +402,7 @@ impl SurgeLine {
             sl.omega[k] = w;
             sl.flow[k] = q;
             sl.ratio[k] = r;
-            if k > 0 && !(r > sl.ratio[k - 1]) {
+            if k > 0 && (r.is_nan() || r <= sl.ratio[k - 1]) {
                 return Err(format!(
                     "surge-line pressure ratio does not increase with speed near {w:.1} rad/s"
                 ));

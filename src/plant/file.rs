@@ -502,7 +502,7 @@ fn validate_positive(
         ]);
     }
     for (key, v) in checks {
-        if !(v > 0.0) || !v.is_finite() {
+        if v.is_nan() || v <= 0.0 || !v.is_finite() {
             return Err(at(key, format!("must be a positive number, found {v}"))
                 .with_hint("physical sizes, gains and ratings are positive"));
         }

@@ -222,19 +222,19 @@ impl Scenario {
     /// Validate a parsed file (`text` is used to locate keys in messages).
     pub fn from_file(file: ScenarioFile, path: &Path, text: &str) -> Result<Scenario, FileError> {
         let at = |key: &str, msg: String| FileError::at_key(path, text, key, msg);
-        if !(file.duration_s > 0.0) {
+        if file.duration_s.is_nan() || file.duration_s <= 0.0 {
             return Err(at(
                 "duration_s",
                 format!("must be positive, found {}", file.duration_s),
             ));
         }
-        if !(file.control_period_s > 0.0 && file.control_period_s <= 0.1) {
+        if !(0.0..=0.1).contains(&file.control_period_s) || file.control_period_s == 0.0 {
             return Err(at(
                 "control_period_s",
                 format!("must be in (0, 0.1] s, found {}", file.control_period_s),
             ));
         }
-        if !(file.trace_period_s >= file.control_period_s) {
+        if file.trace_period_s.is_nan() || file.trace_period_s < file.control_period_s {
             return Err(at(
                 "trace_period_s",
                 "must be at least control_period_s".to_string(),
@@ -245,7 +245,7 @@ impl Scenario {
         let mut law_names = Vec::new();
         for (i, e) in file.events.iter().enumerate() {
             let key = format!("event[{i}]");
-            if !(e.at_s >= 0.0 && e.at_s <= file.duration_s) {
+            if !(0.0..=file.duration_s).contains(&e.at_s) {
                 return Err(at(
                     &format!("{key}.at_s"),
                     format!(
@@ -256,7 +256,7 @@ impl Scenario {
             }
             let mut found: Vec<Action> = Vec::new();
             if let Some(r) = e.ramp {
-                if !(r.over_s > 0.0) {
+                if r.over_s.is_nan() || r.over_s <= 0.0 {
                     return Err(at(&format!("{key}.ramp.over_s"), "must be positive".into()));
                 }
                 check_signal_value(r.signal, r.to).map_err(|m| at(&format!("{key}.ramp.to"), m))?;
@@ -276,7 +276,7 @@ impl Scenario {
                 found.push(Action::DriveTrip);
             }
             if let Some(n) = &e.noise {
-                if !(n.amplitude >= 0.0) {
+                if n.amplitude.is_nan() || n.amplitude < 0.0 {
                     return Err(at(&format!("{key}.noise.amplitude"), "must be ≥ 0".into()));
                 }
                 noises.push(n.clone());

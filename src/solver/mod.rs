@@ -96,7 +96,7 @@ pub fn advance_adaptive<const N: usize, S: OdeSystem<N>>(
                 rtol,
                 atol: sys.abs_tolerance(),
             };
-            if !(*h_state_s > 0.0) || *h_state_s > h_s {
+            if h_state_s.is_nan() || *h_state_s <= 0.0 || *h_state_s > h_s {
                 *h_state_s = h_s;
             }
             rosenbrock::integrate_bounded(
@@ -283,6 +283,7 @@ mod tests {
         let s4 = StepSettings {
             method: Method::Rk4,
             substeps: 4,
+            ..StepSettings::default()
         };
         advance(&sys, s4, 0.0, &mut a, 0.1);
         for k in 0..4 {

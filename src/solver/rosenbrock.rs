@@ -244,7 +244,7 @@ mod tests {
             r = crate::solver::rk4::step(&sys, k as f64 * 1.0 / n as f64, &r, 1.0 / n as f64);
         }
         assert!((x - r).norm() < 1e-4, "{x:?} {r:?}");
-        assert!(total >= 1000 && total <= 50_000);
+        assert!((1000..=50_000).contains(&total));
         // a tiny budget still finishes the interval
         let mut y = SVector::<f64, 2>::new(2.0, 0.0);
         let mut h2 = 1e-9;

@@ -119,7 +119,8 @@ pub struct SurgeDetector {
     last_amp: f64,
     in_limit_cycle: bool,
     reversing: bool,
-    reversal_in_cycle: bool,
+    // reversals already counted as surge cycles during the current run of qualifying cycles
+    run_reversals: u32,
     /// Surge cycles counted (limit-cycle periods plus isolated reversal episodes).
     pub surge_cycles: u32,
     /// Flow-reversal episodes.
@@ -148,7 +149,7 @@ impl SurgeDetector {
             last_amp: 0.0,
             in_limit_cycle: false,
             reversing: false,
-            reversal_in_cycle: false,
+            run_reversals: 0,
             surge_cycles: 0,
             reversals: 0,
             frequency_hz: f64::NAN,
@@ -185,9 +186,9 @@ impl SurgeDetector {
         if !self.reversing && m_kg_s < -rev {
             self.reversing = true;
             self.reversals += 1;
-            self.reversal_in_cycle = true;
             if !self.in_limit_cycle {
                 self.surge_cycles += 1;
+                self.run_reversals += 1;
                 self.last_surge_t_s = t_s;
             }
             result = Detection::ReversalStarted;
@@ -223,7 +224,11 @@ impl SurgeDetector {
                 if qualifies {
                     let sustained =
                         self.run == 0 || amp >= (1.0 - self.cfg.decay_tolerance) * self.last_amp;
-                    self.run = if sustained { self.run + 1 } else { 1 };
+                    if !sustained {
+                        self.run = 0;
+                        self.run_reversals = 0;
+                    }
+                    self.run += 1;
                     self.last_amp = amp;
                     self.frequency_hz = f;
                     self.max_amplitude_kg_s = self.max_amplitude_kg_s.max(amp);
@@ -233,22 +238,22 @@ impl SurgeDetector {
                         result = Detection::SurgeCycle;
                     } else if self.run >= self.cfg.confirm_cycles {
                         self.in_limit_cycle = true;
-                        // the confirming cycles count; reversals already counted in them are
-                        // not counted twice
-                        let already = if self.reversal_in_cycle { 1 } else { 0 };
-                        self.surge_cycles += self.run.saturating_sub(already.min(self.run));
+                        // the confirming cycles count; reversals already counted during them
+                        // are not counted twice
+                        self.surge_cycles += self.run.saturating_sub(self.run_reversals);
+                        self.run_reversals = 0;
                         self.last_surge_t_s = t_s;
                         result = Detection::SurgeStarted;
                     }
                 } else {
                     self.run = 0;
+                    self.run_reversals = 0;
                     self.in_limit_cycle = false;
                 }
             }
             self.last_up_t = t_s;
             self.cycle_max = dev;
             self.cycle_min = dev;
-            self.reversal_in_cycle = false;
         }
         // an oscillation that dies out ends the limit cycle
         if self.in_limit_cycle
@@ -257,6 +262,7 @@ impl SurgeDetector {
         {
             self.in_limit_cycle = false;
             self.run = 0;
+            self.run_reversals = 0;
         }
         self.band = band;
         result
