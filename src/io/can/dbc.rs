@@ -1009,6 +1009,20 @@ mod tests {
     }
 
     #[test]
+    fn frame_id_socketcan_conversion() {
+        use socketcan::{ExtendedId, Id, StandardId};
+        let std_id = FrameId::Standard(0x100).to_socketcan();
+        assert_eq!(std_id, StandardId::new(0x100).map(Id::Standard));
+        assert_eq!(std_id.map(FrameId::from), Some(FrameId::Standard(0x100)));
+        let ext = FrameId::Extended(0x18FF_1234).to_socketcan();
+        assert_eq!(ext, ExtendedId::new(0x18FF_1234).map(Id::Extended));
+        assert_eq!(ext.map(FrameId::from), Some(FrameId::Extended(0x18FF_1234)));
+        assert_eq!(FrameId::Standard(0x800).to_socketcan(), None);
+        assert_eq!(FrameId::Extended(0x2000_0000).to_socketcan(), None);
+        assert_eq!(FrameId::Standard(0x80).to_string(), "0x080");
+    }
+
+    #[test]
     fn rejects_bad_roles() {
         let defs = concat!(
             "BA_DEF_ SG_ \"AntisurgeRole\" ENUM \"Data\",\"AliveCounter\",\"Crc8\";\n",

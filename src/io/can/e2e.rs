@@ -132,13 +132,15 @@ pub struct FrameGuard {
 }
 
 impl FrameGuard {
-    /// A guard for frames `id` of `dlc` bytes with optional counter and CRC byte index.
+    /// A guard for frames `id` of `dlc` bytes (at most 8) with an optional alive counter and
+    /// CRC byte index. A CRC byte index at or beyond the DLC is ignored (no CRC).
     pub fn new(id: FrameId, dlc: u8, alive: Option<SignalLayout>, crc_byte: Option<u8>) -> Self {
+        let dlc = dlc.min(MAX_PAYLOAD as u8);
         FrameGuard {
             id,
-            dlc: dlc.min(MAX_PAYLOAD as u8),
+            dlc,
             alive,
-            crc_byte,
+            crc_byte: crc_byte.filter(|b| *b < dlc),
         }
     }
 
@@ -175,7 +177,7 @@ impl FrameGuard {
         if let Some(at) = self.crc_byte {
             let at = usize::from(at);
             let computed = frame_crc(self.id, data, at);
-            let received = frame[at];
+            let received = frame.get(at).copied().unwrap_or_default();
             if computed != received {
                 return Err(FrameError::BadCrc {
                     id: self.id,
@@ -202,7 +204,10 @@ impl FrameGuard {
         if let Some(at) = self.crc_byte {
             let at = usize::from(at);
             let dlc = usize::from(self.dlc);
-            frame[at] = frame_crc(self.id, &frame[..dlc], at);
+            let crc = frame_crc(self.id, frame.get(..dlc).unwrap_or(&[]), at);
+            if let Some(byte) = frame.get_mut(at) {
+                *byte = crc;
+            }
         }
     }
 }
@@ -326,6 +331,14 @@ mod tests {
         other[7] = 0x00;
         assert_eq!(frame_crc(FrameId::Standard(0x100), &other, 7), expected);
         assert_ne!(frame_crc(FrameId::Standard(0x101), &payload, 7), expected);
+    }
+
+    #[test]
+    fn crc_byte_outside_dlc_is_ignored() {
+        let g = FrameGuard::new(FrameId::Standard(1), 4, None, Some(6));
+        assert_eq!(g.crc_byte(), None);
+        let g = FrameGuard::new(FrameId::Standard(1), 12, None, Some(7));
+        assert_eq!((g.dlc(), g.crc_byte()), (8, Some(7)));
     }
 
     fn guard() -> FrameGuard {
