@@ -355,7 +355,7 @@ pub enum DbcErrorKind {
         source: LayoutError,
     },
     /// Signal reaches beyond the message's DLC.
-    #[error("message {message}, signal {signal}: occupies bytes 0..{needed} but the DLC is {dlc}")]
+    #[error("message {message}, signal {signal}: needs {needed} data bytes but the DLC is {dlc}")]
     PastDlc {
         /// Message name.
         message: String,
@@ -910,11 +910,11 @@ mod tests {
         let msg = err("BO_ 16 M1: 2 A\n SG_ Wide : 8|16@1+ (1,0) [0|0] \"\" B\n");
         assert_eq!(
             msg,
-            "test.dbc: message M1, signal Wide: occupies bytes 0..3 but the DLC is 2"
+            "test.dbc: message M1, signal Wide: needs 3 data bytes but the DLC is 2"
         );
         // Motorola reaching byte 2 from byte 1.
         let msg = err("BO_ 16 M1: 2 A\n SG_ Be : 15|12@0+ (1,0) [0|0] \"\" B\n");
-        assert!(msg.contains("signal Be: occupies bytes 0..3"), "{msg}");
+        assert!(msg.contains("signal Be: needs 3 data bytes"), "{msg}");
     }
 
     #[test]
