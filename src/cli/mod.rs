@@ -1,0 +1,5 @@
+//! Command-line front end.
+
+pub mod locate;
+pub mod pictures;
+pub mod sim;

@@ -1,0 +1,201 @@
+//! `antisurge sim`: run a scenario on a simulated plant and write trace, summary and pictures.
+
+use super::locate;
+use anyhow::{Context, Result};
+use antisurge::control::LawId;
+use antisurge::plant::file::PlantDescription;
+use antisurge::scenario::Scenario;
+use antisurge::sim::{self, SimOptions, Summary};
+use std::io::IsTerminal;
+use std::path::{Path, PathBuf};
+use std::time::Instant;
+
+/// Defaults of a bare `antisurge sim`.
+pub const DEFAULT_PLANT: &str = "bohagen2007";
+/// Default scenario.
+pub const DEFAULT_SCENARIO: &str = "throttle-closure";
+/// Default law.
+pub const DEFAULT_LAW: &str = "none";
+
+/// Arguments.
+#[derive(Debug, clap::Args)]
+pub struct SimArgs {
+    /// Plant: a name from config/plants (e.g. `kvangardsnes2009`) or a path to a plant file.
+    #[arg(long, default_value = DEFAULT_PLANT)]
+    pub plant: String,
+    /// Scenario: a name from config/scenarios (e.g. `throttle-closure`) or a path.
+    #[arg(long, default_value = DEFAULT_SCENARIO)]
+    pub scenario: String,
+    /// Surge law (`none` = open loop).
+    #[arg(long, default_value = DEFAULT_LAW)]
+    pub law: String,
+    /// Output directory (default: out/<plant>-<scenario>-<law>).
+    #[arg(long)]
+    pub out: Option<PathBuf>,
+    /// Configuration directory (default: ./config, $ANTISURGE_CONFIG_DIR, /etc/antisurge).
+    #[arg(long)]
+    pub config_dir: Option<PathBuf>,
+    /// Skip the pictures.
+    #[arg(long)]
+    pub no_plots: bool,
+    /// Print summary.json to stdout instead of the readable summary.
+    #[arg(long)]
+    pub json: bool,
+}
+
+/// Run the command.
+pub fn run(args: &SimArgs) -> Result<()> {
+    let cfg = locate::config_dir(args.config_dir.as_deref());
+    let plant_path = locate::resolve(&cfg, "plants", &args.plant)?;
+    let scenario_path = locate::resolve(&cfg, "scenarios", &args.scenario)?;
+    let law: LawId = args.law.parse()?;
+    let desc = PlantDescription::load(&plant_path)?;
+    let scenario = Scenario::load(&scenario_path)?;
+    let out_dir = args.out.clone().unwrap_or_else(|| {
+        PathBuf::from("out").join(format!("{}-{}-{}", desc.name(), scenario.name(), law.name()))
+    });
+
+    let started = Instant::now();
+    let mut bar: Option<indicatif::ProgressBar> = None;
+    let interactive = std::io::stderr().is_terminal();
+    let mut progress = |frac: f64| {
+        if !interactive {
+            return;
+        }
+        if bar.is_none() && started.elapsed().as_secs_f64() > 1.0 && frac < 0.9 {
+            let b = indicatif::ProgressBar::new(1000);
+            b.set_style(
+                indicatif::ProgressStyle::with_template("  simulating {bar:40} {percent:>3}%  eta {eta}")
+                    .unwrap_or_else(|_| indicatif::ProgressStyle::default_bar()),
+            );
+            bar = Some(b);
+        }
+        if let Some(b) = &bar {
+            b.set_position((frac * 1000.0) as u64);
+        }
+    };
+    let result = sim::run(
+        &desc,
+        &scenario,
+        SimOptions {
+            law,
+            ..SimOptions::default()
+        },
+        &mut progress,
+    )
+    .with_context(|| format!("simulating {} on {}", scenario.name(), desc.name()))?;
+    if let Some(b) = bar.take() {
+        b.finish_and_clear();
+    }
+    let mut files = sim::output::write_data(&out_dir, &result, &desc.map)
+        .with_context(|| format!("writing results to {}", out_dir.display()))?;
+    if !args.no_plots {
+        files.extend(super::pictures::draw(&out_dir, &desc, &result)?);
+    }
+    if args.json {
+        println!("{}", serde_json::to_string_pretty(&result.summary)?);
+    } else {
+        print_summary(&result.summary, &out_dir, &files);
+    }
+    Ok(())
+}
+
+fn pct(x: f64) -> String {
+    if x.is_finite() {
+        format!("{:+.1} %", 100.0 * x)
+    } else {
+        "n/a".into()
+    }
+}
+
+fn thousands(x: f64) -> String {
+    let v = x.round() as i64;
+    let s = v.abs().to_string();
+    let mut out = String::new();
+    for (i, c) in s.chars().enumerate() {
+        if i > 0 && (s.len() - i) % 3 == 0 {
+            out.push('\u{202f}');
+        }
+        out.push(c);
+    }
+    if v < 0 {
+        format!("-{out}")
+    } else {
+        out
+    }
+}
+
+/// The one-screen terminal summary.
+pub fn print_summary(s: &Summary, dir: &Path, files: &[PathBuf]) {
+    println!(
+        "antisurge sim — plant {} · scenario {} · law {}",
+        s.plant, s.scenario, s.law
+    );
+    println!(
+        "  {:.1} s simulated in {:.2} s ({:.0}× real time)\n",
+        s.duration_s, s.wall_time_s, s.realtime_factor
+    );
+    let verdict = if s.surge_cycles == 0 && !s.flow_reversal {
+        if s.stable {
+            "STABLE — no surge".to_string()
+        } else {
+            "no surge detected, but not settled at the end".to_string()
+        }
+    } else {
+        format!(
+            "SURGE — {} cycles{}{}",
+            s.surge_cycles,
+            s.surge_frequency_hz
+                .map(|f| format!(" at {f:.2} Hz"))
+                .unwrap_or_default(),
+            if s.flow_reversal {
+                format!(", flow reversed {} times", s.flow_reversals)
+            } else {
+                String::new()
+            }
+        )
+    };
+    println!("  result          {verdict}");
+    println!(
+        "  flow            min {:.3} kg/s · final {:.3} kg/s · final pressure ratio {:.3}",
+        s.min_flow_kg_s, s.final_flow_kg_s, s.final_pressure_ratio
+    );
+    println!(
+        "  surge margin    min {} · final {}   (distance right of the surge line)",
+        pct(s.min_surge_margin),
+        pct(s.final_surge_margin)
+    );
+    match s.settle_time_s {
+        Some(t) => println!("  settled         {t:.2} s after the last event"),
+        None => println!("  settled         no"),
+    }
+    let p = &s.actuator_peaks;
+    let mut act = format!(
+        "drive torque peak {} N·m (rating {})",
+        thousands(p.drive_torque_cmd_nm),
+        thousands(p.drive_torque_rating_nm)
+    );
+    if p.recycle_valve_opening > 0.0 {
+        act.push_str(&format!(" · recycle valve peak {:.0} %", 100.0 * p.recycle_valve_opening));
+    }
+    if p.tip_clearance_m > 0.0 {
+        act.push_str(&format!(
+            " · tip clearance peak {:.0} µm ({:.0} % of nominal)",
+            1e6 * p.tip_clearance_m,
+            100.0 * p.tip_clearance_m / p.tip_clearance_nominal_m
+        ));
+    }
+    if p.ccv > 0.0 {
+        act.push_str(&format!(" · CCV peak {:.3}", p.ccv));
+    }
+    println!("  actuators       {act}");
+    if s.recycle_energy_j > 0.0 {
+        println!("  recycle energy  {:.2} MJ", s.recycle_energy_j / 1e6);
+    }
+    println!("\n  files in {}/", dir.display());
+    let names: Vec<String> = files
+        .iter()
+        .filter_map(|f| f.file_name().map(|n| n.to_string_lossy().into_owned()))
+        .collect();
+    println!("    {}", names.join("  "));
+}
