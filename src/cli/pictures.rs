@@ -1,8 +1,8 @@
 //! Pictures of a run (map and time series).
 
-use anyhow::Result;
 use antisurge::plant::file::PlantDescription;
 use antisurge::sim::SimResult;
+use anyhow::Result;
 use std::path::{Path, PathBuf};
 
 /// Draw the pictures of a run; returns the files written.

@@ -1,11 +1,11 @@
 //! `antisurge sim`: run a scenario on a simulated plant and write trace, summary and pictures.
 
 use super::locate;
-use anyhow::{Context, Result};
 use antisurge::control::LawId;
 use antisurge::plant::file::PlantDescription;
 use antisurge::scenario::Scenario;
 use antisurge::sim::{self, SimOptions, Summary};
+use anyhow::{Context, Result};
 use std::io::IsTerminal;
 use std::path::{Path, PathBuf};
 use std::time::Instant;
@@ -52,7 +52,12 @@ pub fn run(args: &SimArgs) -> Result<()> {
     let desc = PlantDescription::load(&plant_path)?;
     let scenario = Scenario::load(&scenario_path)?;
     let out_dir = args.out.clone().unwrap_or_else(|| {
-        PathBuf::from("out").join(format!("{}-{}-{}", desc.name(), scenario.name(), law.name()))
+        PathBuf::from("out").join(format!(
+            "{}-{}-{}",
+            desc.name(),
+            scenario.name(),
+            law.name()
+        ))
     });
 
     let started = Instant::now();
@@ -65,8 +70,10 @@ pub fn run(args: &SimArgs) -> Result<()> {
         if bar.is_none() && started.elapsed().as_secs_f64() > 1.0 && frac < 0.9 {
             let b = indicatif::ProgressBar::new(1000);
             b.set_style(
-                indicatif::ProgressStyle::with_template("  simulating {bar:40} {percent:>3}%  eta {eta}")
-                    .unwrap_or_else(|_| indicatif::ProgressStyle::default_bar()),
+                indicatif::ProgressStyle::with_template(
+                    "  simulating {bar:40} {percent:>3}%  eta {eta}",
+                )
+                .unwrap_or_else(|_| indicatif::ProgressStyle::default_bar()),
             );
             bar = Some(b);
         }
@@ -176,7 +183,10 @@ pub fn print_summary(s: &Summary, dir: &Path, files: &[PathBuf]) {
         thousands(p.drive_torque_rating_nm)
     );
     if p.recycle_valve_opening > 0.0 {
-        act.push_str(&format!(" · recycle valve peak {:.0} %", 100.0 * p.recycle_valve_opening));
+        act.push_str(&format!(
+            " · recycle valve peak {:.0} %",
+            100.0 * p.recycle_valve_opening
+        ));
     }
     if p.tip_clearance_m > 0.0 {
         act.push_str(&format!(

@@ -295,9 +295,10 @@ impl OperatingPoint {
 }
 
 impl SimPlant {
-    /// All steady states for the given inputs at the nominal speed, ordered by flow, each with
-    /// its eigenvalues (constant drive torque: the open-loop machine of seed 001 §2.3.5 and
-    /// seed 003 Lemma 1).
+    /// All steady states for the given inputs, ordered by flow, each with its eigenvalues
+    /// (constant drive torque: the open-loop machine of seed 001 §2.3.5 and seed 003 Lemma 1).
+    /// Plants with a speed loop are analysed at their current (nominal) speed; the spool model,
+    /// which has no speed loop, at its current drive torque with speed as an unknown.
     pub fn operating_points(&self, inputs: &PlantInputs) -> Vec<OperatingPoint> {
         let mut out = Vec::new();
         match self {
@@ -351,8 +352,9 @@ impl SimPlant {
                 }
             }
             SimPlant::Spool(p) => {
-                let omega = p.x[0];
-                for x in p.equilibria(inputs.throttle_target(), omega) {
+                // constant drive torque (seed 003 holds τ_t = τ0): speed is part of the steady state
+                let torque = p.params.torque_coefficient * p.x[1] * p.x[0];
+                for x in p.equilibria_at_torque(inputs.throttle_target(), torque) {
                     let mut q = p.clone();
                     q.x = x;
                     q.hold_inputs(q.params.torque_coefficient * x[1] * x[0], 0.0, x[3]);

@@ -139,6 +139,59 @@ impl SpoolPlant {
             .collect()
     }
 
+    /// Steady states at constant nondimensional drive torque τ (open loop, seed 003: τ_t = τ0):
+    /// speed is an unknown too, fixed by Γ(φ, ω̃) = τ. Ordered by flow.
+    pub fn equilibria_at_torque(&self, throttle: f64, torque: f64) -> Vec<SVector<f64, N>> {
+        let sigma = self.params.torque_coefficient;
+        let n = 400;
+        let grid: Vec<(f64, Vec<SVector<f64, N>>)> = (0..=n)
+            .map(|k| {
+                let w = 0.2 + 2.3 * k as f64 / n as f64;
+                (w, self.equilibria(throttle, w))
+            })
+            .collect();
+        let mut out = Vec::new();
+        for win in grid.windows(2) {
+            let ((w0, e0), (w1, e1)) = (&win[0], &win[1]);
+            if e0.len() != e1.len() {
+                continue;
+            }
+            for i in 0..e0.len() {
+                let f = |x: &SVector<f64, N>| sigma * x[1] * x[0] - torque;
+                if f(&e0[i]) * f(&e1[i]) > 0.0 {
+                    continue;
+                }
+                // bisect on speed along branch i
+                let (mut a, mut b) = (*w0, *w1);
+                let fa0 = f(&e0[i]);
+                let mut fa = fa0;
+                let mut best = e0[i];
+                for _ in 0..80 {
+                    let m = 0.5 * (a + b);
+                    let em = self.equilibria(throttle, m);
+                    if em.len() != e0.len() {
+                        break;
+                    }
+                    let fm = f(&em[i]);
+                    best = em[i];
+                    if fa * fm <= 0.0 {
+                        b = m;
+                    } else {
+                        a = m;
+                        fa = fm;
+                    }
+                    if b - a < 1e-12 {
+                        break;
+                    }
+                }
+                out.push(best);
+            }
+        }
+        out.sort_by(|a, b| a[1].total_cmp(&b[1]));
+        out.dedup_by(|a, b| (a[1] - b[1]).abs() < 1e-9);
+        out
+    }
+
     /// Advance by `dt_s` (seconds) with `inputs` held.
     pub fn step(&mut self, inputs: &PlantInputs, dt_s: f64) {
         let (lo, hi) = self.torque_limits;

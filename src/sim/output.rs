@@ -28,7 +28,11 @@ fn io(path: &Path) -> impl FnOnce(std::io::Error) -> OutputError + '_ {
 }
 
 /// Write the trace and summary into `dir` (created if needed); returns the files written.
-pub fn write_data(dir: &Path, result: &SimResult, map: &CompressorMap) -> Result<Vec<PathBuf>, OutputError> {
+pub fn write_data(
+    dir: &Path,
+    result: &SimResult,
+    map: &CompressorMap,
+) -> Result<Vec<PathBuf>, OutputError> {
     std::fs::create_dir_all(dir).map_err(io(dir))?;
     let trace_path = dir.join("trace.csv");
     let f = std::fs::File::create(&trace_path).map_err(io(&trace_path))?;

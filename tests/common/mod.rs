@@ -1,0 +1,55 @@
+//! Shared helpers for the end-to-end tests.
+#![allow(dead_code)]
+
+use antisurge::control::LawId;
+use antisurge::plant::file::PlantDescription;
+use antisurge::scenario::Scenario;
+use antisurge::sim::{run, SimOptions, SimResult};
+use std::path::{Path, PathBuf};
+
+/// The repository root (tests run from the package directory).
+pub fn root() -> PathBuf {
+    PathBuf::from(env!("CARGO_MANIFEST_DIR"))
+}
+
+/// Benchmark plants shipped in config/plants, by file stem.
+pub const PLANTS: [&str; 5] = [
+    "bohagen2007_plenum",
+    "kvangardsnes2009_recycle",
+    "hemchi2016_recycle",
+    "sanadgol2006_tip",
+    "liaw2004_spool",
+];
+
+/// Load a shipped plant by file stem.
+pub fn plant(stem: &str) -> PlantDescription {
+    let p = root().join("config/plants").join(format!("{stem}.toml"));
+    PlantDescription::load(&p).unwrap_or_else(|e| panic!("{e}"))
+}
+
+/// Load a shipped scenario by file stem.
+pub fn scenario(stem: &str) -> Scenario {
+    let p = root().join("config/scenarios").join(format!("{stem}.toml"));
+    Scenario::load(&p).unwrap_or_else(|e| panic!("{e}"))
+}
+
+/// Parse a scenario from text (for scenarios made up in a test).
+pub fn scenario_text(text: &str) -> Scenario {
+    let path = Path::new("inline.toml");
+    let file = antisurge::config::toml_file::parse(text, path).unwrap_or_else(|e| panic!("{e}"));
+    Scenario::from_file(file, path, text).unwrap_or_else(|e| panic!("{e}"))
+}
+
+/// Run a scenario through the same code path as `antisurge sim`.
+pub fn simulate(plant: &PlantDescription, scenario: &Scenario, law: LawId) -> SimResult {
+    run(
+        plant,
+        scenario,
+        SimOptions {
+            law,
+            ..SimOptions::default()
+        },
+        &mut |_| {},
+    )
+    .unwrap_or_else(|e| panic!("{e}"))
+}
