@@ -40,22 +40,24 @@ use_apt=1
 for arg in "$@"; do
     case $arg in
         --refresh) refresh=1 ;;
-        --quiet) quiet=1 ;;
+        --quiet) quiet=1 ;;   # silent when there is nothing to do
         --no-apt) use_apt=0 ;;
         -h|--help) sed -n '2,/^set -euo/p' "$0" | sed '$d; s/^# \{0,1\}//'; exit 0 ;;
         *) echo "setup.sh: unknown argument: $arg" >&2; exit 2 ;;
     esac
 done
 
-say() { [[ $quiet == 1 ]] || printf '[hil-setup] %s\n' "$*" >&2; }
+say() { printf '[hil-setup] %s\n' "$*" >&2; }
 die() { printf '[hil-setup] error: %s\n' "$*" >&2; exit 1; }
 
+mkdir -p "$cache"
 export DEBIAN_FRONTEND=noninteractive
 apt_updated=0
 apt_update_once() {
     if [[ $apt_updated == 0 ]]; then
         say "apt-get update"
-        apt-get update -q >/dev/null || die "apt-get update failed"
+        apt-get update -q -o DPkg::Lock::Timeout=300 >"$cache/apt.log" 2>&1 \
+            || { tail -n 20 "$cache/apt.log" >&2; die "apt-get update failed"; }
         apt_updated=1
     fi
 }
@@ -74,8 +76,8 @@ install_host_packages() {
     [[ $(id -u) == 0 ]] || die "missing host packages: ${missing[*]}; run as root or: sudo apt-get install --no-install-recommends ${missing[*]}"
     apt_update_once
     say "apt-get install ${missing[*]}"
-    apt-get install -y -q --no-install-recommends "${missing[@]}" >/dev/null \
-        || die "apt-get install ${missing[*]} failed"
+    apt-get install -y -q -o DPkg::Lock::Timeout=300 --no-install-recommends "${missing[@]}" >"$cache/apt.log" 2>&1 \
+        || { tail -n 20 "$cache/apt.log" >&2; die "apt-get install ${missing[*]} failed"; }
 }
 
 # Name of the concrete kernel image package behind linux-image-amd64.
@@ -129,7 +131,6 @@ recipe_key() {
 
 vm=$cache/vm
 key=$(recipe_key)
-mkdir -p "$cache"
 # One setup at a time (parallel runs may all call this).
 exec 7>"$cache/.setup.lock"
 flock 7
@@ -138,7 +139,7 @@ install_host_packages
 
 if [[ $refresh == 0 && -f $vm/ready && $(cat "$vm/ready") == "$key" \
       && -f $vm/vmlinuz && -f $vm/initramfs.cpio ]]; then
-    say "up to date: $(cat "$vm/kernel-package" 2>/dev/null) in $vm"
+    [[ $quiet == 1 ]] || say "up to date: $(cat "$vm/kernel-package" 2>/dev/null) in $vm"
     exit 0
 fi
 
