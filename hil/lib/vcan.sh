@@ -8,7 +8,9 @@ HIL_VCAN_IFACES_DEFAULT="vcan0 vcan1"
 
 # hil_is_vcan IFACE: true if IFACE exists and is a vcan device.
 hil_is_vcan() {
-    ip -details link show dev "$1" 2>/dev/null | grep -qw vcan
+    local info
+    info=$(ip -details link show dev "$1" 2>/dev/null) || return 1
+    [[ $info =~ [[:space:]]vcan[[:space:]] ]]
 }
 
 # hil_vcan_up IFACE...: create the vcan interfaces that do not exist yet and

@@ -122,12 +122,19 @@ env -0 >"$job/env"
 printf '%s\0' "$@" >"$job/cmd"
 
 # The guest's stdout/stderr/control ports end in FIFOs read here; the
-# readers must be running before qemu opens the FIFOs.
+# readers must be running before qemu opens the FIFOs. If our stdout or
+# stderr goes away (`... | head`), a relay keeps draining its FIFO so that
+# the guest never blocks on a full port.
+relay() {
+    trap '' PIPE
+    exec 3<"$1"
+    cat <&3 2>/dev/null || cat <&3 >/dev/null
+}
 mkfifo "$job/stdout" "$job/stderr" "$job/ctl"
 : >"$job/ctl.log"
-cat "$job/stdout" &
+relay "$job/stdout" &
 pids+=($!)
-cat "$job/stderr" >&2 &
+relay "$job/stderr" >&2 &
 pids+=($!)
 while IFS= read -r line; do
     printf '%s %s\n' "$EPOCHREALTIME" "$line"
