@@ -1,13 +1,16 @@
-//! One control cycle: supervise inputs, derive measurements, run the active law on top of the
+//! One control cycle: supervise inputs, estimate the flow, run the active law on top of the
 //! speed loop, decide the fail-safe state. Pure and allocation-free; the simulation and the
 //! daemon call [`ControlCore::cycle`] once per period.
 
-use super::law::LawId;
+use super::config::{ControllerConfig, FlowSource};
+use super::law::{Law, LawError, LawEvent, LawId, LawInputs};
 use super::measurements::{Measurements, OperatorInputs, RawSensors};
 use super::model::ControlModel;
+use super::observer::{LowPass, MassFlowObserver};
 use super::speed_loop::SpeedLoop;
 use super::supervisor::{InputLimits, Supervisor, Validity};
 use crate::signals::{ActuatorCommands, ActuatorId, SensorId};
+use crate::surge::{Detection, SurgeDetector};
 
 /// Controller mode.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
@@ -97,23 +100,68 @@ pub struct CycleOutput {
     pub measurements: Measurements,
     /// Mode after the cycle.
     pub mode: Mode,
+    /// Active law.
+    pub law: LawId,
     /// Input validity.
     pub validity: Validity,
     /// A law-specific diagnostic (e.g. the control variable z), NaN if none.
     pub law_diagnostic: f64,
+    /// What the online surge detector saw this cycle.
+    pub surge: Detection,
+    /// An event the law reported this cycle.
+    pub law_event: Option<LawEvent>,
+}
+
+/// Filtered derivative: low-pass then difference.
+#[derive(Debug, Clone, Copy)]
+struct Differentiator {
+    lp: LowPass,
+    last: f64,
+}
+
+impl Differentiator {
+    fn new(hz: f64) -> Self {
+        Differentiator {
+            lp: LowPass::new(hz),
+            last: f64::NAN,
+        }
+    }
+    fn update(&mut self, x: f64, dt: f64) -> f64 {
+        if !x.is_finite() {
+            self.last = f64::NAN;
+            return f64::NAN;
+        }
+        let y = self.lp.update(x, dt);
+        let d = if self.last.is_finite() && dt > 0.0 {
+            (y - self.last) / dt
+        } else {
+            0.0
+        };
+        self.last = y;
+        d
+    }
 }
 
 /// The control core.
 #[derive(Debug, Clone)]
 pub struct ControlCore {
     model: ControlModel,
+    config: ControllerConfig,
     settings: CoreSettings,
     speed: SpeedLoop,
-    law: LawId,
+    law: Law,
+    requested_law: LawId,
     mode: Mode,
     auto_requested: bool,
+    observer: Option<MassFlowObserver>,
+    d_suction: Differentiator,
+    d_discharge: Differentiator,
+    detector: SurgeDetector,
+    manual_recycle: f64,
+    last_manual_input: f64,
     last: ActuatorCommands,
     last_t_s: f64,
+    law_started: bool,
 }
 
 impl ControlCore {
@@ -121,26 +169,40 @@ impl ControlCore {
     /// `initial_torque_nm` presets the speed loop (bumpless start on a running machine).
     pub fn new(
         model: ControlModel,
+        config: ControllerConfig,
         settings: CoreSettings,
         law: LawId,
         initial_torque_nm: f64,
-    ) -> Self {
+    ) -> Result<Self, LawError> {
         let d = model.drive;
-        ControlCore {
+        let active = Law::new(law, &config, &model)?;
+        let observer = model
+            .observer_plant()
+            .map(|p| MassFlowObserver::new(&config.observer, p));
+        Ok(ControlCore {
             speed: SpeedLoop::new(
                 d.speed_kp_nm_s_rad,
                 d.speed_ki_nm_rad,
                 (d.min_torque_nm, d.rated_torque_nm),
                 initial_torque_nm,
             ),
-            model,
-            settings,
-            law,
+            d_suction: Differentiator::new(config.derivative_filter_hz),
+            d_discharge: Differentiator::new(config.derivative_filter_hz),
+            detector: SurgeDetector::new(config.detector),
+            law: active,
+            requested_law: law,
             mode: Mode::Init,
             auto_requested: true,
+            observer,
+            manual_recycle: f64::NAN,
+            last_manual_input: f64::NAN,
             last: ActuatorCommands::default(),
             last_t_s: f64::NAN,
-        }
+            law_started: false,
+            model,
+            config,
+            settings,
+        })
     }
 
     /// The machine model.
@@ -148,9 +210,14 @@ impl ControlCore {
         &self.model
     }
 
+    /// Controller settings.
+    pub fn config(&self) -> &ControllerConfig {
+        &self.config
+    }
+
     /// Active law.
     pub fn law(&self) -> LawId {
-        self.law
+        self.law.id()
     }
 
     /// Current mode.
@@ -158,18 +225,52 @@ impl ControlCore {
         self.mode
     }
 
-    /// Select another law (bumpless: it starts from the current outputs).
-    pub fn select_law(&mut self, law: LawId) {
+    /// The online surge detector.
+    pub fn detector(&self) -> &SurgeDetector {
+        &self.detector
+    }
+
+    /// Select another law; it starts bumplessly from the current outputs at the next cycle.
+    /// Fails (and keeps the running law) if the law does not apply to this machine.
+    pub fn select_law(&mut self, law: LawId) -> Result<(), LawError> {
+        if law == self.law.id() {
+            return Ok(());
+        }
+        self.law = Law::new(law, &self.config, &self.model)?;
+        self.requested_law = law;
+        self.law_started = false;
+        Ok(())
+    }
+
+    /// Apply new controller settings (hot reload): the active law is rebuilt and starts
+    /// bumplessly from the current outputs.
+    pub fn apply_config(&mut self, config: ControllerConfig) -> Result<(), LawError> {
+        let law = Law::new(self.law.id(), &config, &self.model)?;
+        self.observer = self
+            .model
+            .observer_plant()
+            .map(|p| MassFlowObserver::new(&config.observer, p));
+        self.detector = SurgeDetector::new(config.detector);
         self.law = law;
+        self.config = config;
+        self.law_started = false;
+        Ok(())
     }
 
     /// Request automatic (true) or manual (false) mode.
     pub fn request_auto(&mut self, auto: bool) {
+        if self.auto_requested && !auto {
+            // entering manual: the manual station starts from the current valve output
+            self.manual_recycle = self.last.get(ActuatorId::RecycleValve);
+        }
+        if !self.auto_requested && auto {
+            self.law_started = false;
+        }
         self.auto_requested = auto;
     }
 
-    /// Derived measurements from validated inputs.
-    fn measurements(&self, t_s: f64, raw: &RawSensors, v: &Validity) -> Measurements {
+    /// Build measurements from validated inputs.
+    fn measurements(&mut self, t_s: f64, dt: f64, raw: &RawSensors, v: &Validity) -> Measurements {
         let get = |id: SensorId| {
             if v.ok(id) {
                 raw.values.get(id)
@@ -179,31 +280,92 @@ impl ControlCore {
         };
         let p_s = get(SensorId::PSuction);
         let p_d = get(SensorId::PDischarge);
+        let omega = get(SensorId::ShaftSpeed);
         let t_s_k = if v.ok(SensorId::TSuction) {
             raw.values.get(SensorId::TSuction)
         } else {
             self.model.nominal_suction_temperature_k
         };
-        let dp = get(SensorId::OrificeDp);
-        let m_meas = self
-            .model
-            .orifice
-            .mass_flow_kg_s(&self.model.gas, dp, p_s, t_s_k);
-        let m = m_meas;
+        let recycle = get(SensorId::RecycleValvePosition);
+        let throttle = get(SensorId::ThrottlePosition);
+        let thrust = get(SensorId::ThrustPosition);
+        let m_meas = self.model.orifice.mass_flow_kg_s(
+            &self.model.gas,
+            get(SensorId::OrificeDp),
+            p_s,
+            t_s_k,
+        );
+
+        // observer: runs whenever its inputs are there, so it is warm for a fallback
+        let mut m_obs = f64::NAN;
+        if let Some(obs) = &mut self.observer {
+            let out = self.model.outflow_kg_s(p_s, p_d, recycle, throttle);
+            if p_s.is_finite() && p_d.is_finite() && omega.is_finite() && out.is_finite() {
+                if !obs.started() && m_meas.is_finite() {
+                    obs.reset(m_meas, p_d, p_s);
+                }
+                let model = &self.model;
+                m_obs = obs.update(p_s, p_d, out, dt, |m| {
+                    model.pressure_ratio_at(m, p_s, t_s_k, omega, thrust)
+                });
+            }
+        }
+        let (m, fallback) = match self.config.flow_source {
+            FlowSource::Orifice => (m_meas, false),
+            FlowSource::Observer => (m_obs, false),
+            FlowSource::OrificeWithObserverFallback => {
+                if m_meas.is_finite() {
+                    (m_meas, false)
+                } else {
+                    (m_obs, m_obs.is_finite())
+                }
+            }
+        };
         Measurements {
             t_s,
             p_suction_pa: p_s,
             p_discharge_pa: p_d,
-            omega_rad_s: get(SensorId::ShaftSpeed),
+            omega_rad_s: omega,
             t_suction_k: t_s_k,
             m_kg_s: m,
             m_measured_kg_s: m_meas,
-            m_observer_kg_s: f64::NAN,
+            m_observer_kg_s: m_obs,
             flow_map: self.model.map_flow(m, p_s, t_s_k),
             pressure_ratio: p_d / p_s,
-            recycle_position: get(SensorId::RecycleValvePosition),
-            throttle_position: get(SensorId::ThrottlePosition),
-            thrust_position_m: get(SensorId::ThrustPosition),
+            recycle_position: recycle,
+            throttle_position: throttle,
+            thrust_position_m: thrust,
+            dp_suction_dt_pa_s: self.d_suction.update(p_s, dt),
+            dp_discharge_dt_pa_s: self.d_discharge.update(p_d, dt),
+            flow_fallback: fallback,
+        }
+    }
+
+    fn failsafe(&mut self, meas: Measurements, validity: Validity) -> CycleOutput {
+        // recycle valve to its safe opening, thrust to centre, CCV neutral, torque held
+        self.mode = Mode::FailSafe;
+        self.law_started = false;
+        let mut cmd = ActuatorCommands::default();
+        if self.model.recycle.is_some() {
+            cmd.set(ActuatorId::RecycleValve, self.settings.failsafe_recycle_opening);
+        }
+        if self.model.tip.is_some() {
+            cmd.set(ActuatorId::TipClearance, 0.0);
+        }
+        if self.model.spool.is_some() {
+            cmd.set(ActuatorId::CloseCoupledValve, 0.0);
+        }
+        cmd.set(ActuatorId::DriveTorque, self.last.get(ActuatorId::DriveTorque));
+        self.last = cmd;
+        CycleOutput {
+            commands: cmd,
+            measurements: meas,
+            mode: self.mode,
+            law: self.law.id(),
+            validity,
+            law_diagnostic: f64::NAN,
+            surge: Detection::None,
+            law_event: None,
         }
     }
 
@@ -216,36 +378,13 @@ impl ControlCore {
         };
         self.last_t_s = t_s;
         let validity = self.settings.supervisor.check(raw);
-        let meas = self.measurements(t_s, raw, &validity);
+        let meas = self.measurements(t_s, dt, raw, &validity);
         let essentials_ok = validity.ok(SensorId::PSuction)
             && validity.ok(SensorId::PDischarge)
             && validity.ok(SensorId::ShaftSpeed);
-        let mut cmd = ActuatorCommands::default();
-        if !essentials_ok {
-            // fail-safe: recycle valve to its safe opening, thrust to centre, torque held
-            self.mode = Mode::FailSafe;
-            if self.model.recycle.is_some() {
-                cmd.set(
-                    ActuatorId::RecycleValve,
-                    self.settings.failsafe_recycle_opening,
-                );
-            }
-            if self.model.tip.is_some() {
-                cmd.set(ActuatorId::TipClearance, 0.0);
-            }
-            if self.model.spool.is_some() {
-                cmd.set(ActuatorId::CloseCoupledValve, 0.0);
-            }
-            let held = self.last.get(ActuatorId::DriveTorque);
-            cmd.set(ActuatorId::DriveTorque, held);
-            self.last = cmd;
-            return CycleOutput {
-                commands: cmd,
-                measurements: meas,
-                mode: self.mode,
-                validity,
-                law_diagnostic: f64::NAN,
-            };
+        let law_needs_flow = self.law.id() != LawId::None && self.auto_requested;
+        if !essentials_ok || (law_needs_flow && !meas.m_kg_s.is_finite()) {
+            return self.failsafe(meas, validity);
         }
         let from_failsafe = matches!(self.mode, Mode::FailSafe | Mode::Init);
         self.mode = if self.auto_requested {
@@ -256,25 +395,80 @@ impl ControlCore {
         if from_failsafe {
             let held = self.last.get(ActuatorId::DriveTorque);
             if held.is_finite() {
-                self.speed
-                    .track(held, op.speed_setpoint_rad_s, meas.omega_rad_s);
+                self.speed.track(held, op.speed_setpoint_rad_s, meas.omega_rad_s);
             }
         }
-        let extra_torque = 0.0;
-        if self.mode == Mode::Manual && self.model.recycle.is_some() {
-            cmd.set(ActuatorId::RecycleValve, op.recycle_manual);
+        // the current outputs, with positions measured where the controller did not drive them
+        let mut current = self.last;
+        if current.get(ActuatorId::RecycleValve).is_nan() {
+            current.set(ActuatorId::RecycleValve, meas.recycle_position);
         }
+        if current.get(ActuatorId::Throttle).is_nan() {
+            current.set(ActuatorId::Throttle, meas.throttle_position);
+        }
+        let mut cmd = ActuatorCommands::default();
+        let mut extra_torque = 0.0;
+        let mut diagnostic = f64::NAN;
+        let mut law_event = None;
+        let inputs = LawInputs {
+            m: &meas,
+            op,
+            model: &self.model,
+        };
+        match self.mode {
+            Mode::Auto => {
+                if !self.law_started {
+                    // bumpless: the law's integrators start from the outputs applied now
+                    let mut cur = current;
+                    cur.set(ActuatorId::DriveTorque, 0.0); // extra torque on top of the speed loop
+                    self.law.start(&inputs, &cur);
+                    self.law_started = true;
+                }
+                let out = self.law.update(&inputs, dt);
+                cmd = out.commands;
+                diagnostic = out.diagnostic;
+                law_event = out.event;
+                let t = cmd.get(ActuatorId::DriveTorque);
+                if t.is_finite() {
+                    extra_torque = t;
+                }
+            }
+            Mode::Manual => {
+                if self.model.recycle.is_some() {
+                    // bumpless manual: hold the last output until the operator moves the station
+                    if self.manual_recycle.is_nan() {
+                        self.manual_recycle = current.get(ActuatorId::RecycleValve);
+                    }
+                    if op.recycle_manual != self.last_manual_input
+                        && self.last_manual_input.is_finite()
+                    {
+                        self.manual_recycle = op.recycle_manual;
+                    }
+                    cmd.set(ActuatorId::RecycleValve, self.manual_recycle);
+                }
+            }
+            Mode::Init | Mode::FailSafe => {}
+        }
+        self.last_manual_input = op.recycle_manual;
         let torque = self
             .speed
             .update(op.speed_setpoint_rad_s, meas.omega_rad_s, extra_torque, dt);
         cmd.set(ActuatorId::DriveTorque, torque);
+
+        let surge = self.detector.update(t_s, dt, meas.m_kg_s);
+        if matches!(surge, Detection::SurgeStarted | Detection::ReversalStarted) {
+            self.law.surge_detected();
+        }
         self.last = cmd;
         CycleOutput {
             commands: cmd,
             measurements: meas,
             mode: self.mode,
+            law: self.law.id(),
             validity,
-            law_diagnostic: f64::NAN,
+            law_diagnostic: diagnostic,
+            surge,
+            law_event,
         }
     }
 }

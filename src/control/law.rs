@@ -1,6 +1,16 @@
 //! Surge laws behind one interface, selectable by name.
+//!
+//! A law is a small state machine: [`SurgeLaw::start`] initialises its integrators from the
+//! outputs currently applied (bumpless transfer from another law or from manual), and
+//! [`SurgeLaw::update`] turns one measurement snapshot into actuator commands. Laws are pure,
+//! deterministic and allocation-free. The drive's speed loop always runs: a law's drive-torque
+//! command is *added* to the speed loop's output.
 
-use crate::signals::{ActuatorId, ActuatorSet};
+use super::config::ControllerConfig;
+use super::measurements::{Measurements, OperatorInputs};
+use super::model::ControlModel;
+use crate::plant::file::ModelKind;
+use crate::signals::{ActuatorCommands, ActuatorId, ActuatorSet};
 use serde::{Deserialize, Serialize};
 use std::fmt;
 use std::str::FromStr;
@@ -11,23 +21,90 @@ use std::str::FromStr;
 pub enum LawId {
     /// No surge control: speed loop only, valves from their manual stations (open loop).
     None,
+    /// Industrial surge avoidance: PI on the recycle valve around a surge control line
+    /// (seed 001 ch. 3, seed 002 ch. 4).
+    RecyclePi,
+    /// Active surge control of the recycle valve by input–output feedback linearization
+    /// (seed 001 ch. 4).
+    RecycleFl,
+    /// Active surge control with the drive torque (seed 000 eq. 7, 22).
+    DriveTorque,
+    /// Close-coupled valve (seed 003 Theorem 1, eq. 25/48).
+    Ccv,
+    /// Throttle backstepping (seed 003 Theorem 2, eq. 30–37/52).
+    ThrottleBackstep,
+    /// Robust torque + close-coupled valve (seed 003 Theorem 3, eq. 44, 46, 47).
+    Robust,
+    /// Sliding mode on the tip clearance via the magnetic thrust bearing (seed 004).
+    TipSliding,
 }
 
 impl LawId {
     /// Every law.
-    pub const ALL: [LawId; 1] = [LawId::None];
+    pub const ALL: [LawId; 8] = [
+        LawId::None,
+        LawId::RecyclePi,
+        LawId::RecycleFl,
+        LawId::DriveTorque,
+        LawId::Ccv,
+        LawId::ThrottleBackstep,
+        LawId::Robust,
+        LawId::TipSliding,
+    ];
 
-    /// Name used in config files and on the command line.
+    /// Name used in config files, on the command line and in the event log.
     pub const fn name(self) -> &'static str {
         match self {
             LawId::None => "none",
+            LawId::RecyclePi => "recycle-pi",
+            LawId::RecycleFl => "recycle-fl",
+            LawId::DriveTorque => "drive-torque",
+            LawId::Ccv => "ccv",
+            LawId::ThrottleBackstep => "throttle-backstep",
+            LawId::Robust => "robust",
+            LawId::TipSliding => "tip-sliding",
         }
     }
 
-    /// Actuators the law drives (besides the drive's speed loop, which always runs).
+    /// Numeric code (heartbeat frame `ActiveLaw`, trace).
+    pub const fn code(self) -> u8 {
+        match self {
+            LawId::None => 0,
+            LawId::RecyclePi => 1,
+            LawId::RecycleFl => 2,
+            LawId::DriveTorque => 3,
+            LawId::Ccv => 4,
+            LawId::ThrottleBackstep => 5,
+            LawId::Robust => 6,
+            LawId::TipSliding => 7,
+        }
+    }
+
+    /// Actuators the law drives (the drive torque of every law includes the speed loop).
     pub const fn actuators(self) -> ActuatorSet {
         match self {
             LawId::None => ActuatorSet::of(&[ActuatorId::DriveTorque]),
+            LawId::RecyclePi | LawId::RecycleFl => {
+                ActuatorSet::of(&[ActuatorId::DriveTorque, ActuatorId::RecycleValve])
+            }
+            LawId::DriveTorque => ActuatorSet::of(&[ActuatorId::DriveTorque]),
+            LawId::Ccv => ActuatorSet::of(&[ActuatorId::DriveTorque, ActuatorId::CloseCoupledValve]),
+            LawId::ThrottleBackstep => {
+                ActuatorSet::of(&[ActuatorId::DriveTorque, ActuatorId::Throttle])
+            }
+            LawId::Robust => ActuatorSet::of(&[ActuatorId::DriveTorque, ActuatorId::CloseCoupledValve]),
+            LawId::TipSliding => ActuatorSet::of(&[ActuatorId::TipClearance]),
+        }
+    }
+
+    /// Plant model families the law's equations are written for.
+    pub fn supports(self, kind: ModelKind) -> bool {
+        match self {
+            LawId::None => true,
+            LawId::RecyclePi | LawId::RecycleFl => kind == ModelKind::RecycleSystem,
+            LawId::DriveTorque => kind == ModelKind::PlenumDuct,
+            LawId::Ccv | LawId::ThrottleBackstep | LawId::Robust => kind == ModelKind::Spool,
+            LawId::TipSliding => kind == ModelKind::TipClearance,
         }
     }
 }
@@ -51,5 +128,216 @@ impl FromStr for LawId {
             .copied()
             .find(|l| l.name() == s)
             .ok_or_else(|| UnknownLaw(s.to_string()))
+    }
+}
+
+/// Why a law cannot run on a machine.
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+pub enum LawError {
+    /// The law is written for another plant model.
+    #[error("law `{law}` is not applicable to plant `{plant}` (model {kind:?})")]
+    NotApplicable {
+        /// Law.
+        law: LawId,
+        /// Plant name.
+        plant: String,
+        /// Plant model.
+        kind: ModelKind,
+    },
+    /// A setting is invalid for this machine.
+    #[error("law `{law}`: {key}: {message}")]
+    Setting {
+        /// Law.
+        law: LawId,
+        /// Config key (below `controller.`).
+        key: String,
+        /// What is wrong.
+        message: String,
+    },
+}
+
+/// What a law sees in one cycle.
+#[derive(Debug, Clone, Copy)]
+pub struct LawInputs<'a> {
+    /// Validated measurements and derived quantities.
+    pub m: &'a Measurements,
+    /// Operator inputs (setpoints, manual station).
+    pub op: &'a OperatorInputs,
+    /// The machine model.
+    pub model: &'a ControlModel,
+}
+
+/// What a law returns in one cycle.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct LawOutput {
+    /// Commands for the law's actuators (NaN: not driven). `DriveTorque` is added to the speed
+    /// loop's output.
+    pub commands: ActuatorCommands,
+    /// A law-specific diagnostic for traces (e.g. the control variable z), NaN if none.
+    pub diagnostic: f64,
+    /// An event worth logging (recycle trip, safety-on shift), if any.
+    pub event: Option<LawEvent>,
+}
+
+impl LawOutput {
+    /// Nothing driven.
+    pub fn idle() -> LawOutput {
+        LawOutput {
+            commands: ActuatorCommands::default(),
+            diagnostic: f64::NAN,
+            event: None,
+        }
+    }
+}
+
+/// Events a law reports (the daemon logs them).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub enum LawEvent {
+    /// The recycle trip opened the valve (open-loop step).
+    RecycleTrip {
+        /// Opening stepped to, fraction.
+        opening: f64,
+    },
+    /// Safety-on: the control line moved right after a surge.
+    SafetyOnShift {
+        /// Total added margin, fraction of flow.
+        total_margin: f64,
+        /// Shifts so far.
+        count: u32,
+    },
+}
+
+/// One law's state machine.
+pub trait SurgeLaw {
+    /// Initialise internal states so the first output equals the outputs applied now
+    /// (`current`), from another law or manual: bumpless transfer.
+    fn start(&mut self, inputs: &LawInputs<'_>, current: &ActuatorCommands);
+    /// One control cycle of `dt_s` seconds.
+    fn update(&mut self, inputs: &LawInputs<'_>, dt_s: f64) -> LawOutput;
+    /// The control loop saw a surge (detector): laws with a safety-on feature react.
+    fn surge_detected(&mut self) {}
+}
+
+/// The active law with its state (static dispatch: no allocation, no dyn).
+#[derive(Debug, Clone)]
+#[allow(clippy::large_enum_variant)]
+pub enum Law {
+    /// Open loop.
+    None,
+    /// Recycle PI.
+    RecyclePi(super::recycle_pi::RecyclePi),
+    /// Recycle feedback linearization.
+    RecycleFl(super::recycle_fl::RecycleFl),
+    /// Drive torque.
+    DriveTorque(super::drive_torque::DriveTorque),
+    /// Close-coupled valve.
+    Ccv(super::spool_laws::Ccv),
+    /// Throttle backstepping.
+    ThrottleBackstep(super::spool_laws::ThrottleBackstep),
+    /// Robust torque + CCV.
+    Robust(super::spool_laws::Robust),
+    /// Tip-clearance sliding mode.
+    TipSliding(super::tip_sliding::TipSliding),
+}
+
+impl Law {
+    /// Build a law for a machine from the controller configuration.
+    pub fn new(id: LawId, cfg: &ControllerConfig, model: &ControlModel) -> Result<Law, LawError> {
+        if !id.supports(model.kind) {
+            return Err(LawError::NotApplicable {
+                law: id,
+                plant: model.name.clone(),
+                kind: model.kind,
+            });
+        }
+        Ok(match id {
+            LawId::None => Law::None,
+            LawId::RecyclePi => Law::RecyclePi(super::recycle_pi::RecyclePi::new(&cfg.recycle_pi, model)?),
+            LawId::RecycleFl => Law::RecycleFl(super::recycle_fl::RecycleFl::new(&cfg.recycle_fl, model)?),
+            LawId::DriveTorque => {
+                Law::DriveTorque(super::drive_torque::DriveTorque::new(&cfg.drive_torque, model)?)
+            }
+            LawId::Ccv => Law::Ccv(super::spool_laws::Ccv::new(&cfg.ccv, model)?),
+            LawId::ThrottleBackstep => Law::ThrottleBackstep(
+                super::spool_laws::ThrottleBackstep::new(&cfg.throttle_backstep, model)?,
+            ),
+            LawId::Robust => Law::Robust(super::spool_laws::Robust::new(&cfg.robust, model)?),
+            LawId::TipSliding => {
+                Law::TipSliding(super::tip_sliding::TipSliding::new(&cfg.tip_sliding, model)?)
+            }
+        })
+    }
+
+    /// Which law this is.
+    pub fn id(&self) -> LawId {
+        match self {
+            Law::None => LawId::None,
+            Law::RecyclePi(_) => LawId::RecyclePi,
+            Law::RecycleFl(_) => LawId::RecycleFl,
+            Law::DriveTorque(_) => LawId::DriveTorque,
+            Law::Ccv(_) => LawId::Ccv,
+            Law::ThrottleBackstep(_) => LawId::ThrottleBackstep,
+            Law::Robust(_) => LawId::Robust,
+            Law::TipSliding(_) => LawId::TipSliding,
+        }
+    }
+
+    fn inner(&mut self) -> Option<&mut dyn SurgeLaw> {
+        match self {
+            Law::None => None,
+            Law::RecyclePi(l) => Some(l),
+            Law::RecycleFl(l) => Some(l),
+            Law::DriveTorque(l) => Some(l),
+            Law::Ccv(l) => Some(l),
+            Law::ThrottleBackstep(l) => Some(l),
+            Law::Robust(l) => Some(l),
+            Law::TipSliding(l) => Some(l),
+        }
+    }
+
+    /// Bumpless start from the outputs applied now.
+    pub fn start(&mut self, inputs: &LawInputs<'_>, current: &ActuatorCommands) {
+        if let Some(l) = self.inner() {
+            l.start(inputs, current);
+        }
+    }
+
+    /// One cycle.
+    pub fn update(&mut self, inputs: &LawInputs<'_>, dt_s: f64) -> LawOutput {
+        match self.inner() {
+            Some(l) => l.update(inputs, dt_s),
+            None => LawOutput::idle(),
+        }
+    }
+
+    /// Tell the law a surge was detected.
+    pub fn surge_detected(&mut self) {
+        if let Some(l) = self.inner() {
+            l.surge_detected();
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn names_and_codes_are_unique_and_round_trip() {
+        for (i, l) in LawId::ALL.iter().enumerate() {
+            assert_eq!(l.name().parse::<LawId>(), Ok(*l));
+            assert_eq!(l.code() as usize, i);
+        }
+        let e = "recycle_pi".parse::<LawId>().unwrap_err();
+        assert!(e.to_string().contains("recycle-pi"), "{e}");
+    }
+
+    #[test]
+    fn each_law_declares_its_actuators() {
+        assert!(LawId::RecyclePi.actuators().contains(ActuatorId::RecycleValve));
+        assert!(LawId::TipSliding.actuators().contains(ActuatorId::TipClearance));
+        assert!(!LawId::TipSliding.actuators().contains(ActuatorId::RecycleValve));
+        assert!(LawId::Robust.actuators().contains(ActuatorId::CloseCoupledValve));
+        assert!(LawId::ThrottleBackstep.actuators().contains(ActuatorId::Throttle));
     }
 }

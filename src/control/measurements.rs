@@ -65,4 +65,10 @@ pub struct Measurements {
     pub throttle_position: f64,
     /// Tip-clearance change (rotor axial position), m (NaN if absent).
     pub thrust_position_m: f64,
+    /// Filtered time derivative of the suction pressure, Pa/s.
+    pub dp_suction_dt_pa_s: f64,
+    /// Filtered time derivative of the discharge pressure, Pa/s.
+    pub dp_discharge_dt_pa_s: f64,
+    /// Whether the flow comes from the observer because the transmitter failed.
+    pub flow_fallback: bool,
 }

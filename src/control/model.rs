@@ -1,6 +1,8 @@
 //! What the controller knows about the machine: built from the same plant description the
 //! simulator uses (on a real skid, the plant file describes the real machine).
 
+use super::config::ControllerConfig;
+use super::observer::ObserverPlant;
 use crate::physics::compressor_map::{CompressorMap, FlowCoordinate};
 use crate::physics::gas::Gas;
 use crate::physics::orifice::Orifice;
@@ -36,6 +38,8 @@ pub struct ControlModel {
     pub spool: Option<SpoolParams>,
     /// Nominal suction temperature, K (used when the temperature sensor is absent).
     pub nominal_suction_temperature_k: f64,
+    /// The controller settings tuned for this machine (the plant file's `[controller]`).
+    pub controller: ControllerConfig,
 }
 
 impl ControlModel {
@@ -62,6 +66,91 @@ impl ControlModel {
             thrust: f.thrust_rating,
             spool: f.spool,
             nominal_suction_temperature_k: t_s,
+            controller: f.controller.clone(),
+        }
+    }
+
+    /// The outlet volume and duct the mass-flow observer copies (seed 000 eq. 1a–1b), if the
+    /// machine has one: the plenum (seed 000), the discharge volume V2 (seed 001/002) or the
+    /// plenum of the tip-clearance plant (seed 004).
+    pub fn observer_plant(&self) -> Option<ObserverPlant> {
+        if let Some(p) = &self.plenum_duct {
+            return Some(ObserverPlant {
+                area_over_length_m: p.duct_area_m2 / p.duct_length_m,
+                volume_over_sonic2: p.plenum_volume_m3 / p.sonic_velocity_m_s.powi(2),
+            });
+        }
+        if let Some(r) = &self.recycle {
+            return Some(ObserverPlant {
+                area_over_length_m: r.compressor_duct_area_m2 / r.compressor_duct_length_m,
+                volume_over_sonic2: r.discharge_volume_m3 / r.discharge_sonic_velocity_m_s.powi(2),
+            });
+        }
+        if let Some(t) = &self.tip {
+            return Some(ObserverPlant {
+                area_over_length_m: t.duct_area_m2 / t.duct_length_m,
+                volume_over_sonic2: t.plenum_volume_m3 / t.sonic_velocity_m_s.powi(2),
+            });
+        }
+        None
+    }
+
+    /// Mass flow leaving the outlet volume, computed from the valve equations and the valves'
+    /// position feedback (NaN if a needed position is missing), kg/s. For the recycle system:
+    /// recycle plus discharge-line flow (their quasi-steady values), with the header at its
+    /// nominal pressure.
+    pub fn outflow_kg_s(
+        &self,
+        p_suction_pa: f64,
+        p_discharge_pa: f64,
+        recycle_position: f64,
+        throttle_position: f64,
+    ) -> f64 {
+        use crate::plant::{plenum_duct, recycle_system, tip_clearance};
+        if let Some(p) = &self.plenum_duct {
+            return plenum_duct::throttle_flow_kg_s(p, &self.gas, p_discharge_pa, throttle_position);
+        }
+        if let Some(r) = &self.recycle {
+            let wr = recycle_system::recycle_flow_steady_kg_s(
+                r,
+                &self.gas,
+                p_suction_pa,
+                p_discharge_pa,
+                recycle_position,
+            );
+            let wt = recycle_system::throttle_flow_steady_kg_s(
+                r,
+                &self.gas,
+                p_discharge_pa,
+                r.downstream_pressure_pa,
+                throttle_position,
+            );
+            return wr + wt;
+        }
+        if let Some(t) = &self.tip {
+            return tip_clearance::throttle_flow_kg_s(t, &self.gas, p_discharge_pa, throttle_position);
+        }
+        f64::NAN
+    }
+
+    /// Compressor pressure ratio Ψc at mass flow `m`, with the tip-clearance effect of the
+    /// measured rotor position where the machine has one (seed 004 eq. 3, corrected).
+    #[inline]
+    pub fn pressure_ratio_at(
+        &self,
+        m_kg_s: f64,
+        p_suction_pa: f64,
+        t_suction_k: f64,
+        omega_rad_s: f64,
+        clearance_m: f64,
+    ) -> f64 {
+        let psi_ss = self
+            .map
+            .eval(self.map_flow(m_kg_s, p_suction_pa, t_suction_k), omega_rad_s)
+            .value;
+        match (&self.tip, clearance_m.is_finite()) {
+            (Some(t), true) => t.effect.pressure_ratio(psi_ss, clearance_m),
+            _ => psi_ss,
         }
     }
 

@@ -307,6 +307,9 @@ pub struct PlantFile {
     /// Fixed-step integration for real time.
     #[serde(default)]
     pub integration: StepSettings,
+    /// Controller settings tuned for this machine (defaults for the daemon's config).
+    #[serde(default)]
+    pub controller: crate::control::ControllerConfig,
 }
 
 /// A loaded plant file: the parsed content, its path and the built compressor map.

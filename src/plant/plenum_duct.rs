@@ -22,6 +22,21 @@ use nalgebra::SVector;
 /// State dimension.
 pub const N: usize = 4;
 
+/// Throttle flow to ambient, m_t = k_t(l) √(p − p01) (seed 000, with the smooth sign of seed 001
+/// eq. 2.9), kg/s. Shared by the plant and the controller's observer.
+#[inline]
+pub fn throttle_flow_kg_s(pp: &PlenumDuctParams, gas: &Gas, p_pa: f64, position: f64) -> f64 {
+    let rho = pp.throttle_density_kg_m3.unwrap_or_else(|| {
+        gas.density_kg_m3(p_pa.max(pp.ambient_pressure_pa), pp.ambient_temperature_k)
+    });
+    valve::flow_kg_s(
+        pp.throttle.cv_m2(position),
+        rho,
+        p_pa - pp.ambient_pressure_pa,
+        pp.valve_smoothing_pa,
+    )
+}
+
 /// Seed 000 plant.
 #[derive(Debug, Clone)]
 pub struct PlenumDuctPlant {
@@ -101,17 +116,7 @@ impl PlenumDuctPlant {
     /// Throttle flow m_t at plenum pressure p and stem position l, kg/s.
     #[inline]
     pub fn throttle_flow(&self, p_pa: f64, position: f64) -> f64 {
-        let pp = &self.params;
-        let rho = pp.throttle_density_kg_m3.unwrap_or_else(|| {
-            self.gas
-                .density_kg_m3(p_pa.max(pp.ambient_pressure_pa), pp.ambient_temperature_k)
-        });
-        valve::flow_kg_s(
-            pp.throttle.cv_m2(position),
-            rho,
-            p_pa - pp.ambient_pressure_pa,
-            pp.valve_smoothing_pa,
-        )
+        throttle_flow_kg_s(&self.params, &self.gas, p_pa, position)
     }
 
     /// All steady states at speed ω and throttle opening `throttle`, ordered by flow (the last

@@ -22,6 +22,21 @@ use nalgebra::SVector;
 /// State dimension.
 pub const N: usize = 6;
 
+/// Throttle flow to ambient, m_th = k_th √(P − P01) (seed 004), kg/s. Shared by the plant and
+/// the controller's observer.
+#[inline]
+pub fn throttle_flow_kg_s(pp: &TipClearanceParams, gas: &Gas, p_pa: f64, position: f64) -> f64 {
+    let rho = pp.throttle_density_kg_m3.unwrap_or_else(|| {
+        gas.density_kg_m3(p_pa.max(pp.ambient_pressure_pa), pp.ambient_temperature_k)
+    });
+    valve::flow_kg_s(
+        pp.throttle.cv_m2(position),
+        rho,
+        p_pa - pp.ambient_pressure_pa,
+        pp.valve_smoothing_pa,
+    )
+}
+
 /// Seed 004 plant.
 #[derive(Debug, Clone)]
 pub struct TipClearancePlant {
@@ -100,17 +115,7 @@ impl TipClearancePlant {
     /// Throttle flow at plenum pressure P and stem position, kg/s.
     #[inline]
     pub fn throttle_flow(&self, p_pa: f64, position: f64) -> f64 {
-        let pp = &self.params;
-        let rho = pp.throttle_density_kg_m3.unwrap_or_else(|| {
-            self.gas
-                .density_kg_m3(p_pa.max(pp.ambient_pressure_pa), pp.ambient_temperature_k)
-        });
-        valve::flow_kg_s(
-            pp.throttle.cv_m2(position),
-            rho,
-            p_pa - pp.ambient_pressure_pa,
-            pp.valve_smoothing_pa,
-        )
+        throttle_flow_kg_s(&self.params, &self.gas, p_pa, position)
     }
 
     /// Steady-state characteristic ψ_ss(m) at the plant's speed.

@@ -37,6 +37,9 @@ pub enum SimError {
     /// The plant cannot start.
     #[error(transparent)]
     Plant(#[from] PlantError),
+    /// The law cannot run on this plant.
+    #[error(transparent)]
+    Law(#[from] crate::control::law::LawError),
     /// A law named in the scenario does not exist.
     #[error("scenario `{scenario}`: {message}")]
     Scenario {
@@ -108,7 +111,8 @@ pub fn run(
     let settings = CoreSettings::defaults_for(&model);
     let nominal_speed = model.drive.nominal_speed_rad_s;
     let t0_torque = plant.truth().load_torque_nm;
-    let mut core = ControlCore::new(model, settings, options.law, t0_torque);
+    let config = model.controller.clone();
+    let mut core = ControlCore::new(model, config, settings, options.law, t0_torque)?;
     let law_ids: Vec<LawId> = scenario
         .law_names
         .iter()
@@ -148,7 +152,7 @@ pub fn run(
         let t = k as f64 * dt;
         let st = timeline.state_at(t);
         if let Some(i) = st.law_request {
-            core.select_law(law_ids[i]);
+            core.select_law(law_ids[i])?;
         }
         if let Some(auto) = st.mode_request {
             core.request_auto(auto);

@@ -1,0 +1,269 @@
+//! Mass-flow observer (seed 000 eq. 14–17): estimates the compressor mass flow from pressures
+//! and speed only, so a law can run without a flow transmitter or fall back to it when the
+//! transmitter fails.
+//!
+//! Eq. 14 copies the duct equation and injects the estimation error:
+//!
+//! ```text
+//! dm̂/dt = A/L (Ψ̂c p_in − p) + A/L c2 (m − m̂),   Ψ̂c = Ψc(m̂, ω)
+//! ```
+//!
+//! It needs the unmeasured m. With z = m̂ − K_z p, K_z = (V/a²)(A/L) c2 and the volume's mass
+//! balance dp/dt = a²/V (m − m_out) (eq. 1a) we have dm̂/dt = ż + (A/L) c2 (m − m_out), so
+//!
+//! ```text
+//! ż = A/L (Ψ̂c p_in − p − c2 m̂ + c2 m_out),   m̂ = z + K_z p        (derived form of eq. 15)
+//! ```
+//!
+//! Correction: the seed prints "− c2 m_t" in eq. 15a. Derived as above the sign is "+"; with the
+//! printed sign the error equation keeps a forcing term 2 (A/L) c2 m_out and the estimate
+//! converges to a wrong value (tests/observer.rs shows both). The z-form uses only the
+//! pressures, the speed and the outflow m_out, which the controller computes from the outlet
+//! valves' position feedback and the valve equations.
+//!
+//! Gain: the error dynamics (eq. 16) are dm̃/dt = A/L (Ψ̃c p_in − c2 m̃); by the mean-value
+//! theorem they are exponentially stable if c2 > p_in · sup ∂Ψc/∂m (eq. 17 prints a spurious
+//! factor 2, ERRATA.md), with rate at least (A/L)(c2 − p_in sup ∂Ψc/∂m).
+//!
+//! Discretisation: semi-implicit Euler, implicit in the stabilising −c2 z term, so the update
+//! is stable at any cycle time however large c2 is.
+
+use serde::{Deserialize, Serialize};
+
+/// Observer settings (`[controller.observer]`).
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct ObserverConfig {
+    /// Observer gain c2 of eq. 14, Pa per kg/s (K_m̃ = (A/L) c2). Seed 000 §6.2: 40 000.
+    pub c2_pa_s_kg: f64,
+    /// First-order low-pass on the pressures fed to the observer, Hz (0: off). The estimate
+    /// m̂ = z + K_z p passes pressure noise with gain K_z (ERRATA.md): filtering trades noise for
+    /// lag.
+    pub pressure_filter_hz: f64,
+}
+
+impl Default for ObserverConfig {
+    fn default() -> Self {
+        ObserverConfig {
+            c2_pa_s_kg: 40_000.0,
+            pressure_filter_hz: 0.0,
+        }
+    }
+}
+
+/// The volume/duct pair the observer copies: the outlet volume whose pressure it measures and
+/// the compressor duct.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct ObserverPlant {
+    /// A/L of the compressor duct, m.
+    pub area_over_length_m: f64,
+    /// V/a² of the outlet volume, kg/Pa (s²·m).
+    pub volume_over_sonic2: f64,
+}
+
+/// First-order low-pass filter (bypassed when the cut-off is 0).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct LowPass {
+    cutoff_hz: f64,
+    y: f64,
+    started: bool,
+}
+
+impl LowPass {
+    /// A filter with cut-off `cutoff_hz` (0: pass-through).
+    pub fn new(cutoff_hz: f64) -> Self {
+        LowPass {
+            cutoff_hz,
+            y: 0.0,
+            started: false,
+        }
+    }
+
+    /// Filter one sample taken `dt_s` after the previous one.
+    #[inline]
+    pub fn update(&mut self, x: f64, dt_s: f64) -> f64 {
+        if self.cutoff_hz <= 0.0 || !self.started || !x.is_finite() {
+            self.y = x;
+            self.started = x.is_finite();
+            return x;
+        }
+        let a = 1.0 - (-2.0 * std::f64::consts::PI * self.cutoff_hz * dt_s).exp();
+        self.y += a * (x - self.y);
+        self.y
+    }
+
+    /// Restart from `x`.
+    pub fn reset(&mut self, x: f64) {
+        self.y = x;
+        self.started = x.is_finite();
+    }
+}
+
+/// The observer state.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct MassFlowObserver {
+    c2: f64,
+    a_over_l: f64,
+    k_z: f64,
+    z: f64,
+    started: bool,
+    p_filter: LowPass,
+    p_in_filter: LowPass,
+}
+
+impl MassFlowObserver {
+    /// Observer for a volume/duct pair.
+    pub fn new(cfg: &ObserverConfig, plant: ObserverPlant) -> Self {
+        let a_over_l = plant.area_over_length_m;
+        MassFlowObserver {
+            c2: cfg.c2_pa_s_kg,
+            a_over_l,
+            k_z: plant.volume_over_sonic2 * a_over_l * cfg.c2_pa_s_kg,
+            z: 0.0,
+            started: false,
+            p_filter: LowPass::new(cfg.pressure_filter_hz),
+            p_in_filter: LowPass::new(cfg.pressure_filter_hz),
+        }
+    }
+
+    /// K_z = (V/a²)(A/L) c2, s: the gain from measured pressure to the estimate.
+    pub fn k_z(&self) -> f64 {
+        self.k_z
+    }
+
+    /// c2, Pa per kg/s.
+    pub fn c2(&self) -> f64 {
+        self.c2
+    }
+
+    /// A/L, m.
+    pub fn area_over_length(&self) -> f64 {
+        self.a_over_l
+    }
+
+    /// Whether the observer has been initialised.
+    pub fn started(&self) -> bool {
+        self.started
+    }
+
+    /// Initialise so that the estimate equals `m_kg_s` at outlet pressure `p_pa`.
+    pub fn reset(&mut self, m_kg_s: f64, p_pa: f64, p_in_pa: f64) {
+        self.p_filter.reset(p_pa);
+        self.p_in_filter.reset(p_in_pa);
+        self.z = m_kg_s - self.k_z * p_pa;
+        self.started = true;
+    }
+
+    /// The estimate m̂ = z + K_z p for outlet pressure `p_pa` (eq. 15b).
+    #[inline]
+    pub fn estimate(&self, p_pa: f64) -> f64 {
+        self.z + self.k_z * p_pa
+    }
+
+    /// ż of the derived eq. 15a: A/L (Ψ̂ p_in − p − c2 m̂ + c2 m_out), with Ψ̂ given.
+    #[inline]
+    pub fn z_rate(&self, z: f64, p_in_pa: f64, p_pa: f64, m_out_kg_s: f64, psi_hat: f64) -> f64 {
+        let m_hat = z + self.k_z * p_pa;
+        self.a_over_l * (psi_hat * p_in_pa - p_pa - self.c2 * m_hat + self.c2 * m_out_kg_s)
+    }
+
+    /// dm̂/dt of eq. 14 (needs the true flow m; for checking the z-form).
+    #[inline]
+    pub fn eq14_rate(&self, m_hat: f64, m_kg_s: f64, p_in_pa: f64, p_pa: f64, psi_hat: f64) -> f64 {
+        self.a_over_l * (psi_hat * p_in_pa - p_pa) + self.a_over_l * self.c2 * (m_kg_s - m_hat)
+    }
+
+    /// One cycle: inlet and outlet pressures, outflow of the outlet volume, cycle time, and the
+    /// characteristic Ψc as a function of the estimated mass flow. Returns m̂, kg/s.
+    pub fn update(
+        &mut self,
+        p_in_pa: f64,
+        p_pa: f64,
+        m_out_kg_s: f64,
+        dt_s: f64,
+        psi: impl Fn(f64) -> f64,
+    ) -> f64 {
+        let p = self.p_filter.update(p_pa, dt_s);
+        let p_in = self.p_in_filter.update(p_in_pa, dt_s);
+        if !self.started {
+            // start from the steady state: m̂ = m_out
+            self.reset(m_out_kg_s, p, p_in);
+        }
+        let m_hat = self.estimate(p);
+        let psi_hat = psi(m_hat);
+        // z_{k+1} (1 + h A/L c2) = z_k + h A/L (Ψ̂ p_in − p − c2 K_z p + c2 m_out)
+        let h = dt_s * self.a_over_l;
+        let rhs = psi_hat * p_in - p - self.c2 * self.k_z * p + self.c2 * m_out_kg_s;
+        let z_new = (self.z + h * rhs) / (1.0 + h * self.c2);
+        if z_new.is_finite() {
+            self.z = z_new;
+        }
+        self.estimate(p)
+    }
+}
+
+/// Smallest observer gain for exponential convergence, c2 > p_in · sup ∂Ψc/∂m over the region
+/// (seed 000 eq. 17 without its spurious factor 2, ERRATA.md), Pa per kg/s.
+pub fn min_gain(p_in_pa: f64, sup_dpsi_dm_per_kg_s: f64) -> f64 {
+    p_in_pa * sup_dpsi_dm_per_kg_s.max(0.0)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn obs() -> MassFlowObserver {
+        MassFlowObserver::new(
+            &ObserverConfig::default(),
+            ObserverPlant {
+                area_over_length_m: 0.015,
+                volume_over_sonic2: 1.5 / (340.0 * 340.0),
+            },
+        )
+    }
+
+    #[test]
+    fn z_form_rate_equals_eq14_when_pressure_obeys_the_mass_balance() {
+        // dm̂/dt = ż + K_z ṗ with ṗ = a²/V (m − m_out) must equal eq. 14
+        let o = obs();
+        let (m, m_hat, m_out, p, p_in, psi) = (8.0, 6.5, 7.2, 2.2e5, 1.0e5, 2.31);
+        let z = m_hat - o.k_z() * p;
+        let p_dot = (340.0 * 340.0 / 1.5) * (m - m_out);
+        let lhs = o.z_rate(z, p_in, p, m_out, psi) + o.k_z() * p_dot;
+        let rhs = o.eq14_rate(m_hat, m, p_in, p, psi);
+        assert!((lhs - rhs).abs() < 1e-9 * rhs.abs().max(1.0), "{lhs} vs {rhs}");
+    }
+
+    #[test]
+    fn semi_implicit_update_is_stable_for_huge_gain() {
+        let mut o = MassFlowObserver::new(
+            &ObserverConfig {
+                c2_pa_s_kg: 1e9,
+                pressure_filter_hz: 0.0,
+            },
+            ObserverPlant {
+                area_over_length_m: 0.015,
+                volume_over_sonic2: 1.5 / (340.0 * 340.0),
+            },
+        );
+        o.reset(1.0, 2e5, 1e5);
+        for _ in 0..1000 {
+            let m = o.update(1e5, 2e5, 8.0, 1e-3, |_| 2.0);
+            assert!(m.is_finite() && m.abs() < 100.0, "{m}");
+        }
+    }
+
+    #[test]
+    fn low_pass_converges_and_bypasses() {
+        let mut f = LowPass::new(10.0);
+        f.reset(0.0);
+        let mut y = 0.0;
+        for _ in 0..1000 {
+            y = f.update(1.0, 1e-3);
+        }
+        assert!((y - 1.0).abs() < 1e-6);
+        let mut b = LowPass::new(0.0);
+        assert_eq!(b.update(3.0, 1e-3), 3.0);
+        assert_eq!(b.update(5.0, 1e-3), 5.0);
+    }
+}
