@@ -1,0 +1,349 @@
+//! Stacked time-series panels of a run sharing one time axis.
+
+use super::common::{
+    clip_polyline, de, draw_line, finite_range, nice_step, pad, render, thin_min_max, tick_label,
+    union, Area, Bounds, DrawResult, Legend, LegendEntry, Pt, DESC_SIZE, FONT, TICK_SIZE,
+    TITLE_SIZE,
+};
+use super::PlotError;
+use crate::sim::trace::TraceRow;
+use plotters::prelude::*;
+use std::path::Path;
+
+const WIDTH: u32 = 1100;
+const TITLE_H: u32 = 44;
+const PLOT_H: u32 = 150;
+const MARGIN_TOP: u32 = 10;
+const MARGIN_BOTTOM: u32 = 4;
+const MARGIN_LEFT: u32 = 10;
+const MARGIN_RIGHT: u32 = 24;
+const X_AXIS_H: u32 = 52;
+const X_AXIS_H_INNER: u32 = 6;
+const Y_LABEL_AREA: u32 = 92;
+/// Buckets of the min/max thinning: about one per pixel column.
+const THIN_BUCKETS: usize = 1000;
+
+const BLUE: RGBColor = RGBColor(31, 110, 190);
+const ORANGE: RGBColor = RGBColor(235, 125, 0);
+const GREY: RGBColor = RGBColor(160, 160, 160);
+const RED: RGBColor = RGBColor(205, 25, 25);
+const GREEN: RGBColor = RGBColor(0, 140, 60);
+const PURPLE: RGBColor = RGBColor(130, 60, 170);
+const BROWN: RGBColor = RGBColor(140, 90, 40);
+
+/// One line of a panel.
+struct Series {
+    name: &'static str,
+    color: RGBColor,
+    width: u32,
+    dashed: bool,
+    points: Vec<Pt>,
+}
+
+/// One panel: a y-axis title with unit and its lines.
+struct Panel {
+    y_desc: String,
+    series: Vec<Series>,
+    /// A range the axis always shows (e.g. 0..1 for valve openings).
+    always: Option<(f64, f64)>,
+    /// A dashed reference line at this value, with its legend label.
+    reference: Option<(f64, &'static str)>,
+}
+
+/// Line style of a series: (legend name, colour, width, dashed).
+type Style = (&'static str, RGBColor, u32, bool);
+
+/// A line of a panel: trace column, scale to the panel's unit, style.
+type Line = (fn(&TraceRow) -> f64, f64, Style);
+
+/// Collects panels, dropping series whose values are all NaN and panels left without series.
+struct Builder<'a> {
+    rows: &'a [TraceRow],
+    t: Vec<f64>,
+    panels: Vec<Panel>,
+}
+
+impl Builder<'_> {
+    fn series(&self, get: fn(&TraceRow) -> f64, scale: f64, style: Style) -> Option<Series> {
+        let y: Vec<f64> = self.rows.iter().map(|r| get(r) * scale).collect();
+        if !y.iter().any(|v| v.is_finite()) {
+            return None;
+        }
+        Some(Series {
+            name: style.0,
+            color: style.1,
+            width: style.2,
+            dashed: style.3,
+            points: thin_min_max(&self.t, &y, THIN_BUCKETS),
+        })
+    }
+
+    fn panel(
+        &mut self,
+        y_desc: impl Into<String>,
+        lines: &[Line],
+        always: Option<(f64, f64)>,
+        reference: Option<(f64, &'static str)>,
+    ) {
+        let series: Vec<Series> = lines
+            .iter()
+            .filter_map(|&(get, scale, style)| self.series(get, scale, style))
+            .collect();
+        if !series.is_empty() {
+            self.panels.push(Panel {
+                y_desc: y_desc.into(),
+                series,
+                always,
+                reference,
+            });
+        }
+    }
+}
+
+/// The panels of a trace, top to bottom.
+fn panels(rows: &[TraceRow]) -> Vec<Panel> {
+    let mut b = Builder {
+        rows,
+        t: rows.iter().map(|r| r.t_s).collect(),
+        panels: Vec::new(),
+    };
+    b.panel(
+        "mass flow (kg/s)",
+        &[
+            (|r| r.meas_m_kg_s, 1.0, ("measured", GREY, 1, false)),
+            (|r| r.m_kg_s, 1.0, ("true", BLUE, 2, false)),
+            (|r| r.est_m_kg_s, 1.0, ("estimate", ORANGE, 2, true)),
+        ],
+        None,
+        None,
+    );
+    let p_max = finite_range(
+        rows.iter()
+            .flat_map(|r| [r.p_suction_pa.abs(), r.p_discharge_pa.abs()]),
+    )
+    .map_or(0.0, |r| r.1);
+    let (p_unit, p_scale) = if p_max >= 1e6 {
+        ("MPa", 1e-6)
+    } else {
+        ("kPa", 1e-3)
+    };
+    b.panel(
+        format!("pressure ({p_unit})"),
+        &[
+            (|r| r.p_suction_pa, p_scale, ("suction", BLUE, 2, false)),
+            (|r| r.p_discharge_pa, p_scale, ("discharge", RED, 2, false)),
+        ],
+        None,
+        None,
+    );
+    b.panel(
+        "shaft speed (rad/s)",
+        &[(|r| r.omega_rad_s, 1.0, ("shaft speed", BLUE, 2, false))],
+        None,
+        None,
+    );
+    b.panel(
+        "valve opening (–)",
+        &[
+            (
+                |r| r.recycle_valve_position,
+                1.0,
+                ("recycle valve position", GREEN, 2, false),
+            ),
+            (
+                |r| r.cmd_recycle_valve,
+                1.0,
+                ("recycle valve command", GREEN, 1, true),
+            ),
+            (
+                |r| r.throttle_position,
+                1.0,
+                ("throttle position", PURPLE, 2, false),
+            ),
+            (
+                |r| r.cmd_throttle,
+                1.0,
+                ("throttle command", PURPLE, 1, true),
+            ),
+        ],
+        Some((0.0, 1.0)),
+        None,
+    );
+    b.panel(
+        "torque (N·m)",
+        &[
+            (|r| r.load_torque_nm, 1.0, ("load", GREY, 1, false)),
+            (
+                |r| r.drive_torque_nm,
+                1.0,
+                ("drive delivered", RED, 2, false),
+            ),
+            (
+                |r| r.cmd_drive_torque_nm,
+                1.0,
+                ("drive command", BROWN, 1, true),
+            ),
+        ],
+        None,
+        None,
+    );
+    b.panel(
+        "tip clearance (µm)",
+        &[
+            (|r| r.tip_clearance_m, 1e6, ("delivered", BLUE, 2, false)),
+            (|r| r.cmd_tip_clearance_m, 1e6, ("command", ORANGE, 1, true)),
+        ],
+        None,
+        None,
+    );
+    b.panel(
+        "close-coupled valve (–)",
+        &[
+            (|r| r.ccv, 1.0, ("applied", BLUE, 2, false)),
+            (|r| r.cmd_ccv, 1.0, ("command", ORANGE, 1, true)),
+        ],
+        None,
+        None,
+    );
+    b.panel(
+        "surge margin (%)",
+        &[(|r| r.surge_margin, 100.0, ("surge margin", BLUE, 2, false))],
+        None,
+        Some((0.0, "surge line (0 %)")),
+    );
+    b.panels
+}
+
+/// Draw stacked panels of `trace` sharing the time axis into an SVG at `path`: mass flow (true,
+/// measured, estimate), suction and discharge pressure (kPa or MPa by magnitude), shaft speed,
+/// valve positions and commands, drive torque, tip clearance, close-coupled valve and surge
+/// margin. Series whose values are all NaN are left out, and so are panels left empty; every
+/// panel has its legend inside, in the corner hiding the least data.
+///
+/// Errors: [`PlotError::NoData`] for an empty trace, non-finite times or no finite values at
+/// all; drawing and write failures.
+pub fn timeseries_svg(path: &Path, trace: &[TraceRow], title: &str) -> Result<(), PlotError> {
+    let no_data = |reason: &str| PlotError::NoData {
+        file: path.to_path_buf(),
+        reason: reason.to_string(),
+    };
+    if trace.is_empty() {
+        return Err(no_data("the trace is empty"));
+    }
+    let (t0, t1) = finite_range(trace.iter().map(|r| r.t_s))
+        .ok_or_else(|| no_data("the trace has no finite times"))?;
+    let (t0, t1) = if t1 > t0 {
+        (t0, t1)
+    } else {
+        (t0 - 0.5, t1 + 0.5)
+    };
+    let panels = panels(trace);
+    if panels.is_empty() {
+        return Err(no_data("every plotted column of the trace is NaN"));
+    }
+    let n = panels.len() as u32;
+    let inner_h = PLOT_H + MARGIN_TOP + MARGIN_BOTTOM + X_AXIS_H_INNER;
+    let height = TITLE_H + (n - 1) * inner_h + (PLOT_H + MARGIN_TOP + MARGIN_BOTTOM + X_AXIS_H);
+    render(path, (WIDTH, height), |root| {
+        let body = root.titled(title, (FONT, TITLE_SIZE)).map_err(de)?;
+        let breaks: Vec<u32> = (1..n).map(|k| k * inner_h).collect();
+        let areas = body.split_by_breakpoints::<u32, u32, _, _>([], breaks);
+        for (k, (panel, area)) in panels.iter().zip(areas.iter()).enumerate() {
+            draw_panel(area, panel, (t0, t1), k + 1 == panels.len())?;
+        }
+        Ok(())
+    })
+}
+
+fn draw_panel(
+    area: &Area<'_>,
+    panel: &Panel,
+    (t0, t1): (f64, f64),
+    bottom: bool,
+) -> DrawResult<()> {
+    let plot_dim = (
+        (WIDTH - MARGIN_LEFT - MARGIN_RIGHT - Y_LABEL_AREA) as f64,
+        PLOT_H as f64,
+    );
+    let mut yr = panel
+        .series
+        .iter()
+        .map(|s| finite_range(s.points.iter().map(|p| p.1)))
+        .fold(panel.always, union);
+    if let Some((v, _)) = panel.reference {
+        yr = union(yr, Some((v, v)));
+    }
+    let (y0, y1) = pad(yr.unwrap_or((0.0, 1.0)), 0.06);
+    let mut b = Bounds {
+        x0: t0,
+        x1: t1,
+        y0,
+        y1,
+    };
+    let mut entries: Vec<LegendEntry> = panel
+        .series
+        .iter()
+        .map(|s| LegendEntry::line(s.name, s.color, s.width, s.dashed))
+        .collect();
+    if let Some((_, label)) = panel.reference {
+        entries.push(LegendEntry::line(label, RED, 1, true));
+    }
+    let legend = Legend::layout(&entries, plot_dim.0 - 16.0, false);
+    let pts: Vec<&[Pt]> = panel.series.iter().map(|s| s.points.as_slice()).collect();
+    let (mut corner, hidden) = legend.best_corner(&pts, &b, plot_dim);
+    if hidden > 0 {
+        let f = legend.height_fraction(plot_dim.1);
+        b.y1 += (b.y1 - b.y0) * f / (1.0 - f);
+        corner = legend.best_corner(&pts, &b, plot_dim).0;
+    }
+
+    let mut chart = ChartBuilder::on(area)
+        .margin_top(MARGIN_TOP)
+        .margin_bottom(MARGIN_BOTTOM)
+        .margin_left(MARGIN_LEFT)
+        .margin_right(MARGIN_RIGHT)
+        .x_label_area_size(if bottom { X_AXIS_H } else { X_AXIS_H_INNER })
+        .y_label_area_size(Y_LABEL_AREA)
+        .build_cartesian_2d(b.x0..b.x1, b.y0..b.y1)
+        .map_err(de)?;
+    let (nx, ny) = (16, 5);
+    let (sx, sy) = (nice_step((b.x0, b.x1), nx), nice_step((b.y0, b.y1), ny));
+    let x_fmt = move |v: &f64| {
+        if bottom {
+            tick_label(*v, sx)
+        } else {
+            String::new()
+        }
+    };
+    let y_fmt = |v: &f64| tick_label(*v, sy);
+    let mut mesh = chart.configure_mesh();
+    mesh.x_labels(nx)
+        .y_labels(ny)
+        .x_label_formatter(&x_fmt)
+        .y_label_formatter(&y_fmt)
+        .y_desc(panel.y_desc.as_str())
+        .label_style((FONT, TICK_SIZE))
+        .axis_desc_style((FONT, DESC_SIZE))
+        .max_light_lines(1)
+        .light_line_style(RGBColor(242, 242, 242))
+        .bold_line_style(RGBColor(215, 215, 215));
+    if bottom {
+        mesh.x_desc("time (s)");
+    }
+    mesh.draw().map_err(de)?;
+
+    if let Some((v, _)) = panel.reference {
+        draw_line(
+            &mut chart,
+            &[(b.x0, v), (b.x1, v)],
+            RED.stroke_width(1),
+            true,
+        )?;
+    }
+    for s in &panel.series {
+        for seg in clip_polyline(&s.points, &b) {
+            draw_line(&mut chart, &seg, s.color.stroke_width(s.width), s.dashed)?;
+        }
+    }
+    legend.draw(&chart.plotting_area().strip_coord_spec(), corner)
+}
