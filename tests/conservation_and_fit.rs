@@ -16,17 +16,30 @@ fn steady_state_balances_every_flow() {
         let last = r.trace.last().expect("trace");
         let first = r.trace.first().expect("trace");
         // nothing moved: accumulation is zero
-        assert!((last.p_discharge_pa - first.p_discharge_pa).abs() < 1e-6 * first.p_discharge_pa, "{stem}");
+        assert!(
+            (last.p_discharge_pa - first.p_discharge_pa).abs() < 1e-6 * first.p_discharge_pa,
+            "{stem}"
+        );
         let m = last.m_kg_s;
         if plant.file.recycle_system.is_some() {
             // V1: feed + recycle = compressor; V2: compressor = recycle + throttle
-            let (wf, wr, wt) = (last.feed_flow_kg_s, last.recycle_flow_kg_s, last.throttle_flow_kg_s);
+            let (wf, wr, wt) = (
+                last.feed_flow_kg_s,
+                last.recycle_flow_kg_s,
+                last.throttle_flow_kg_s,
+            );
             assert!((wf + wr - m).abs() < 1e-6 * m, "{stem}: {wf} + {wr} != {m}");
             assert!((m - wr - wt).abs() < 1e-6 * m, "{stem}: {m} - {wr} != {wt}");
-            assert!((wf - wt).abs() < 1e-6 * m, "{stem}: feed {wf} != throttle {wt}");
+            assert!(
+                (wf - wt).abs() < 1e-6 * m,
+                "{stem}: feed {wf} != throttle {wt}"
+            );
         } else {
             let wt = last.throttle_flow_kg_s;
-            assert!((m - wt).abs() < 1e-6 * m, "{stem}: compressor {m} != throttle {wt}");
+            assert!(
+                (m - wt).abs() < 1e-6 * m,
+                "{stem}: compressor {m} != throttle {wt}"
+            );
         }
     }
 }
@@ -51,11 +64,17 @@ fn stored_mass_changes_by_the_net_inflow_during_surge() {
     let first = r.trace.first().expect("trace");
     let last = r.trace.last().expect("trace");
     let dm = mass(last) - mass(first);
-    assert!(r.summary.surge_cycles > 10, "the check must cover surge transients");
+    assert!(
+        r.summary.surge_cycles > 10,
+        "the check must cover surge transients"
+    );
     // the only error is the trapezoidal rule on 5 ms samples through deep surge (measured
     // 0.05 %): 0.5 % of the net inflow
     assert!(net.abs() > 0.05, "the transient must move mass: {net} kg");
-    assert!((dm - net).abs() < 0.005 * net.abs(), "stored {dm} kg vs net inflow {net} kg");
+    assert!(
+        (dm - net).abs() < 0.005 * net.abs(),
+        "stored {dm} kg vs net inflow {net} kg"
+    );
 }
 
 #[test]
@@ -74,7 +93,11 @@ fn fitted_maps_reproduce_their_points_within_two_percent() {
             let v = fit.eval(s.flow, s.omega_rad_s).value;
             worst = worst.max((v - s.pressure_ratio).abs() / s.pressure_ratio);
         }
-        assert!(worst < 0.02, "{}: worst relative error {worst}", path.display());
+        assert!(
+            worst < 0.02,
+            "{}: worst relative error {worst}",
+            path.display()
+        );
         checked += 1;
     }
     assert!(checked >= 3, "expected the shipped maps, found {checked}");
@@ -90,9 +113,15 @@ fn surge_line_is_derived_from_the_map() {
             let w = lo + (hi - lo) * k as f64 / 4.0;
             let (q, r) = plant.map.peak(w).expect("peak");
             let slope = plant.map.eval(q, w).d_dflow;
-            assert!(slope.abs() < 1e-6 * (1.0 + r), "{stem}: slope {slope} at the peak");
+            assert!(
+                slope.abs() < 1e-6 * (1.0 + r),
+                "{stem}: slope {slope} at the peak"
+            );
             let q_sl = plant.map.surge_line.flow_at_ratio(r);
-            assert!((q_sl - q).abs() < 2e-3 * q.abs().max(1e-3), "{stem}: {q_sl} vs {q}");
+            assert!(
+                (q_sl - q).abs() < 2e-3 * q.abs().max(1e-3),
+                "{stem}: {q_sl} vs {q}"
+            );
         }
     }
 }
@@ -104,7 +133,13 @@ fn orifice_reading_round_trips_to_the_true_flow() {
         let r = common::simulate(&plant, &common::scenario("throttle_closure"), LawId::None);
         for row in r.trace.iter().filter(|row| row.m_kg_s.abs() > 1e-3) {
             let err = (row.meas_m_kg_s - row.m_kg_s).abs() / row.m_kg_s.abs();
-            assert!(err < 1e-9, "{stem} at {} s: {} vs {}", row.t_s, row.meas_m_kg_s, row.m_kg_s);
+            assert!(
+                err < 1e-9,
+                "{stem} at {} s: {} vs {}",
+                row.t_s,
+                row.meas_m_kg_s,
+                row.m_kg_s
+            );
         }
     }
 }

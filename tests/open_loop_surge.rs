@@ -14,14 +14,30 @@ fn throttle_closure_surges_on_every_plant() {
         let r = common::simulate(&plant, &common::scenario("throttle_closure"), LawId::None);
         let s = &r.summary;
         assert!(!s.stable, "{stem}: open loop must not end stable: {s:#?}");
-        assert!(s.flow_reversal || s.surge_cycles >= 3, "{stem}: no surge: {s:#?}");
-        let f = s.surge_frequency_hz.unwrap_or_else(|| panic!("{stem}: no frequency"));
+        assert!(
+            s.flow_reversal || s.surge_cycles >= 3,
+            "{stem}: no surge: {s:#?}"
+        );
+        let f = s
+            .surge_frequency_hz
+            .unwrap_or_else(|| panic!("{stem}: no frequency"));
         assert!((1.0..=10.0).contains(&f), "{stem}: surge at {f} Hz");
-        assert!(s.surge_cycles >= 5, "{stem}: only {} cycles", s.surge_cycles);
+        assert!(
+            s.surge_cycles >= 5,
+            "{stem}: only {} cycles",
+            s.surge_cycles
+        );
         // surge happens after the closure, not before
-        let first_reversal = r.trace.iter().find(|row| row.m_kg_s < 0.0).map(|row| row.t_s);
+        let first_reversal = r
+            .trace
+            .iter()
+            .find(|row| row.m_kg_s < 0.0)
+            .map(|row| row.t_s);
         if let Some(t) = first_reversal {
-            assert!(t > 5.0, "{stem}: reversal at {t} s, before the throttle moved");
+            assert!(
+                t > 5.0,
+                "{stem}: reversal at {t} s, before the throttle moved"
+            );
         }
     }
 }
@@ -52,16 +68,33 @@ fn plant_held_right_of_the_peak_settles_to_its_equilibrium() {
             .operating_points(&inputs)
             .pop()
             .unwrap_or_else(|| panic!("{stem}: no equilibrium at 50 %"));
-        assert!(eq.stable(), "{stem}: 50 % should be right of the peak: {eq:?}");
-        assert!(eq.compressor_slope < 0.0, "{stem}: slope {}", eq.compressor_slope);
+        assert!(
+            eq.stable(),
+            "{stem}: 50 % should be right of the peak: {eq:?}"
+        );
+        assert!(
+            eq.compressor_slope < 0.0,
+            "{stem}: slope {}",
+            eq.compressor_slope
+        );
 
         let r = common::simulate(&plant, &sc, LawId::None);
         assert!(r.summary.stable, "{stem}: {:#?}", r.summary);
         assert_eq!(r.summary.surge_cycles, 0, "{stem}");
         let last = r.trace.last().expect("trace");
         let rel = (last.m_kg_s - eq.m_kg_s).abs() / eq.m_kg_s;
-        assert!(rel < 0.01, "{stem}: final flow {} vs equilibrium {}", last.m_kg_s, eq.m_kg_s);
+        assert!(
+            rel < 0.01,
+            "{stem}: final flow {} vs equilibrium {}",
+            last.m_kg_s,
+            eq.m_kg_s
+        );
         let rel_r = (last.pressure_ratio - eq.pressure_ratio).abs() / eq.pressure_ratio;
-        assert!(rel_r < 0.005, "{stem}: ratio {} vs {}", last.pressure_ratio, eq.pressure_ratio);
+        assert!(
+            rel_r < 0.005,
+            "{stem}: ratio {} vs {}",
+            last.pressure_ratio,
+            eq.pressure_ratio
+        );
     }
 }

@@ -23,12 +23,25 @@ fn right_of_peak_is_stable_left_of_peak_is_not() {
     for stem in common::PLANTS {
         let plant = common::plant(stem);
         let p = SimPlant::new(&plant, &inputs(&plant, 0.6)).expect("plant");
-        let right = p.operating_points(&inputs(&plant, 0.6)).pop().expect("eq at 60 %");
+        let right = p
+            .operating_points(&inputs(&plant, 0.6))
+            .pop()
+            .expect("eq at 60 %");
         assert!(right.compressor_slope < 0.0, "{stem}");
         assert!(right.stable(), "{stem}: {:?}", right.eigenvalues);
-        let left = p.operating_points(&inputs(&plant, 0.2)).pop().expect("eq at 20 %");
-        assert!(left.compressor_slope > 0.0, "{stem}: 20 % should be left of the peak");
-        assert!(!left.stable(), "{stem}: left of peak reported stable: {:?}", left.eigenvalues);
+        let left = p
+            .operating_points(&inputs(&plant, 0.2))
+            .pop()
+            .expect("eq at 20 %");
+        assert!(
+            left.compressor_slope > 0.0,
+            "{stem}: 20 % should be left of the peak"
+        );
+        assert!(
+            !left.stable(),
+            "{stem}: left of peak reported stable: {:?}",
+            left.eigenvalues
+        );
     }
 }
 
@@ -53,10 +66,13 @@ fn routh_hurwitz_agrees_with_eigenvalues_on_the_spool_model() {
             let df_dpsi = gamma / (2.0 * psi.sqrt());
             let (a, b, c) = (sp.a_bar, sp.b_bar, sp.c_bar);
             let c1 = a * dg_dw - b * mp.d_dflow + c * df_dpsi; // eq. 18
-            let c2 = b * c + a * b * mp.d_domega * dg_dphi - a * b * dg_dw * mp.d_dflow
+            let c2 = b * c + a * b * mp.d_domega * dg_dphi
+                - a * b * dg_dw * mp.d_dflow
                 - b * c * mp.d_dflow * df_dpsi
                 + a * c * dg_dw * df_dpsi; // eq. 19
-            let c3 = a * b * c
+            let c3 = a
+                * b
+                * c
                 * (dg_dw + mp.d_domega * dg_dphi * df_dpsi - dg_dw * mp.d_dflow * df_dpsi); // eq. 20
             let routh_stable = c1 > 0.0 && c3 > 0.0 && c1 * c2 > c3; // Lemma 1
             let mut q = s.clone();
@@ -75,7 +91,10 @@ fn routh_hurwitz_agrees_with_eigenvalues_on_the_spool_model() {
             }
         }
     }
-    assert!(n_stable >= 3 && n_unstable >= 3, "{n_stable} stable, {n_unstable} unstable");
+    assert!(
+        n_stable >= 3 && n_unstable >= 3,
+        "{n_stable} stable, {n_unstable} unstable"
+    );
 }
 
 #[test]

@@ -58,7 +58,15 @@ fn reference(p: &RecyclePlant, x0: &SVector<f64, N>) -> Vec<SVector<f64, N>> {
     let n = (T_END / H).round() as usize;
     let mut out = vec![x];
     for k in 0..n {
-        dormand_prince::integrate(p, k as f64 * H, &mut x, (k + 1) as f64 * H, &tol, &mut h, &mut stats);
+        dormand_prince::integrate(
+            p,
+            k as f64 * H,
+            &mut x,
+            (k + 1) as f64 * H,
+            &tol,
+            &mut h,
+            &mut stats,
+        );
         out.push(x);
     }
     out
@@ -97,7 +105,10 @@ fn ros2_is_stable_at_one_millisecond_where_rk4_diverges() {
         .fold(0.0, f64::max);
     assert!(lam * H > 2.8, "not stiff at 1 ms: |λ|max = {lam} s⁻¹");
     let r = reference(&p, &x0);
-    assert!(err(&r[r.len() - 1], &x0) > 1e-3, "the step must excite the dynamics");
+    assert!(
+        err(&r[r.len() - 1], &x0) > 1e-3,
+        "the step must excite the dynamics"
+    );
 
     let rk4_1ms = max_err_fixed(&p, &x0, &r, 1, rk4::step);
     let ros2_1ms = max_err_fixed(&p, &x0, &r, 1, |s, t, x, h| rosenbrock::step(s, t, x, h).0);
@@ -114,19 +125,36 @@ fn ros2_is_stable_at_one_millisecond_where_rk4_diverges() {
     let mut ros2_adaptive: f64 = 0.0;
     let mut steps = 0u32;
     for k in 0..r.len() - 1 {
-        steps += rosenbrock::integrate_bounded(&p, k as f64 * H, &mut x, (k + 1) as f64 * H, &tol, &mut h, 200);
+        steps += rosenbrock::integrate_bounded(
+            &p,
+            k as f64 * H,
+            &mut x,
+            (k + 1) as f64 * H,
+            &tol,
+            &mut h,
+            200,
+        );
         ros2_adaptive = ros2_adaptive.max(err(&x, &r[k + 1]));
     }
     eprintln!("|λ|max = {lam:.0} s⁻¹ (|hλ| = {:.1} at 1 ms)", lam * H);
     eprintln!("RK4  1 ms:            max error {rk4_1ms:.3e}");
     eprintln!("RK4  1 ms / {sub:>3} sub-steps: max error {rk4_sub:.3e}");
     eprintln!("ROS2 1 ms:            max error {ros2_1ms:.3e}");
-    eprintln!("ROS2 adaptive (rtol 1e-4): max error {ros2_adaptive:.3e}, {steps} steps for {} periods", r.len() - 1);
+    eprintln!(
+        "ROS2 adaptive (rtol 1e-4): max error {ros2_adaptive:.3e}, {steps} steps for {} periods",
+        r.len() - 1
+    );
 
-    assert!(rk4_1ms.is_infinite() || rk4_1ms > 1.0, "RK4 at 1 ms should diverge: {rk4_1ms}");
+    assert!(
+        rk4_1ms.is_infinite() || rk4_1ms > 1.0,
+        "RK4 at 1 ms should diverge: {rk4_1ms}"
+    );
     assert!(ros2_1ms < 2e-2, "ROS2 at 1 ms: {ros2_1ms}");
     assert!(rk4_sub < 1e-3, "RK4 with {sub} sub-steps: {rk4_sub}");
     assert!(ros2_adaptive < 5e-3, "adaptive ROS2: {ros2_adaptive}");
     // error control never does worse than the fixed step (it only subdivides)
-    assert!(ros2_adaptive <= ros2_1ms * (1.0 + 1e-9), "{ros2_adaptive} vs {ros2_1ms}");
+    assert!(
+        ros2_adaptive <= ros2_1ms * (1.0 + 1e-9),
+        "{ros2_adaptive} vs {ros2_1ms}"
+    );
 }

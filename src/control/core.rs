@@ -308,6 +308,12 @@ impl ControlCore {
                 m_obs = obs.update(p_s, p_d, out, dt, |m| {
                     model.pressure_ratio_at(m, p_s, t_s_k, omega, thrust)
                 });
+                if !m_obs.is_finite() {
+                    // never carry a broken estimate: restart from the measured or steady flow
+                    let m0 = if m_meas.is_finite() { m_meas } else { out };
+                    obs.reset(m0, p_d, p_s);
+                    m_obs = m0;
+                }
             }
         }
         let (m, fallback) = match self.config.flow_source {
@@ -347,7 +353,10 @@ impl ControlCore {
         self.law_started = false;
         let mut cmd = ActuatorCommands::default();
         if self.model.recycle.is_some() {
-            cmd.set(ActuatorId::RecycleValve, self.settings.failsafe_recycle_opening);
+            cmd.set(
+                ActuatorId::RecycleValve,
+                self.settings.failsafe_recycle_opening,
+            );
         }
         if self.model.tip.is_some() {
             cmd.set(ActuatorId::TipClearance, 0.0);
@@ -355,7 +364,10 @@ impl ControlCore {
         if self.model.spool.is_some() {
             cmd.set(ActuatorId::CloseCoupledValve, 0.0);
         }
-        cmd.set(ActuatorId::DriveTorque, self.last.get(ActuatorId::DriveTorque));
+        cmd.set(
+            ActuatorId::DriveTorque,
+            self.last.get(ActuatorId::DriveTorque),
+        );
         self.last = cmd;
         CycleOutput {
             commands: cmd,
@@ -395,7 +407,8 @@ impl ControlCore {
         if from_failsafe {
             let held = self.last.get(ActuatorId::DriveTorque);
             if held.is_finite() {
-                self.speed.track(held, op.speed_setpoint_rad_s, meas.omega_rad_s);
+                self.speed
+                    .track(held, op.speed_setpoint_rad_s, meas.omega_rad_s);
             }
         }
         // the current outputs, with positions measured where the controller did not drive them

@@ -88,11 +88,15 @@ impl LawId {
                 ActuatorSet::of(&[ActuatorId::DriveTorque, ActuatorId::RecycleValve])
             }
             LawId::DriveTorque => ActuatorSet::of(&[ActuatorId::DriveTorque]),
-            LawId::Ccv => ActuatorSet::of(&[ActuatorId::DriveTorque, ActuatorId::CloseCoupledValve]),
+            LawId::Ccv => {
+                ActuatorSet::of(&[ActuatorId::DriveTorque, ActuatorId::CloseCoupledValve])
+            }
             LawId::ThrottleBackstep => {
                 ActuatorSet::of(&[ActuatorId::DriveTorque, ActuatorId::Throttle])
             }
-            LawId::Robust => ActuatorSet::of(&[ActuatorId::DriveTorque, ActuatorId::CloseCoupledValve]),
+            LawId::Robust => {
+                ActuatorSet::of(&[ActuatorId::DriveTorque, ActuatorId::CloseCoupledValve])
+            }
             LawId::TipSliding => ActuatorSet::of(&[ActuatorId::TipClearance]),
         }
     }
@@ -252,19 +256,25 @@ impl Law {
         }
         Ok(match id {
             LawId::None => Law::None,
-            LawId::RecyclePi => Law::RecyclePi(super::recycle_pi::RecyclePi::new(&cfg.recycle_pi, model)?),
-            LawId::RecycleFl => Law::RecycleFl(super::recycle_fl::RecycleFl::new(&cfg.recycle_fl, model)?),
-            LawId::DriveTorque => {
-                Law::DriveTorque(super::drive_torque::DriveTorque::new(&cfg.drive_torque, model)?)
+            LawId::RecyclePi => {
+                Law::RecyclePi(super::recycle_pi::RecyclePi::new(&cfg.recycle_pi, model)?)
             }
+            LawId::RecycleFl => {
+                Law::RecycleFl(super::recycle_fl::RecycleFl::new(&cfg.recycle_fl, model)?)
+            }
+            LawId::DriveTorque => Law::DriveTorque(super::drive_torque::DriveTorque::new(
+                &cfg.drive_torque,
+                model,
+            )?),
             LawId::Ccv => Law::Ccv(super::spool_laws::Ccv::new(&cfg.ccv, model)?),
             LawId::ThrottleBackstep => Law::ThrottleBackstep(
                 super::spool_laws::ThrottleBackstep::new(&cfg.throttle_backstep, model)?,
             ),
             LawId::Robust => Law::Robust(super::spool_laws::Robust::new(&cfg.robust, model)?),
-            LawId::TipSliding => {
-                Law::TipSliding(super::tip_sliding::TipSliding::new(&cfg.tip_sliding, model)?)
-            }
+            LawId::TipSliding => Law::TipSliding(super::tip_sliding::TipSliding::new(
+                &cfg.tip_sliding,
+                model,
+            )?),
         })
     }
 
@@ -334,10 +344,20 @@ mod tests {
 
     #[test]
     fn each_law_declares_its_actuators() {
-        assert!(LawId::RecyclePi.actuators().contains(ActuatorId::RecycleValve));
-        assert!(LawId::TipSliding.actuators().contains(ActuatorId::TipClearance));
-        assert!(!LawId::TipSliding.actuators().contains(ActuatorId::RecycleValve));
-        assert!(LawId::Robust.actuators().contains(ActuatorId::CloseCoupledValve));
-        assert!(LawId::ThrottleBackstep.actuators().contains(ActuatorId::Throttle));
+        assert!(LawId::RecyclePi
+            .actuators()
+            .contains(ActuatorId::RecycleValve));
+        assert!(LawId::TipSliding
+            .actuators()
+            .contains(ActuatorId::TipClearance));
+        assert!(!LawId::TipSliding
+            .actuators()
+            .contains(ActuatorId::RecycleValve));
+        assert!(LawId::Robust
+            .actuators()
+            .contains(ActuatorId::CloseCoupledValve));
+        assert!(LawId::ThrottleBackstep
+            .actuators()
+            .contains(ActuatorId::Throttle));
     }
 }

@@ -108,7 +108,12 @@ impl ControlModel {
     ) -> f64 {
         use crate::plant::{plenum_duct, recycle_system, tip_clearance};
         if let Some(p) = &self.plenum_duct {
-            return plenum_duct::throttle_flow_kg_s(p, &self.gas, p_discharge_pa, throttle_position);
+            return plenum_duct::throttle_flow_kg_s(
+                p,
+                &self.gas,
+                p_discharge_pa,
+                throttle_position,
+            );
         }
         if let Some(r) = &self.recycle {
             let wr = recycle_system::recycle_flow_steady_kg_s(
@@ -128,9 +133,50 @@ impl ControlModel {
             return wr + wt;
         }
         if let Some(t) = &self.tip {
-            return tip_clearance::throttle_flow_kg_s(t, &self.gas, p_discharge_pa, throttle_position);
+            return tip_clearance::throttle_flow_kg_s(
+                t,
+                &self.gas,
+                p_discharge_pa,
+                throttle_position,
+            );
         }
         f64::NAN
+    }
+
+    /// Smallest observer gain c2 for exponential convergence over the operating region:
+    /// p_in,max · sup ∂Ψc/∂m (seed 000 eq. 17 without its spurious factor 2, ERRATA.md), Pa per
+    /// kg/s. The region is flows from −q_peak to 2.5 q_peak at 70–120 % of nominal speed; p_in,max
+    /// is the highest inlet pressure the machine can see (ambient, or the discharge header for
+    /// a recycle system). `None` if the machine has no observer.
+    pub fn observer_min_gain(&self) -> Option<f64> {
+        self.observer_plant()?;
+        let w0 = self.drive.nominal_speed_rad_s;
+        let (q_peak, _) = self.map.peak(w0)?;
+        let slope = self
+            .map
+            .max_slope((0.7 * w0, 1.2 * w0), (-q_peak, 2.5 * q_peak));
+        let (p_in, t_in) = if let Some(r) = &self.recycle {
+            let p = match r.feed {
+                crate::plant::file::FeedSpec::Valve {
+                    upstream_pressure_pa,
+                    ..
+                } => upstream_pressure_pa.max(r.downstream_pressure_pa),
+                crate::plant::file::FeedSpec::MassFlow { .. } => r.downstream_pressure_pa,
+            };
+            (p, r.suction_temperature_k)
+        } else if let Some(p) = &self.plenum_duct {
+            (p.ambient_pressure_pa, p.ambient_temperature_k)
+        } else if let Some(t) = &self.tip {
+            (t.ambient_pressure_pa, t.ambient_temperature_k)
+        } else {
+            return None;
+        };
+        // per kg/s: a volumetric map's slope is divided by the inlet density
+        let per_kg = match self.map.flow_coordinate {
+            FlowCoordinate::MassKgS => slope,
+            FlowCoordinate::InletVolumeM3S => slope / self.gas.density_kg_m3(p_in, t_in),
+        };
+        Some(super::observer::min_gain(p_in, per_kg))
     }
 
     /// Compressor pressure ratio Ψc at mass flow `m`, with the tip-clearance effect of the
@@ -146,7 +192,10 @@ impl ControlModel {
     ) -> f64 {
         let psi_ss = self
             .map
-            .eval(self.map_flow(m_kg_s, p_suction_pa, t_suction_k), omega_rad_s)
+            .eval(
+                self.map_flow(m_kg_s, p_suction_pa, t_suction_k),
+                omega_rad_s,
+            )
             .value;
         match (&self.tip, clearance_m.is_finite()) {
             (Some(t), true) => t.effect.pressure_ratio(psi_ss, clearance_m),

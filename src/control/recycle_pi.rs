@@ -8,7 +8,10 @@ use serde::{Deserialize, Serialize};
 /// Settings (`[controller.recycle_pi]`).
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize, Default)]
 #[serde(deny_unknown_fields, default)]
-pub struct RecyclePiConfig {}
+pub struct RecyclePiConfig {
+    /// The surge control line.
+    pub control_line: super::surge_control_line::ControlLineForm,
+}
 
 /// Law state.
 #[derive(Debug, Clone)]

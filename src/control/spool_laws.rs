@@ -34,5 +34,9 @@ macro_rules! stub_law {
 }
 
 stub_law!(Ccv, CcvConfig, "ccv");
-stub_law!(ThrottleBackstep, ThrottleBackstepConfig, "throttle_backstep");
+stub_law!(
+    ThrottleBackstep,
+    ThrottleBackstepConfig,
+    "throttle_backstep"
+);
 stub_law!(Robust, RobustConfig, "robust");

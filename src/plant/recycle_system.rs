@@ -57,7 +57,13 @@ pub fn recycle_flow_steady_kg_s(pp: &RecycleParams, gas: &Gas, p1: f64, p2: f64,
 
 /// Quasi-steady flow through the discharge line's throttle to the header at `p_a_pa`, with the
 /// check valve shut when p2 ≤ p_a (seed 002 eq. 3.17), kg/s.
-pub fn throttle_flow_steady_kg_s(pp: &RecycleParams, gas: &Gas, p2: f64, p_a_pa: f64, lt: f64) -> f64 {
+pub fn throttle_flow_steady_kg_s(
+    pp: &RecycleParams,
+    gas: &Gas,
+    p2: f64,
+    p_a_pa: f64,
+    lt: f64,
+) -> f64 {
     let cv = pp.throttle.cv_m2(lt);
     let dp = p2 - p_a_pa;
     if dp <= 0.0 && pp.check_valve {
