@@ -17,6 +17,7 @@ pub mod io;
 pub mod physics;
 pub mod plant;
 pub mod plot;
+pub mod runtime;
 pub mod scenario;
 pub mod signals;
 pub mod sim;

@@ -44,7 +44,10 @@ fn counting_allocator_counts() {
     let before = allocations();
     let v: Vec<u64> = Vec::with_capacity(16);
     std::hint::black_box(&v);
-    assert!(allocations() > before, "the counter must see a Vec allocation");
+    assert!(
+        allocations() > before,
+        "the counter must see a Vec allocation"
+    );
 }
 
 #[test]

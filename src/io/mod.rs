@@ -5,3 +5,4 @@
 
 pub mod can;
 pub mod modbus;
+pub mod signal_map;

@@ -1,0 +1,204 @@
+//! The one signal map: each sensor and actuator bound either to a CAN signal of the DBC file
+//! or to a Modbus register. The daemon and the plant node read the same file, so both ends of
+//! a bus agree by construction.
+//!
+//! ```toml
+//! [sensors.p_suction]
+//! can = { message = "PLANT_Pressures", signal = "PSuction" }
+//!
+//! [sensors.orifice_dp]
+//! modbus = { unit_id = 1, table = "input", address = 10, data_type = "f32" }
+//!
+//! [actuators.recycle_valve]
+//! can = { message = "CTRL_ActuatorCmd1", signal = "RecycleValveCmd" }
+//! ```
+
+use super::can::SignalBinding;
+use super::modbus::{find_overlaps, RegisterBinding};
+use crate::signals::{ActuatorId, SensorId};
+use serde::{Deserialize, Serialize};
+use std::collections::BTreeMap;
+
+/// Where one signal lives.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case", deny_unknown_fields)]
+pub enum Binding {
+    /// A signal of a CAN message defined in the DBC file.
+    Can {
+        /// Message name in the DBC.
+        message: String,
+        /// Signal name in the message.
+        signal: String,
+    },
+    /// A Modbus register.
+    Modbus(RegisterBinding),
+}
+
+/// The signal map file.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize, Default)]
+#[serde(deny_unknown_fields)]
+pub struct SignalMap {
+    /// Sensor bindings.
+    #[serde(default)]
+    pub sensors: BTreeMap<SensorId, Binding>,
+    /// Actuator bindings.
+    #[serde(default)]
+    pub actuators: BTreeMap<ActuatorId, Binding>,
+}
+
+/// A problem in a signal map.
+#[derive(Debug, Clone, PartialEq)]
+pub struct MapProblem {
+    /// Key path (`sensors.p_suction.modbus`).
+    pub key: String,
+    /// What is wrong.
+    pub message: String,
+}
+
+impl SignalMap {
+    /// CAN bindings, for the codec.
+    pub fn can_bindings(&self) -> Vec<SignalBinding> {
+        let mut out = Vec::new();
+        for (id, b) in &self.sensors {
+            if let Binding::Can { message, signal } = b {
+                out.push(SignalBinding::sensor(*id, message, signal));
+            }
+        }
+        for (id, b) in &self.actuators {
+            if let Binding::Can { message, signal } = b {
+                out.push(SignalBinding::actuator(*id, message, signal));
+            }
+        }
+        out
+    }
+
+    /// Modbus sensor bindings.
+    pub fn modbus_sensors(&self) -> Vec<(SensorId, RegisterBinding)> {
+        self.sensors
+            .iter()
+            .filter_map(|(id, b)| match b {
+                Binding::Modbus(r) => Some((*id, *r)),
+                Binding::Can { .. } => None,
+            })
+            .collect()
+    }
+
+    /// Modbus actuator bindings.
+    pub fn modbus_actuators(&self) -> Vec<(ActuatorId, RegisterBinding)> {
+        self.actuators
+            .iter()
+            .filter_map(|(id, b)| match b {
+                Binding::Modbus(r) => Some((*id, *r)),
+                Binding::Can { .. } => None,
+            })
+            .collect()
+    }
+
+    /// Whether any signal uses CAN.
+    pub fn uses_can(&self) -> bool {
+        self.sensors
+            .values()
+            .chain(self.actuators.values())
+            .any(|b| matches!(b, Binding::Can { .. }))
+    }
+
+    /// Whether any signal uses Modbus.
+    pub fn uses_modbus(&self) -> bool {
+        self.sensors
+            .values()
+            .chain(self.actuators.values())
+            .any(|b| matches!(b, Binding::Modbus(_)))
+    }
+
+    /// Checks that do not need the DBC: Modbus registers must not overlap, and register
+    /// bindings must be valid (actuators in holding registers).
+    pub fn check(&self) -> Vec<MapProblem> {
+        let mut problems = Vec::new();
+        let mut keyed: Vec<(String, RegisterBinding)> = Vec::new();
+        for (id, r) in self.modbus_sensors() {
+            keyed.push((format!("sensors.{}.modbus", id.name()), r));
+        }
+        for (id, r) in self.modbus_actuators() {
+            let key = format!("actuators.{}.modbus", id.name());
+            if r.table != super::modbus::RegisterTable::Holding {
+                problems.push(MapProblem {
+                    key: key.clone(),
+                    message:
+                        "an actuator must be a holding register (input registers are read-only)"
+                            .into(),
+                });
+            }
+            keyed.push((key, r));
+        }
+        for (key, r) in &keyed {
+            if let Err(e) = r.validate() {
+                problems.push(MapProblem {
+                    key: key.clone(),
+                    message: e.to_string(),
+                });
+            }
+        }
+        let regs: Vec<RegisterBinding> = keyed.iter().map(|(_, r)| *r).collect();
+        for o in find_overlaps(&regs) {
+            problems.push(MapProblem {
+                key: keyed[o.second].0.clone(),
+                message: format!(
+                    "register range overlaps `{}` (unit {}, {:?} register {})",
+                    keyed[o.first].0,
+                    regs[o.first].unit_id,
+                    regs[o.first].table,
+                    regs[o.first].address
+                ),
+            });
+        }
+        problems
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn parse(t: &str) -> SignalMap {
+        crate::config::toml_file::parse(t, std::path::Path::new("signals.toml")).expect("parse")
+    }
+
+    #[test]
+    fn parses_both_kinds_and_splits_them() {
+        let m = parse(
+            "[sensors.p_suction]\ncan = { message = \"PLANT_Pressures\", signal = \"PSuction\" }\n\
+             [sensors.orifice_dp]\nmodbus = { unit_id = 1, table = \"input\", address = 10, data_type = \"f32\" }\n\
+             [actuators.recycle_valve]\ncan = { message = \"CTRL_ActuatorCmd1\", signal = \"RecycleValveCmd\" }\n",
+        );
+        assert_eq!(m.can_bindings().len(), 2);
+        assert_eq!(m.modbus_sensors().len(), 1);
+        assert!(m.uses_can() && m.uses_modbus());
+        assert!(m.check().is_empty());
+    }
+
+    #[test]
+    fn overlapping_registers_and_readonly_actuators_are_reported() {
+        let m = parse(
+            "[sensors.p_suction]\nmodbus = { unit_id = 1, table = \"holding\", address = 10, data_type = \"f32\" }\n\
+             [actuators.recycle_valve]\nmodbus = { unit_id = 1, table = \"holding\", address = 11, data_type = \"u16\" }\n\
+             [actuators.throttle]\nmodbus = { unit_id = 1, table = \"input\", address = 30, data_type = \"u16\" }\n",
+        );
+        let p = m.check();
+        assert!(p.iter().any(|x| x.message.contains("overlaps")), "{p:?}");
+        assert!(
+            p.iter()
+                .any(|x| x.key == "actuators.throttle.modbus" && x.message.contains("holding")),
+            "{p:?}"
+        );
+    }
+
+    #[test]
+    fn unknown_sensor_name_is_rejected() {
+        let e = crate::config::toml_file::parse::<SignalMap>(
+            "[sensors.p_sucton]\ncan = { message = \"a\", signal = \"b\" }\n",
+            std::path::Path::new("s.toml"),
+        )
+        .unwrap_err();
+        assert!(e.message.contains("p_sucton"), "{e}");
+    }
+}

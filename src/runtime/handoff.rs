@@ -1,0 +1,423 @@
+//! Lock-free hand-off between the I/O tasks and the control thread.
+//!
+//! A [`SeqLock`] holds a few `f64`/`u64` words written by one writer and read by any number of
+//! readers: the writer never waits (two counter stores around relaxed word stores), readers
+//! retry while a write is in progress. No mutex, no allocation, nothing that can block the
+//! control cycle.
+//!
+//! - [`SensorBoard`]: one slot per sensor with its value and the monotonic time it arrived;
+//!   written by the bus task that owns the sensor, read by the control thread (which turns the
+//!   arrival time into an age for the freshness check).
+//! - [`OutputBoard`]: the control thread's latest setpoints, mode and law, read by the bus
+//!   tasks that send them.
+//! - [`Wakeup`]: an eventfd the control thread signals after publishing, so a sending task
+//!   wakes without polling.
+
+use crate::signals::{ActuatorCommands, ActuatorId, SensorId, SensorSnapshot};
+use std::sync::atomic::{fence, AtomicU64, Ordering};
+
+/// Single-writer, multi-reader sequence lock over `N` 64-bit words.
+#[derive(Debug)]
+pub struct SeqLock<const N: usize> {
+    seq: AtomicU64,
+    words: [AtomicU64; N],
+}
+
+impl<const N: usize> Default for SeqLock<N> {
+    fn default() -> Self {
+        SeqLock {
+            seq: AtomicU64::new(0),
+            words: std::array::from_fn(|_| AtomicU64::new(0)),
+        }
+    }
+}
+
+impl<const N: usize> SeqLock<N> {
+    /// Publish new words. Must only be called by the one writer of this lock.
+    #[inline]
+    pub fn write(&self, words: &[u64; N]) {
+        let s = self.seq.load(Ordering::Relaxed);
+        self.seq.store(s.wrapping_add(1), Ordering::Relaxed);
+        fence(Ordering::Release);
+        for (slot, w) in self.words.iter().zip(words) {
+            slot.store(*w, Ordering::Relaxed);
+        }
+        self.seq.store(s.wrapping_add(2), Ordering::Release);
+    }
+
+    /// Read a consistent copy of the words and the sequence number (even; 0 = never written).
+    #[inline]
+    pub fn read(&self) -> ([u64; N], u64) {
+        loop {
+            let s1 = self.seq.load(Ordering::Acquire);
+            if s1 & 1 == 1 {
+                std::hint::spin_loop();
+                continue;
+            }
+            let mut out = [0u64; N];
+            for (o, slot) in out.iter_mut().zip(&self.words) {
+                *o = slot.load(Ordering::Relaxed);
+            }
+            fence(Ordering::Acquire);
+            let s2 = self.seq.load(Ordering::Relaxed);
+            if s1 == s2 {
+                return (out, s1);
+            }
+        }
+    }
+}
+
+/// Monotonic clock in nanoseconds (CLOCK_MONOTONIC), the time base of every stamp.
+#[inline]
+pub fn monotonic_ns() -> u64 {
+    let mut ts = libc::timespec {
+        tv_sec: 0,
+        tv_nsec: 0,
+    };
+    // SAFETY: clock_gettime writes the timespec we pass; CLOCK_MONOTONIC always exists on Linux.
+    unsafe {
+        libc::clock_gettime(libc::CLOCK_MONOTONIC, &mut ts);
+    }
+    ts.tv_sec as u64 * 1_000_000_000 + ts.tv_nsec as u64
+}
+
+/// Latest value of every sensor with its arrival time.
+#[derive(Debug, Default)]
+pub struct SensorBoard {
+    slots: [SeqLock<2>; SensorId::COUNT],
+}
+
+impl SensorBoard {
+    /// Publish a reading that arrived at `t_ns` (monotonic). One writer per sensor.
+    #[inline]
+    pub fn publish(&self, id: SensorId, value: f64, t_ns: u64) {
+        self.slots[id.index()].write(&[value.to_bits(), t_ns]);
+    }
+
+    /// Value and arrival time of one sensor (NaN and 0 if never received).
+    #[inline]
+    pub fn get(&self, id: SensorId) -> (f64, u64) {
+        let ([v, t], seq) = self.slots[id.index()].read();
+        if seq == 0 {
+            (f64::NAN, 0)
+        } else {
+            (f64::from_bits(v), t)
+        }
+    }
+
+    /// Snapshot of all sensors with their ages at `now_ns`, s (∞ if never received).
+    pub fn snapshot(&self, now_ns: u64) -> (SensorSnapshot, [f64; SensorId::COUNT]) {
+        let mut values = SensorSnapshot::default();
+        let mut age = [f64::INFINITY; SensorId::COUNT];
+        for id in SensorId::ALL {
+            let (v, t) = self.get(id);
+            values.set(id, v);
+            if t > 0 {
+                age[id.index()] = now_ns.saturating_sub(t) as f64 * 1e-9;
+            }
+        }
+        (values, age)
+    }
+}
+
+/// What the control thread publishes each cycle.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Outputs {
+    /// Setpoints.
+    pub commands: ActuatorCommands,
+    /// Controller mode code.
+    pub mode: u8,
+    /// Active law code.
+    pub law: u8,
+    /// Fault bits for the heartbeat.
+    pub faults: u32,
+    /// Cycle counter.
+    pub cycle: u64,
+    /// Monotonic time the outputs were computed, ns.
+    pub t_ns: u64,
+}
+
+const OUT_WORDS: usize = ActuatorId::COUNT + 3;
+
+/// The control thread's latest outputs.
+#[derive(Debug, Default)]
+pub struct OutputBoard {
+    lock: SeqLock<OUT_WORDS>,
+}
+
+impl OutputBoard {
+    /// Publish (control thread only).
+    #[inline]
+    pub fn publish(&self, o: &Outputs) {
+        let mut w = [0u64; OUT_WORDS];
+        for (i, v) in o.commands.values.iter().enumerate() {
+            w[i] = v.to_bits();
+        }
+        let n = ActuatorId::COUNT;
+        w[n] = u64::from(o.mode) | (u64::from(o.law) << 8) | (u64::from(o.faults) << 32);
+        w[n + 1] = o.cycle;
+        w[n + 2] = o.t_ns;
+        self.lock.write(&w);
+    }
+
+    /// Latest outputs, or `None` if nothing was published yet.
+    #[inline]
+    pub fn latest(&self) -> Option<Outputs> {
+        let (w, seq) = self.lock.read();
+        if seq == 0 {
+            return None;
+        }
+        let n = ActuatorId::COUNT;
+        let mut commands = ActuatorCommands::default();
+        for i in 0..n {
+            commands.values[i] = f64::from_bits(w[i]);
+        }
+        Some(Outputs {
+            commands,
+            mode: (w[n] & 0xff) as u8,
+            law: ((w[n] >> 8) & 0xff) as u8,
+            faults: (w[n] >> 32) as u32,
+            cycle: w[n + 1],
+            t_ns: w[n + 2],
+        })
+    }
+}
+
+/// Latest actuator setpoints received from the controller, each with its arrival time (plant
+/// side). One writer per actuator (the bus task that owns it).
+#[derive(Debug, Default)]
+pub struct CommandBoard {
+    slots: [SeqLock<2>; ActuatorId::COUNT],
+}
+
+impl CommandBoard {
+    /// Publish a received setpoint.
+    #[inline]
+    pub fn publish(&self, id: ActuatorId, value: f64, t_ns: u64) {
+        self.slots[id.index()].write(&[value.to_bits(), t_ns]);
+    }
+
+    /// Setpoint and arrival time (NaN and 0 if never received).
+    #[inline]
+    pub fn get(&self, id: ActuatorId) -> (f64, u64) {
+        let ([v, t], seq) = self.slots[id.index()].read();
+        if seq == 0 {
+            (f64::NAN, 0)
+        } else {
+            (f64::from_bits(v), t)
+        }
+    }
+}
+
+/// The controller's heartbeat as last received (plant side).
+#[derive(Debug, Default)]
+pub struct HeartbeatBoard {
+    lock: SeqLock<3>,
+}
+
+/// One received heartbeat.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct HeartbeatSeen {
+    /// Controller mode code.
+    pub mode: u8,
+    /// Active law code.
+    pub law: u8,
+    /// Alive counter.
+    pub alive: u8,
+    /// Fault bits.
+    pub faults: u32,
+    /// Arrival time, monotonic ns.
+    pub t_ns: u64,
+}
+
+impl HeartbeatBoard {
+    /// Publish a received heartbeat (one writer).
+    #[inline]
+    pub fn publish(&self, hb: &HeartbeatSeen) {
+        let w0 = u64::from(hb.mode) | (u64::from(hb.law) << 8) | (u64::from(hb.alive) << 16);
+        self.lock.write(&[w0, u64::from(hb.faults), hb.t_ns]);
+    }
+
+    /// Last heartbeat, or `None` if none was received yet.
+    #[inline]
+    pub fn latest(&self) -> Option<HeartbeatSeen> {
+        let ([w0, f, t], seq) = self.lock.read();
+        if seq == 0 {
+            return None;
+        }
+        Some(HeartbeatSeen {
+            mode: (w0 & 0xff) as u8,
+            law: ((w0 >> 8) & 0xff) as u8,
+            alive: ((w0 >> 16) & 0xff) as u8,
+            faults: f as u32,
+            t_ns: t,
+        })
+    }
+}
+
+/// A sensor snapshot published by one writer (the plant node's real-time loop) for the tasks
+/// that send it.
+#[derive(Debug, Default)]
+pub struct SnapshotBoard {
+    lock: SeqLock<{ SensorId::COUNT + 2 }>,
+}
+
+impl SnapshotBoard {
+    /// Publish a snapshot computed at `t_ns` in cycle `cycle`.
+    #[inline]
+    pub fn publish(&self, s: &SensorSnapshot, cycle: u64, t_ns: u64) {
+        let mut w = [0u64; SensorId::COUNT + 2];
+        for (i, v) in s.values.iter().enumerate() {
+            w[i] = v.to_bits();
+        }
+        w[SensorId::COUNT] = cycle;
+        w[SensorId::COUNT + 1] = t_ns;
+        self.lock.write(&w);
+    }
+
+    /// Latest snapshot with its cycle and time, or `None` before the first publish.
+    #[inline]
+    pub fn latest(&self) -> Option<(SensorSnapshot, u64, u64)> {
+        let (w, seq) = self.lock.read();
+        if seq == 0 {
+            return None;
+        }
+        let mut s = SensorSnapshot::default();
+        for i in 0..SensorId::COUNT {
+            s.values[i] = f64::from_bits(w[i]);
+        }
+        Some((s, w[SensorId::COUNT], w[SensorId::COUNT + 1]))
+    }
+}
+
+/// An eventfd: the control thread signals, an async task waits.
+#[derive(Debug)]
+pub struct Wakeup {
+    fd: std::os::fd::OwnedFd,
+}
+
+impl Wakeup {
+    /// A non-blocking eventfd.
+    pub fn new() -> std::io::Result<Wakeup> {
+        // SAFETY: eventfd returns a new descriptor or −1; we check and take ownership.
+        let fd = unsafe { libc::eventfd(0, libc::EFD_NONBLOCK | libc::EFD_CLOEXEC) };
+        if fd < 0 {
+            return Err(std::io::Error::last_os_error());
+        }
+        // SAFETY: fd is a valid, newly created descriptor owned by nobody else.
+        Ok(Wakeup {
+            fd: unsafe { std::os::fd::FromRawFd::from_raw_fd(fd) },
+        })
+    }
+
+    /// Signal (never blocks: an overflowing counter just stays signalled).
+    #[inline]
+    pub fn signal(&self) {
+        let one: u64 = 1;
+        // SAFETY: writes 8 bytes from a valid u64 to our own eventfd.
+        unsafe {
+            libc::write(
+                std::os::fd::AsRawFd::as_raw_fd(&self.fd),
+                (&one as *const u64).cast(),
+                8,
+            );
+        }
+    }
+
+    /// Clear the counter (after waking). Returns how many signals were pending.
+    pub fn clear(&self) -> u64 {
+        let mut v: u64 = 0;
+        // SAFETY: reads 8 bytes into a valid u64 from our own non-blocking eventfd.
+        let n = unsafe {
+            libc::read(
+                std::os::fd::AsRawFd::as_raw_fd(&self.fd),
+                (&mut v as *mut u64).cast(),
+                8,
+            )
+        };
+        if n == 8 {
+            v
+        } else {
+            0
+        }
+    }
+
+    /// The raw descriptor (for `tokio::io::unix::AsyncFd`).
+    pub fn fd(&self) -> std::os::fd::BorrowedFd<'_> {
+        std::os::fd::AsFd::as_fd(&self.fd)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use std::sync::Arc;
+
+    #[test]
+    fn seqlock_reads_are_never_torn() {
+        let lock = Arc::new(SeqLock::<4>::default());
+        let w = Arc::clone(&lock);
+        let writer = std::thread::spawn(move || {
+            for k in 1..200_000u64 {
+                w.write(&[k, k, k, k]);
+            }
+        });
+        let mut last = 0;
+        while !writer.is_finished() || last < 199_999 {
+            let (words, _) = lock.read();
+            assert!(words.iter().all(|&x| x == words[0]), "torn read {words:?}");
+            assert!(words[0] >= last, "went backwards");
+            last = words[0];
+            if writer.is_finished() && last == 0 {
+                break;
+            }
+        }
+        writer.join().expect("writer");
+        assert_eq!(lock.read().0, [199_999; 4]);
+    }
+
+    #[test]
+    fn sensor_board_ages_and_unknown() {
+        let b = SensorBoard::default();
+        b.publish(SensorId::PSuction, 1.5e5, 1_000_000_000);
+        let (snap, age) = b.snapshot(1_020_000_000);
+        assert_eq!(snap.get(SensorId::PSuction), 1.5e5);
+        assert!((age[SensorId::PSuction.index()] - 0.02).abs() < 1e-12);
+        assert!(snap.get(SensorId::ShaftSpeed).is_nan());
+        assert!(age[SensorId::ShaftSpeed.index()].is_infinite());
+    }
+
+    #[test]
+    fn output_board_round_trips() {
+        let b = OutputBoard::default();
+        assert!(b.latest().is_none());
+        let mut c = ActuatorCommands::default();
+        c.set(ActuatorId::RecycleValve, 0.42);
+        let o = Outputs {
+            commands: c,
+            mode: 2,
+            law: 1,
+            faults: 0xdead_beef,
+            cycle: 7,
+            t_ns: 99,
+        };
+        b.publish(&o);
+        let r = b.latest().expect("published");
+        assert_eq!(r.commands.get(ActuatorId::RecycleValve), 0.42);
+        assert!(r.commands.get(ActuatorId::DriveTorque).is_nan());
+        assert_eq!(
+            (r.mode, r.law, r.faults, r.cycle, r.t_ns),
+            (2, 1, 0xdead_beef, 7, 99)
+        );
+    }
+
+    #[test]
+    fn wakeup_counts_signals() {
+        let w = Wakeup::new().expect("eventfd");
+        assert_eq!(w.clear(), 0);
+        w.signal();
+        w.signal();
+        assert_eq!(w.clear(), 2);
+        assert_eq!(w.clear(), 0);
+    }
+}

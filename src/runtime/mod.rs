@@ -1,0 +1,3 @@
+//! The runtime: the fixed-deadline control thread and its lock-free hand-off to the I/O tasks.
+
+pub mod handoff;
