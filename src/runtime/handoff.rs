@@ -169,8 +169,8 @@ impl OutputBoard {
         }
         let n = ActuatorId::COUNT;
         let mut commands = ActuatorCommands::default();
-        for i in 0..n {
-            commands.values[i] = f64::from_bits(w[i]);
+        for (c, word) in commands.values.iter_mut().zip(&w[..n]) {
+            *c = f64::from_bits(*word);
         }
         Some(Outputs {
             commands,
@@ -283,8 +283,8 @@ impl SnapshotBoard {
             return None;
         }
         let mut s = SensorSnapshot::default();
-        for i in 0..SensorId::COUNT {
-            s.values[i] = f64::from_bits(w[i]);
+        for (v, word) in s.values.iter_mut().zip(&w[..SensorId::COUNT]) {
+            *v = f64::from_bits(*word);
         }
         Some((s, w[SensorId::COUNT], w[SensorId::COUNT + 1]))
     }
