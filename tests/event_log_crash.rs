@@ -54,7 +54,7 @@ fn crash_child() {
     let tx = log.sender();
     tx.send(Event::started(
         Path::new("/etc/antisurge.toml"),
-        antisurge::events::Law::Recycle,
+        antisurge::events::Law::RecyclePi,
     ))
     .expect("child: send");
     for k in 0..100 {

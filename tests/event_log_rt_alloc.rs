@@ -93,7 +93,7 @@ fn all_rt_events(i: u64) -> [RtEvent; 9] {
         }
         .into(),
         LawChanged {
-            from: Law::Recycle,
+            from: Law::RecyclePi,
             to: Law::DriveTorque,
         }
         .into(),

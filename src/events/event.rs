@@ -29,21 +29,8 @@ pub enum Mode {
     Shutdown,
 }
 
-/// Which anti-surge control law is active.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, Serialize, Deserialize)]
-#[serde(rename_all = "snake_case")]
-pub enum Law {
-    /// No closed-loop law (outputs held or manual).
-    None,
-    /// Conventional avoidance: recycle valve keeps the operating point right of the control line.
-    Recycle,
-    /// Active surge control through a close-coupled valve.
-    CloseCoupledValve,
-    /// Active surge control through drive torque.
-    DriveTorque,
-    /// Active surge control through tip clearance (magnetic thrust bearing).
-    TipClearance,
-}
+/// The control law: the controller's own identifier (one list of law names).
+pub use crate::control::LawId as Law;
 
 /// Why an input was declared bad.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, Serialize, Deserialize)]
@@ -504,9 +491,9 @@ pub(crate) mod tests {
                 Event::Started {
                     version: "0.1.0".into(),
                     config_path: "/etc/antisurge/antisurge.toml".into(),
-                    law: Law::Recycle,
+                    law: Law::RecyclePi,
                 },
-                r#"{"ts":"2024-05-01T12:34:56.123456Z","seq":42,"event":"started","version":"0.1.0","config_path":"/etc/antisurge/antisurge.toml","law":"recycle"}"#,
+                r#"{"ts":"2024-05-01T12:34:56.123456Z","seq":42,"event":"started","version":"0.1.0","config_path":"/etc/antisurge/antisurge.toml","law":"recycle-pi"}"#,
             ),
             (
                 Event::Stopped {
@@ -547,10 +534,10 @@ pub(crate) mod tests {
             ),
             (
                 Event::LawChanged(LawChanged {
-                    from: Law::Recycle,
-                    to: Law::CloseCoupledValve,
+                    from: Law::RecyclePi,
+                    to: Law::Ccv,
                 }),
-                r#"{"ts":"2024-05-01T12:34:56.123456Z","seq":42,"event":"law_changed","from":"recycle","to":"close_coupled_valve"}"#,
+                r#"{"ts":"2024-05-01T12:34:56.123456Z","seq":42,"event":"law_changed","from":"recycle-pi","to":"ccv"}"#,
             ),
             (
                 Event::FallbackEntered(FallbackEntered {

@@ -156,13 +156,13 @@ mod tests {
     #[test]
     fn pretty_lines_for_every_kind() {
         let expected = [
-            "started           version=0.1.0  config_path=/etc/antisurge/antisurge.toml  law=recycle",
+            "started           version=0.1.0  config_path=/etc/antisurge/antisurge.toml  law=recycle-pi",
             "stopped           reason=SIGTERM",
             "surge_detected    surge_count_total=3  frequency_hz=8.5  min_flow_kg_s=-0.42  flow_reversal=true",
             "surge_counter     previous_count=3  count=0",
             "safety_on_shift   margin_pct=2.5  total_margin_pct=5.0  count=2",
             "mode_changed      from=auto  to=fail_safe",
-            "law_changed       from=recycle  to=close_coupled_valve",
+            "law_changed       from=recycle-pi  to=ccv",
             "fallback_entered  input=orifice_dp  reason=stale  replaced_by=observer",
             "fallback_left     input=orifice_dp  replaced_by=observer  duration_ms=1520",
             "config_applied    file=/etc/antisurge/antisurge.toml  control.recycle.kp=0.8->1.2  surge.margin_pct=(unset)->10.0",

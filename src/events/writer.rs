@@ -929,7 +929,7 @@ mod tests {
         log.send(note(&"z".repeat(10_000))).expect("send");
         log.send(Event::started(
             Path::new("/etc/antisurge.toml"),
-            Law::Recycle,
+            Law::RecyclePi,
         ))
         .expect("send");
         log.shutdown().expect("shutdown");

@@ -1,3 +1,4 @@
 //! The runtime: the fixed-deadline control thread and its lock-free hand-off to the I/O tasks.
 
 pub mod handoff;
+pub mod rt_loop;
