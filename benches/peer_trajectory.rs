@@ -18,6 +18,10 @@
 //! Problem B restarts from the reference's state at `--restart-at` (3 s, in deep surge) with
 //! the same held inputs and runs to `t_end`: see `benches/README.md` for why.
 //!
+//! Without `--bench` (which `cargo bench` passes) the defaults shrink to a smoke run (2.5 s,
+//! rtol 1e-4, one repeat, output in `target/peer_scipy_smoke/`), so that
+//! `cargo test --all-targets` stays quick.
+//!
 //! Run: `cargo bench --bench peer_trajectory -- [--out-dir DIR] [--plant FILE] [--t-end S]
 //! [--t-step S] [--dt-out S] [--rtols 1e-4,1e-6] [--ref-rtol 1e-10] [--repeats N]
 //! [--restart-at S]`.
@@ -59,7 +63,16 @@ fn parse_args() -> Result<Args, String> {
         repeats: 5,
         restart_at: 3.0,
     };
-    let mut it = std::env::args().skip(1);
+    // `cargo bench` passes --bench; without it (`cargo test --all-targets`, or the binary run
+    // by hand without arguments) run a quick smoke version unless arguments say otherwise
+    let argv: Vec<String> = std::env::args().skip(1).collect();
+    if !argv.iter().any(|a| a == "--bench") {
+        a.out_dir = root.join("target/peer_scipy_smoke");
+        a.t_end = 2.5;
+        a.rtols = vec![1e-4];
+        a.repeats = 1;
+    }
+    let mut it = argv.into_iter();
     let num = |s: Option<String>, name: &str| -> Result<f64, String> {
         s.ok_or(format!("{name} needs a value"))?
             .parse::<f64>()
