@@ -7,12 +7,14 @@
 //! - [`codec`]: bindings of [`crate::signals::SensorId`] / [`crate::signals::ActuatorId`] to
 //!   signals, and the allocation-free hot-path [`CanCodec::decode`] / [`CanCodec::encode`].
 //! - [`heartbeat`]: the controller heartbeat frame.
+//! - [`bus`]: the SocketCAN tasks of the controller and plant nodes (RX, TX, reconnect).
 //!
-//! Only classic CAN (payload ≤ 8 bytes) is supported. Bus I/O is elsewhere: a received
+//! Only classic CAN (payload ≤ 8 bytes) is supported. Outside [`bus`], a received
 //! `socketcan::CanFrame` maps to `FrameId::from(frame.id())` and `frame.data()`; a frame to send
 //! is `CanFrame::new(encoded.id.to_socketcan()?, encoded.payload())`.
 
 pub mod bits;
+pub mod bus;
 pub mod codec;
 pub mod dbc;
 pub mod e2e;

@@ -1,0 +1,302 @@
+//! Receive side: one frame in, board updates and counter increments out. No socket, no
+//! allocation, no panic: every malformed frame is counted and dropped.
+
+use std::sync::Arc;
+
+use socketcan::errors::{ControllerProblems, CAN_ERR_BUSOFF, CAN_ERR_CRTL, CAN_ERR_RESTARTED};
+use socketcan::{CanAnyFrame, CanErrorFrame, EmbeddedFrame};
+
+use super::{BusCodec, CanCounters};
+use crate::io::can::codec::{AliveCheckers, SignalTarget};
+use crate::io::can::dbc::FrameId;
+use crate::io::can::e2e::{AliveChecker, AliveStatus, FrameError};
+use crate::runtime::handoff::{CommandBoard, HeartbeatBoard, HeartbeatSeen, SensorBoard};
+
+/// What an error frame says about the CAN controller.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
+pub enum BusCondition {
+    /// Bus-off: the controller stopped taking part in bus traffic.
+    BusOff,
+    /// Error-passive (an error counter ≥ 128).
+    Passive,
+    /// Error warning (an error counter ≥ 96).
+    Warning,
+    /// Back to error-active, or restarted after bus-off.
+    Active,
+    /// Anything else (protocol violation, lost arbitration, no ACK, …): counted only.
+    Other,
+}
+
+/// Classify an error frame (`CAN_ERR_*` class bits in the id, controller state in data
+/// byte 1). Bus-off wins over everything else in the same frame.
+pub fn classify_error_frame(frame: &CanErrorFrame) -> BusCondition {
+    let bits = frame.error_bits();
+    if bits & CAN_ERR_BUSOFF != 0 {
+        return BusCondition::BusOff;
+    }
+    if bits & CAN_ERR_CRTL != 0 {
+        let byte = frame.data().get(1).copied().unwrap_or(0);
+        let p = ControllerProblems::from_bits_truncate(byte);
+        if p.intersects(ControllerProblems::RX_PASSIVE | ControllerProblems::TX_PASSIVE) {
+            return BusCondition::Passive;
+        }
+        if p.intersects(ControllerProblems::RX_WARNING | ControllerProblems::TX_WARNING) {
+            return BusCondition::Warning;
+        }
+        if p.contains(ControllerProblems::ACTIVE) {
+            return BusCondition::Active;
+        }
+    }
+    if bits & CAN_ERR_RESTARTED != 0 {
+        return BusCondition::Active;
+    }
+    BusCondition::Other
+}
+
+/// Why a received frame was not published.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
+pub enum RxReject {
+    /// Identifier not in the DBC.
+    UnknownId,
+    /// Known message, wrong length.
+    WrongDlc,
+    /// Known message, bad CRC.
+    BadCrc,
+    /// A value not finite or outside its value table.
+    InvalidValue,
+    /// A valid frame of a message this node does not consume.
+    Foreign,
+    /// Alive counter equal to the previous one: the sender is stuck, its values must go stale.
+    AliveRepeated,
+    /// Remote (RTR) frame.
+    Remote,
+    /// CAN FD frame.
+    Fd,
+}
+
+/// Result of handling one frame.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
+pub enum RxOutcome {
+    /// Values published to the board(s).
+    Published,
+    /// Counted and dropped.
+    Rejected(RxReject),
+    /// An error frame, classified (the caller acts on bus-off and state changes).
+    Bus(BusCondition),
+}
+
+/// Where received values go.
+#[derive(Debug)]
+enum Sink {
+    /// Controller: sensor values.
+    Sensors(Arc<SensorBoard>),
+    /// Plant: actuator setpoints and the heartbeat.
+    Commands {
+        commands: Arc<CommandBoard>,
+        heartbeat: Arc<HeartbeatBoard>,
+        heartbeat_alive: Option<AliveChecker>,
+    },
+}
+
+/// Frame handler of one node: decodes, checks, publishes, counts.
+#[derive(Debug)]
+pub struct RxHandler {
+    codec: Arc<BusCodec>,
+    /// Per message index: whether this node consumes it.
+    consumes: Vec<bool>,
+    checkers: AliveCheckers,
+    sink: Sink,
+    counters: Arc<CanCounters>,
+}
+
+impl RxHandler {
+    /// Controller side: sensor frames go to `sensors`; everything else known is foreign.
+    pub fn controller(
+        codec: Arc<BusCodec>,
+        sensors: Arc<SensorBoard>,
+        counters: Arc<CanCounters>,
+    ) -> RxHandler {
+        let mut consumes = vec![false; codec.frames.len()];
+        for m in codec.frames.sensor_messages() {
+            if let Some(c) = consumes.get_mut(m.get()) {
+                *c = true;
+            }
+        }
+        RxHandler {
+            checkers: codec.frames.alive_checkers(),
+            consumes,
+            sink: Sink::Sensors(sensors),
+            codec,
+            counters,
+        }
+    }
+
+    /// Plant side: actuator frames go to `commands`, the heartbeat to `heartbeat`.
+    pub fn plant(
+        codec: Arc<BusCodec>,
+        commands: Arc<CommandBoard>,
+        heartbeat: Arc<HeartbeatBoard>,
+        counters: Arc<CanCounters>,
+    ) -> RxHandler {
+        let mut consumes = vec![false; codec.frames.len()];
+        for m in codec.frames.actuator_messages() {
+            if let Some(c) = consumes.get_mut(m.get()) {
+                *c = true;
+            }
+        }
+        RxHandler {
+            checkers: codec.frames.alive_checkers(),
+            consumes,
+            sink: Sink::Commands {
+                commands,
+                heartbeat,
+                heartbeat_alive: codec.heartbeat.alive_bits().map(AliveChecker::new),
+            },
+            codec,
+            counters,
+        }
+    }
+
+    /// Forget the previous alive counters (after a reconnect the next frame is a "first").
+    pub fn reset_alive(&mut self) {
+        self.checkers = self.codec.frames.alive_checkers();
+        if let Sink::Commands {
+            heartbeat_alive: Some(c),
+            ..
+        } = &mut self.sink
+        {
+            c.reset();
+        }
+    }
+
+    /// Handle any frame read from the socket, received at `t_ns` (monotonic).
+    pub fn handle_frame(&mut self, frame: &CanAnyFrame, t_ns: u64) -> RxOutcome {
+        CanCounters::inc(&self.counters.rx_frames);
+        match frame {
+            CanAnyFrame::Normal(f) => self.handle_data(FrameId::from(f.id()), f.data(), t_ns),
+            CanAnyFrame::Remote(_) => {
+                CanCounters::inc(&self.counters.remote_frames);
+                RxOutcome::Rejected(RxReject::Remote)
+            }
+            CanAnyFrame::Fd(_) => {
+                CanCounters::inc(&self.counters.fd_frames);
+                RxOutcome::Rejected(RxReject::Fd)
+            }
+            CanAnyFrame::Error(f) => {
+                CanCounters::inc(&self.counters.error_frames);
+                let condition = classify_error_frame(f);
+                tracing::debug!(
+                    target: "can",
+                    error = %f.into_error(),
+                    ?condition,
+                    "error frame"
+                );
+                RxOutcome::Bus(condition)
+            }
+        }
+    }
+
+    /// Handle a classic data frame `id` / `data` received at `t_ns` (monotonic). Does not count
+    /// it in `rx_frames` ([`RxHandler::handle_frame`] does).
+    pub fn handle_data(&mut self, id: FrameId, data: &[u8], t_ns: u64) -> RxOutcome {
+        if let Sink::Commands {
+            heartbeat,
+            heartbeat_alive,
+            ..
+        } = &mut self.sink
+        {
+            if id == self.codec.heartbeat.frame_id() {
+                return match self.codec.heartbeat.decode(data) {
+                    Err(e) => self.reject_error(e),
+                    Ok((hb, alive)) => {
+                        let status = match (heartbeat_alive.as_mut(), alive) {
+                            (Some(c), Some(a)) => Some(c.check(a)),
+                            _ => None,
+                        };
+                        if let Some(r) = alive_gate(&self.counters, status) {
+                            return r;
+                        }
+                        heartbeat.publish(&HeartbeatSeen {
+                            mode: hb.mode.raw(),
+                            law: hb.active_law,
+                            alive: alive.unwrap_or(0),
+                            faults: hb.faults,
+                            t_ns,
+                        });
+                        CanCounters::inc(&self.counters.rx_published);
+                        RxOutcome::Published
+                    }
+                };
+            }
+        }
+        let frame = match self.codec.frames.decode(id, data) {
+            Ok(f) => f,
+            Err(e) => return self.reject_error(e),
+        };
+        if !self
+            .consumes
+            .get(frame.message().get())
+            .copied()
+            .unwrap_or(false)
+        {
+            CanCounters::inc(&self.counters.foreign);
+            return RxOutcome::Rejected(RxReject::Foreign);
+        }
+        if frame.values().iter().any(|(_, v)| !v.is_finite()) {
+            CanCounters::inc(&self.counters.invalid_value);
+            return RxOutcome::Rejected(RxReject::InvalidValue);
+        }
+        let status = self.checkers.check(&frame);
+        if let Some(r) = alive_gate(&self.counters, status) {
+            return r;
+        }
+        match &self.sink {
+            Sink::Sensors(board) => {
+                for (target, v) in frame.values() {
+                    if let SignalTarget::Sensor(s) = target {
+                        board.publish(*s, *v, t_ns);
+                    }
+                }
+            }
+            Sink::Commands { commands, .. } => {
+                for (target, v) in frame.values() {
+                    if let SignalTarget::Actuator(a) = target {
+                        commands.publish(*a, *v, t_ns);
+                    }
+                }
+            }
+        }
+        CanCounters::inc(&self.counters.rx_published);
+        RxOutcome::Published
+    }
+
+    fn reject_error(&self, e: FrameError) -> RxOutcome {
+        let (counter, reason) = match e {
+            FrameError::UnknownId { .. } => (&self.counters.unknown_id, RxReject::UnknownId),
+            FrameError::WrongDlc { .. } => (&self.counters.wrong_dlc, RxReject::WrongDlc),
+            FrameError::BadCrc { .. } => (&self.counters.bad_crc, RxReject::BadCrc),
+            FrameError::InvalidValue { .. } => {
+                (&self.counters.invalid_value, RxReject::InvalidValue)
+            }
+        };
+        CanCounters::inc(counter);
+        tracing::trace!(target: "can", error = %e, "frame dropped");
+        RxOutcome::Rejected(reason)
+    }
+}
+
+/// Count the alive status; `Some(outcome)` if the frame must not be published.
+fn alive_gate(counters: &CanCounters, status: Option<AliveStatus>) -> Option<RxOutcome> {
+    match status {
+        Some(AliveStatus::Repeated) => {
+            CanCounters::inc(&counters.alive_repeated);
+            Some(RxOutcome::Rejected(RxReject::AliveRepeated))
+        }
+        Some(AliveStatus::Skipped { missed }) => {
+            CanCounters::inc(&counters.alive_skipped);
+            CanCounters::add(&counters.frames_lost, u64::from(missed));
+            None
+        }
+        Some(AliveStatus::First | AliveStatus::InSequence) | None => None,
+    }
+}

@@ -1,0 +1,830 @@
+//! Socket-free tests of the bus tasks: RX handling into boards and counters, TX encoding from
+//! boards, error-frame classification, config, state reporting, and the reconnect loop on an
+//! interface that does not exist (works without kernel CAN support).
+
+use super::*;
+use crate::io::can::codec::{skid_bindings, MessageIndex};
+use crate::io::can::e2e::frame_crc;
+use crate::io::can::heartbeat::ControllerMode;
+use crate::runtime::handoff::{HeartbeatSeen, Outputs, SensorBoard};
+use crate::signals::{ActuatorCommands, ActuatorId, SensorId, SensorSnapshot};
+use socketcan::errors::{ControllerProblems, ErrorCause};
+use socketcan::{
+    CanAnyFrame, CanDataFrame, CanErrorFrame, CanFdFrame, CanRemoteFrame, EmbeddedFrame, StandardId,
+};
+
+fn codec() -> Arc<BusCodec> {
+    let path = Path::new(env!("CARGO_MANIFEST_DIR")).join("config/skid.dbc");
+    Arc::new(BusCodec::load(&path, &skid_bindings()).expect("skid codec"))
+}
+
+/// Half the encoding step of each signal in `config/skid.dbc`, plus rounding slack.
+fn sensor_tol(s: SensorId) -> f64 {
+    let step = match s {
+        SensorId::PSuction | SensorId::PDischarge => 1.0,
+        SensorId::ShaftSpeed => 0.05,
+        SensorId::OrificeDp => 0.5,
+        SensorId::TSuction => 0.01,
+        SensorId::RecycleValvePosition | SensorId::ThrottlePosition => 1e-4,
+        SensorId::ThrustPosition => 1e-8,
+    };
+    step * 0.5 + 1e-12
+}
+
+fn actuator_tol(a: ActuatorId) -> f64 {
+    let step = match a {
+        ActuatorId::DriveTorque => 0.5,
+        ActuatorId::RecycleValve | ActuatorId::Throttle | ActuatorId::CloseCoupledValve => 1e-4,
+        ActuatorId::TipClearance => 1e-8,
+    };
+    step * 0.5 + 1e-12
+}
+
+fn snapshot() -> SensorSnapshot {
+    let mut s = SensorSnapshot::default();
+    s.set(SensorId::PSuction, 101_325.4);
+    s.set(SensorId::PDischarge, 350_000.0);
+    s.set(SensorId::ShaftSpeed, 1234.57);
+    s.set(SensorId::OrificeDp, -1234.3);
+    s.set(SensorId::TSuction, 300.153);
+    s.set(SensorId::RecycleValvePosition, 0.34567);
+    s.set(SensorId::ThrottlePosition, 0.75);
+    s.set(SensorId::ThrustPosition, 3.2e-5);
+    s
+}
+
+fn commands() -> ActuatorCommands {
+    let mut c = ActuatorCommands::default();
+    c.set(ActuatorId::DriveTorque, -1500.2);
+    c.set(ActuatorId::RecycleValve, 0.4242);
+    c.set(ActuatorId::CloseCoupledValve, 0.05);
+    c.set(ActuatorId::Throttle, 0.8);
+    c.set(ActuatorId::TipClearance, -2.5e-5);
+    c
+}
+
+fn outputs(cycle: u64) -> Outputs {
+    Outputs {
+        commands: commands(),
+        mode: 2,
+        law: 3,
+        faults: 0x0000_0112,
+        cycle,
+        t_ns: 1,
+    }
+}
+
+fn messages(c: &BusCodec, sensors: bool) -> Vec<MessageIndex> {
+    if sensors {
+        c.frames.sensor_messages().collect()
+    } else {
+        c.frames.actuator_messages().collect()
+    }
+}
+
+fn refresh() -> Duration {
+    Duration::from_millis(10)
+}
+
+/// (id, payload) of a data frame.
+fn parts(f: &CanDataFrame) -> (FrameId, Vec<u8>) {
+    (FrameId::from(f.id()), f.data().to_vec())
+}
+
+struct Controller {
+    rx: RxHandler,
+    sensors: Arc<SensorBoard>,
+    counters: Arc<CanCounters>,
+}
+
+fn controller(c: &Arc<BusCodec>) -> Controller {
+    let sensors = Arc::new(SensorBoard::default());
+    let counters = Arc::new(CanCounters::default());
+    Controller {
+        rx: RxHandler::controller(Arc::clone(c), Arc::clone(&sensors), Arc::clone(&counters)),
+        sensors,
+        counters,
+    }
+}
+
+struct Plant {
+    rx: RxHandler,
+    commands: Arc<CommandBoard>,
+    heartbeat: Arc<HeartbeatBoard>,
+    counters: Arc<CanCounters>,
+}
+
+fn plant(c: &Arc<BusCodec>) -> Plant {
+    let commands = Arc::new(CommandBoard::default());
+    let heartbeat = Arc::new(HeartbeatBoard::default());
+    let counters = Arc::new(CanCounters::default());
+    Plant {
+        rx: RxHandler::plant(
+            Arc::clone(c),
+            Arc::clone(&commands),
+            Arc::clone(&heartbeat),
+            Arc::clone(&counters),
+        ),
+        commands,
+        heartbeat,
+        counters,
+    }
+}
+
+/// Sensor frames as the plant node sends them.
+fn sensor_frames(enc: &mut FrameEncoder, s: &SensorSnapshot) -> Vec<CanDataFrame> {
+    (0..enc.len()).filter_map(|i| enc.encode(i, s, 0)).collect()
+}
+
+#[test]
+fn controller_rx_publishes_sensors_within_resolution() {
+    let c = codec();
+    let mut ctl = controller(&c);
+    let mut enc = FrameEncoder::new(&c.frames, &messages(&c, true), false, refresh()).expect("enc");
+    let snap = snapshot();
+    for (k, f) in sensor_frames(&mut enc, &snap).iter().enumerate() {
+        let (id, data) = parts(f);
+        assert_eq!(
+            ctl.rx.handle_data(id, &data, 1_000 + k as u64),
+            RxOutcome::Published
+        );
+    }
+    for s in SensorId::ALL {
+        let (v, t) = ctl.sensors.get(s);
+        assert!(
+            (v - snap.get(s)).abs() <= sensor_tol(s),
+            "{}: sent {} got {v}",
+            s.name(),
+            snap.get(s)
+        );
+        assert!((1_000..1_003).contains(&t), "{}: stamp {t}", s.name());
+    }
+    let n = ctl.counters.snapshot();
+    assert_eq!(n.rx_published, 3);
+    assert_eq!(
+        n,
+        CanCountersSnapshot {
+            rx_published: 3,
+            ..Default::default()
+        }
+    );
+}
+
+#[test]
+fn malformed_and_unknown_frames_are_counted_not_published() {
+    let c = codec();
+    let mut ctl = controller(&c);
+    let mut enc = FrameEncoder::new(&c.frames, &messages(&c, true), false, refresh()).expect("enc");
+    let good = sensor_frames(&mut enc, &snapshot());
+    let (id, data) = parts(&good[0]);
+
+    let cases: Vec<(FrameId, Vec<u8>, RxReject)> = vec![
+        (FrameId::Standard(0x555), data.clone(), RxReject::UnknownId),
+        (FrameId::Extended(0x100), data.clone(), RxReject::UnknownId),
+        (id, data[..5].to_vec(), RxReject::WrongDlc),
+        (id, Vec::new(), RxReject::WrongDlc),
+        (
+            id,
+            {
+                let mut d = data.clone();
+                d[0] ^= 0x40;
+                d
+            },
+            RxReject::BadCrc,
+        ),
+        (
+            id,
+            {
+                let mut d = data.clone();
+                d[7] ^= 0x01;
+                d
+            },
+            RxReject::BadCrc,
+        ),
+    ];
+    for (id, d, why) in &cases {
+        assert_eq!(
+            ctl.rx.handle_data(*id, d, 5),
+            RxOutcome::Rejected(*why),
+            "{id} {d:02X?}"
+        );
+    }
+    for s in SensorId::ALL {
+        assert_eq!(
+            ctl.sensors.get(s).1,
+            0,
+            "{} must not be published",
+            s.name()
+        );
+    }
+    let n = ctl.counters.snapshot();
+    assert_eq!((n.unknown_id, n.wrong_dlc, n.bad_crc), (2, 2, 2));
+    assert_eq!(n.rx_published, 0);
+    // The good frame still goes through afterwards.
+    assert_eq!(ctl.rx.handle_data(id, &data, 9), RxOutcome::Published);
+}
+
+#[test]
+fn repeated_alive_counter_is_not_published_skipped_is() {
+    let c = codec();
+    let mut ctl = controller(&c);
+    let msgs = messages(&c, true);
+    let mut enc = FrameEncoder::new(&c.frames, &msgs, false, refresh()).expect("enc");
+    let mut snap = snapshot();
+    // Frames of PLANT_Pressures (message 0 of the encoder) with counters 0, 1, 2, ...
+    let mut frames = Vec::new();
+    for k in 0..6 {
+        snap.set(SensorId::PSuction, 100_000.0 + f64::from(k));
+        frames.push(enc.encode(0, &snap, 0).expect("frame"));
+    }
+    let feed = |ctl: &mut Controller, f: &CanDataFrame, t: u64| {
+        let (id, d) = parts(f);
+        ctl.rx.handle_data(id, &d, t)
+    };
+    assert_eq!(feed(&mut ctl, &frames[0], 10), RxOutcome::Published);
+    assert_eq!(feed(&mut ctl, &frames[1], 11), RxOutcome::Published);
+    // Stuck sender: same frame again → dropped, the value keeps its old stamp.
+    assert_eq!(
+        feed(&mut ctl, &frames[1], 12),
+        RxOutcome::Rejected(RxReject::AliveRepeated)
+    );
+    assert_eq!(ctl.sensors.get(SensorId::PSuction), (100_001.0, 11));
+    // Frames 2 and 3 lost: frame 4 is published, two frames counted lost.
+    assert_eq!(feed(&mut ctl, &frames[4], 13), RxOutcome::Published);
+    assert_eq!(ctl.sensors.get(SensorId::PSuction), (100_004.0, 13));
+    assert_eq!(feed(&mut ctl, &frames[5], 14), RxOutcome::Published);
+    let n = ctl.counters.snapshot();
+    assert_eq!(
+        (n.alive_repeated, n.alive_skipped, n.frames_lost),
+        (1, 1, 2)
+    );
+    assert_eq!(n.rx_published, 4);
+    // After a reconnect the next counter is a fresh start, whatever its value.
+    ctl.rx.reset_alive();
+    assert_eq!(feed(&mut ctl, &frames[2], 15), RxOutcome::Published);
+    assert_eq!(ctl.counters.snapshot().alive_skipped, 1);
+}
+
+#[test]
+fn controller_ignores_frames_it_does_not_consume() {
+    let c = codec();
+    let mut ctl = controller(&c);
+    let mut cmd =
+        FrameEncoder::new(&c.frames, &messages(&c, false), false, refresh()).expect("enc");
+    let f = cmd.encode(0, &commands(), 0).expect("frame");
+    let (id, d) = parts(&f);
+    assert_eq!(
+        ctl.rx.handle_data(id, &d, 1),
+        RxOutcome::Rejected(RxReject::Foreign)
+    );
+    // Another controller's heartbeat, too.
+    let mut hb = HeartbeatTx::new(&c.heartbeat).expect("hb");
+    let f = hb.next_frame(Some(&outputs(1))).expect("heartbeat");
+    let (id, d) = parts(&f);
+    assert_eq!(
+        ctl.rx.handle_data(id, &d, 1),
+        RxOutcome::Rejected(RxReject::Foreign)
+    );
+    assert_eq!(ctl.counters.snapshot().foreign, 2);
+}
+
+#[test]
+fn tx_from_output_board_round_trips_to_plant_command_board() {
+    let c = codec();
+    let board = OutputBoard::default();
+    board.publish(&outputs(7));
+    let latest = board.latest().expect("published");
+    let mut enc =
+        FrameEncoder::new(&c.frames, &messages(&c, false), false, refresh()).expect("enc");
+    assert_eq!(enc.len(), 2);
+    let mut p = plant(&c);
+    for i in 0..enc.len() {
+        let f = enc.encode(i, &latest.commands, 0).expect("frame");
+        let (id, d) = parts(&f);
+        assert_eq!(d.len(), 8);
+        assert_eq!(p.rx.handle_data(id, &d, 77), RxOutcome::Published);
+    }
+    for a in ActuatorId::ALL {
+        let (v, t) = p.commands.get(a);
+        assert!(
+            (v - commands().get(a)).abs() <= actuator_tol(a),
+            "{}: sent {} got {v}",
+            a.name(),
+            commands().get(a)
+        );
+        assert_eq!(t, 77);
+    }
+
+    // Heartbeat from the same outputs.
+    let mut hb = HeartbeatTx::new(&c.heartbeat).expect("hb");
+    let f = hb.next_frame(Some(&latest)).expect("heartbeat");
+    let (id, d) = parts(&f);
+    assert_eq!(id, FrameId::Standard(0x80));
+    assert_eq!(p.rx.handle_data(id, &d, 88), RxOutcome::Published);
+    assert_eq!(
+        p.heartbeat.latest(),
+        Some(HeartbeatSeen {
+            mode: 2,
+            law: 3,
+            alive: 0,
+            faults: 0x112,
+            t_ns: 88
+        })
+    );
+    assert_eq!(p.counters.snapshot().rx_published, 3);
+}
+
+#[test]
+fn nan_setpoint_keeps_last_bits_and_alive_counts_up() {
+    let c = codec();
+    let mut enc =
+        FrameEncoder::new(&c.frames, &messages(&c, false), false, refresh()).expect("enc");
+    let mut p = plant(&c);
+    let mut cmd = commands();
+    let f0 = enc.encode(0, &cmd, 0).expect("frame");
+    cmd.set(ActuatorId::RecycleValve, f64::NAN); // not driven any more
+    cmd.set(ActuatorId::DriveTorque, 10.0);
+    let f1 = enc.encode(0, &cmd, 0).expect("frame");
+    let (id, d0) = parts(&f0);
+    let (_, d1) = parts(&f1);
+    assert_eq!(d0[6] & 0x0F, 0);
+    assert_eq!(d1[6] & 0x0F, 1, "alive counter +1 per frame");
+    assert_eq!(p.rx.handle_data(id, &d0, 1), RxOutcome::Published);
+    assert_eq!(p.rx.handle_data(id, &d1, 2), RxOutcome::Published);
+    let (v, t) = p.commands.get(ActuatorId::RecycleValve);
+    assert!((v - 0.4242).abs() <= actuator_tol(ActuatorId::RecycleValve));
+    assert_eq!(t, 2, "held value is re-sent, so it stays fresh");
+    assert_eq!(p.commands.get(ActuatorId::DriveTorque).0, 10.0);
+}
+
+#[test]
+fn on_change_only_skips_unchanged_and_refreshes() {
+    let c = codec();
+    let ms = 1_000_000u64;
+    let mut enc = FrameEncoder::new(&c.frames, &messages(&c, false), true, refresh()).expect("enc");
+    let mut cmd = commands();
+    assert!(enc.encode(0, &cmd, 0).is_some(), "first frame always goes");
+    assert!(
+        enc.encode(0, &cmd, 3 * ms).is_none(),
+        "unchanged within 10 ms"
+    );
+    cmd.set(ActuatorId::Throttle, 0.81);
+    let f = enc.encode(0, &cmd, 4 * ms).expect("changed");
+    assert_eq!(f.data()[6] & 0x0F, 1);
+    // The other message (Cmd2) did not change either.
+    assert!(enc.encode(1, &cmd, 4 * ms).is_some(), "first frame of Cmd2");
+    assert!(enc.encode(1, &cmd, 5 * ms).is_none());
+    // NaN (not driven) is "unchanged" too.
+    cmd.set(ActuatorId::TipClearance, f64::NAN);
+    assert!(enc.encode(1, &cmd, 6 * ms).is_none());
+    // Refresh after the period even if unchanged.
+    let f = enc.encode(0, &cmd, 14 * ms).expect("refresh");
+    assert_eq!(f.data()[6] & 0x0F, 2);
+    assert!(enc.encode(7, &cmd, 0).is_none(), "out of range");
+}
+
+#[test]
+fn heartbeat_withheld_without_fresh_outputs() {
+    let c = codec();
+    let mut hb = HeartbeatTx::new(&c.heartbeat).expect("hb");
+    assert!(hb.next_frame(None).is_none(), "nothing published yet");
+    let first = hb.next_frame(Some(&outputs(1))).expect("first");
+    assert!(
+        hb.next_frame(Some(&outputs(1))).is_none(),
+        "control thread stuck at cycle 1"
+    );
+    let second = hb.next_frame(Some(&outputs(2))).expect("progress");
+    let decode = |f: &CanDataFrame| c.heartbeat.decode(f.data()).expect("valid heartbeat");
+    assert_eq!(decode(&first).1, Some(0));
+    assert_eq!(decode(&second).1, Some(1), "counter +1 per frame sent");
+    // Unknown mode code → fail_safe on the bus.
+    let mut o = outputs(3);
+    o.mode = 9;
+    let f = hb.next_frame(Some(&o)).expect("frame");
+    assert_eq!(decode(&f).0.mode, ControllerMode::FailSafe);
+}
+
+#[test]
+fn plant_heartbeat_checks() {
+    let c = codec();
+    let mut p = plant(&c);
+    let mut hb = HeartbeatTx::new(&c.heartbeat).expect("hb");
+    let f = hb.next_frame(Some(&outputs(1))).expect("frame");
+    let (id, d) = parts(&f);
+    assert_eq!(p.rx.handle_data(id, &d, 5), RxOutcome::Published);
+    // Repeated heartbeat: stuck controller, not published.
+    assert_eq!(
+        p.rx.handle_data(id, &d, 6),
+        RxOutcome::Rejected(RxReject::AliveRepeated)
+    );
+    assert_eq!(p.heartbeat.latest().map(|h| h.t_ns), Some(5));
+    // Mode 9 with a valid CRC: invalid value.
+    let mut bad = [0x09u8, 1, 0, 0, 0, 0, 0, 0];
+    bad[7] = frame_crc(id, &bad, 7);
+    assert_eq!(
+        p.rx.handle_data(id, &bad, 7),
+        RxOutcome::Rejected(RxReject::InvalidValue)
+    );
+    // Bad CRC and short heartbeat.
+    let mut corrupt = d.clone();
+    corrupt[2] ^= 1;
+    assert_eq!(
+        p.rx.handle_data(id, &corrupt, 8),
+        RxOutcome::Rejected(RxReject::BadCrc)
+    );
+    assert_eq!(
+        p.rx.handle_data(id, &d[..3], 8),
+        RxOutcome::Rejected(RxReject::WrongDlc)
+    );
+    // Sensor frames are foreign to the plant.
+    let mut enc = FrameEncoder::new(&c.frames, &messages(&c, true), false, refresh()).expect("enc");
+    let f = enc.encode(0, &snapshot(), 0).expect("frame");
+    let (sid, sd) = parts(&f);
+    assert_eq!(
+        p.rx.handle_data(sid, &sd, 9),
+        RxOutcome::Rejected(RxReject::Foreign)
+    );
+    let n = p.counters.snapshot();
+    assert_eq!(
+        (
+            n.alive_repeated,
+            n.invalid_value,
+            n.bad_crc,
+            n.wrong_dlc,
+            n.foreign
+        ),
+        (1, 1, 1, 1, 1)
+    );
+    assert_eq!(p.commands.get(ActuatorId::Throttle).1, 0);
+}
+
+#[test]
+fn remote_fd_and_error_frames() {
+    let c = codec();
+    let mut ctl = controller(&c);
+    let id = StandardId::new(0x100).expect("id");
+    let remote = CanRemoteFrame::new_remote(id, 8).expect("remote");
+    assert_eq!(
+        ctl.rx.handle_frame(&CanAnyFrame::Remote(remote), 1),
+        RxOutcome::Rejected(RxReject::Remote)
+    );
+    let fd = CanFdFrame::new(id, &[0u8; 12]).expect("fd");
+    assert_eq!(
+        ctl.rx.handle_frame(&CanAnyFrame::Fd(fd), 1),
+        RxOutcome::Rejected(RxReject::Fd)
+    );
+    let err = |cause: ErrorCause| CanAnyFrame::Error(CanErrorFrame::from(cause));
+    let cases = [
+        (err(ErrorCause::BusOff), BusCondition::BusOff),
+        (
+            err(ErrorCause::Controller(ControllerProblems::TX_PASSIVE)),
+            BusCondition::Passive,
+        ),
+        (
+            err(ErrorCause::Controller(
+                ControllerProblems::RX_WARNING | ControllerProblems::TX_WARNING,
+            )),
+            BusCondition::Warning,
+        ),
+        (
+            err(ErrorCause::Controller(ControllerProblems::ACTIVE)),
+            BusCondition::Active,
+        ),
+        (err(ErrorCause::Restarted), BusCondition::Active),
+        (err(ErrorCause::NoAck), BusCondition::Other),
+        (
+            err(ErrorCause::Counters { tx: 200, rx: 0 }),
+            BusCondition::Other,
+        ),
+    ];
+    for (frame, expected) in &cases {
+        assert_eq!(
+            ctl.rx.handle_frame(frame, 1),
+            RxOutcome::Bus(*expected),
+            "{frame:?}"
+        );
+    }
+    // Bus-off together with a controller state: bus-off wins.
+    let both = CanErrorFrame::from(socketcan::CanError::from_multiple(
+        ErrorCause::Controller(ControllerProblems::TX_PASSIVE),
+        [ErrorCause::BusOff],
+    ));
+    assert_eq!(classify_error_frame(&both), BusCondition::BusOff);
+    // A data frame through handle_frame.
+    let mut enc = FrameEncoder::new(&c.frames, &messages(&c, true), false, refresh()).expect("enc");
+    let f = enc.encode(0, &snapshot(), 0).expect("frame");
+    assert_eq!(
+        ctl.rx.handle_frame(&CanAnyFrame::Normal(f), 2),
+        RxOutcome::Published
+    );
+    let n = ctl.counters.snapshot();
+    assert_eq!(
+        (n.rx_frames, n.remote_frames, n.fd_frames, n.error_frames),
+        (10, 1, 1, 7)
+    );
+    assert_eq!(n.rx_published, 1);
+}
+
+#[test]
+fn every_decoded_value_is_published_and_finite() {
+    // Sweep raw bit patterns through the decoder: nothing panics, and a published frame
+    // never carries a non-finite value.
+    let c = codec();
+    let mut ctl = controller(&c);
+    let ids = [0x100u16, 0x101, 0x102];
+    let mut x: u64 = 0x9E37_79B9_7F4A_7C15;
+    for k in 0..3000u64 {
+        x ^= x << 13;
+        x ^= x >> 7;
+        x ^= x << 17;
+        let id = FrameId::Standard(ids[(k % 3) as usize]);
+        let mut d = x.to_le_bytes();
+        d[7] = frame_crc(id, &d, 7);
+        ctl.rx.reset_alive();
+        assert_eq!(ctl.rx.handle_data(id, &d, k + 1), RxOutcome::Published);
+    }
+    for s in SensorId::ALL {
+        assert!(ctl.sensors.get(s).0.is_finite(), "{}", s.name());
+    }
+}
+
+#[test]
+fn config_defaults_unknown_keys_and_validation() {
+    let cfg: CanBusConfig =
+        toml::from_str("interface = \"can0\"\ndbc = \"config/skid.dbc\"\n").expect("parse");
+    assert_eq!(cfg, CanBusConfig::new("can0", "config/skid.dbc"));
+    assert_eq!(
+        (
+            cfg.heartbeat_period_ms,
+            cfg.heartbeat_timeout_ms,
+            cfg.reconnect_backoff_initial_ms,
+            cfg.reconnect_backoff_max_ms,
+            cfg.tx_on_change_only
+        ),
+        (10, 100, 50, 2000, false)
+    );
+    assert!(cfg.validate().is_ok());
+    let e = toml::from_str::<CanBusConfig>(
+        "interface = \"can0\"\ndbc = \"x.dbc\"\nheartbeat_period = 5\n",
+    )
+    .expect_err("unknown key");
+    assert!(e.to_string().contains("heartbeat_period"), "{e}");
+
+    let bad = |f: fn(&mut CanBusConfig)| {
+        let mut c = CanBusConfig::new("vcan0", "x.dbc");
+        f(&mut c);
+        c.validate().expect_err("invalid").to_string()
+    };
+    assert!(bad(|c| c.interface = String::new()).contains("interface"));
+    assert!(bad(|c| c.interface = "a_very_long_ifname0".into()).contains("interface"));
+    assert!(bad(|c| c.interface = "can 0".into()).contains("interface"));
+    assert!(bad(|c| c.heartbeat_period_ms = 0).contains("heartbeat_period_ms"));
+    assert!(bad(|c| c.heartbeat_timeout_ms = 10).contains("heartbeat_timeout_ms"));
+    assert!(bad(|c| c.reconnect_backoff_initial_ms = 0).contains("initial"));
+    assert!(bad(|c| c.reconnect_backoff_max_ms = 10).contains("reconnect_backoff_max_ms"));
+}
+
+#[test]
+fn backoff_doubles_to_the_cap_and_resets() {
+    let ms = Duration::from_millis;
+    let mut b = Backoff::new(ms(50), ms(2000));
+    let seq: Vec<u128> = (0..8).map(|_| b.next_delay().as_millis()).collect();
+    assert_eq!(seq, [50, 100, 200, 400, 800, 1600, 2000, 2000]);
+    b.reset();
+    assert_eq!(b.next_delay(), ms(50));
+    let mut b = Backoff::new(Duration::ZERO, Duration::ZERO);
+    assert_eq!(b.next_delay(), ms(1), "never zero: no busy loop");
+}
+
+#[test]
+fn bus_state_text_and_event_mapping() {
+    use crate::events::event::BusState as E;
+    let down = DownCause::io(IoOp::Receive, &io::Error::from_raw_os_error(libc::ENETDOWN));
+    assert_eq!(
+        BusState::Down(down).to_string(),
+        format!(
+            "down: receive failed: {}",
+            io::Error::from_raw_os_error(libc::ENETDOWN)
+        )
+    );
+    let r = BusState::Reconnecting {
+        attempt: 2,
+        delay_ms: 100,
+        cause: DownCause::BusOff,
+    };
+    assert_eq!(
+        r.to_string(),
+        "reconnect attempt 2 in 100 ms (down: bus-off)"
+    );
+    assert_eq!(
+        BusState::Down(DownCause::BusOff).to_event(),
+        Some(E::BusOff)
+    );
+    assert_eq!(BusState::Down(down).to_event(), Some(E::Down));
+    assert_eq!(r.to_event(), None, "only the first attempt is an event");
+    let r1 = BusState::Reconnecting {
+        attempt: 1,
+        delay_ms: 50,
+        cause: DownCause::BusOff,
+    };
+    assert_eq!(r1.to_event(), Some(E::Reconnecting));
+    assert_eq!(BusState::ErrorPassive.to_event(), Some(E::Up));
+    assert_eq!(BusState::Stopped.to_event(), None);
+    assert!(BusState::ErrorWarning.is_up() && !r.is_up());
+}
+
+#[test]
+fn reporter_counts_error_passive_entries_once() {
+    let (tx, rx) = watch::channel(BusState::Starting);
+    let counters = CanCounters::default();
+    let seen = Arc::new(std::sync::Mutex::new(Vec::new()));
+    let log = Arc::clone(&seen);
+    let hook: StateHook = Arc::new(move |s: &BusState| {
+        log.lock().expect("log").push(*s);
+    });
+    let r = Reporter {
+        interface: "vcan0",
+        state: &tx,
+        hook: Some(&hook),
+        counters: &counters,
+    };
+    r.set(BusState::Up);
+    r.set(BusState::ErrorPassive);
+    r.set(BusState::ErrorPassive);
+    r.set(BusState::Up);
+    r.set(BusState::ErrorPassive);
+    assert_eq!(*rx.borrow(), BusState::ErrorPassive);
+    assert_eq!(counters.snapshot().error_passive, 2);
+    // The hook sees every change once, in order.
+    assert_eq!(
+        *seen.lock().expect("log"),
+        [
+            BusState::Up,
+            BusState::ErrorPassive,
+            BusState::Up,
+            BusState::ErrorPassive
+        ]
+    );
+}
+
+fn fast_cfg(interface: &str) -> CanBusConfig {
+    CanBusConfig {
+        reconnect_backoff_initial_ms: 5,
+        reconnect_backoff_max_ms: 40,
+        ..CanBusConfig::new(interface, "config/skid.dbc")
+    }
+}
+
+/// A hook recording every state change.
+fn recorder() -> (StateHook, Arc<std::sync::Mutex<Vec<BusState>>>) {
+    let seen = Arc::new(std::sync::Mutex::new(Vec::new()));
+    let log = Arc::clone(&seen);
+    let hook: StateHook = Arc::new(move |s: &BusState| log.lock().expect("log").push(*s));
+    (hook, seen)
+}
+
+#[tokio::test(flavor = "current_thread")]
+async fn missing_interface_backs_off_and_stops_on_shutdown() {
+    // No interface "nocan7" (and maybe no CAN in the kernel at all): the controller task must
+    // report the failure, retry with growing delays, never panic, and stop on shutdown.
+    let c = codec();
+    let (stop_tx, stop_rx) = watch::channel(false);
+    let (handles, state_rx) = BusHandles::new(stop_rx);
+    let (hook, seen) = recorder();
+    let handles = handles.with_hook(hook);
+    let counters = Arc::clone(&handles.counters);
+    let boards = ControllerBoards {
+        sensors: Arc::new(SensorBoard::default()),
+        outputs: Arc::new(OutputBoard::default()),
+        wake: Arc::new(Wakeup::new().expect("eventfd")),
+    };
+    let task = tokio::spawn(run_controller(
+        fast_cfg("nocan7"),
+        (*c).clone(),
+        boards.clone(),
+        handles,
+    ));
+    tokio::time::sleep(Duration::from_millis(300)).await;
+    boards.wake.signal(); // nothing to send while down; must not matter
+    let _ = stop_tx.send(true);
+    let result = tokio::time::timeout(Duration::from_secs(2), task)
+        .await
+        .expect("stops promptly")
+        .expect("no panic");
+    assert!(result.is_ok(), "{result:?}");
+    let n = counters.snapshot();
+    // 5 + 10 + 20 + 40 + 40 + … ms: about 9 attempts in 300 ms, never a busy loop.
+    assert!(
+        (3..=20).contains(&n.open_failures),
+        "open failures {}",
+        n.open_failures
+    );
+    assert_eq!((n.reconnects, n.link_down, n.tx_frames), (0, 0, 0));
+    assert_eq!(*state_rx.borrow(), BusState::Stopped);
+    let seen = seen.lock().expect("log").clone();
+    // Down once, then one Reconnecting per attempt with doubling delays, then Stopped.
+    let enodev = |s: &BusState| {
+        matches!(
+            s,
+            BusState::Down(DownCause::Io {
+                op: IoOp::Open,
+                errno: Some(_),
+                ..
+            })
+        )
+    };
+    assert!(enodev(&seen[0]), "{seen:?}");
+    assert_eq!(
+        seen.iter()
+            .filter(|s| matches!(s, BusState::Down(_)))
+            .count(),
+        1
+    );
+    let attempts: Vec<(u32, u64)> = seen
+        .iter()
+        .filter_map(|s| match s {
+            BusState::Reconnecting {
+                attempt, delay_ms, ..
+            } => Some((*attempt, *delay_ms)),
+            _ => None,
+        })
+        .collect();
+    assert!(
+        attempts.starts_with(&[(1, 5), (2, 10), (3, 20), (4, 40), (5, 40)]),
+        "{attempts:?}"
+    );
+    assert_eq!(
+        attempts.len() as u64,
+        n.open_failures,
+        "one attempt per failure"
+    );
+    assert_eq!(seen.last(), Some(&BusState::Stopped));
+    assert!(!seen.iter().any(BusState::is_up), "{seen:?}");
+}
+
+#[tokio::test(flavor = "current_thread")]
+async fn plant_task_stops_when_the_shutdown_sender_is_dropped() {
+    let c = codec();
+    let (stop_tx, stop_rx) = watch::channel(false);
+    let (handles, state_rx) = BusHandles::new(stop_rx);
+    let boards = PlantBoards {
+        commands: Arc::new(CommandBoard::default()),
+        heartbeat: Arc::new(HeartbeatBoard::default()),
+        snapshots: Arc::new(SnapshotBoard::default()),
+        wake: Arc::new(Wakeup::new().expect("eventfd")),
+    };
+    let task = tokio::spawn(run_plant(fast_cfg("nocan8"), (*c).clone(), boards, handles));
+    tokio::time::sleep(Duration::from_millis(50)).await;
+    drop(stop_tx);
+    let result = tokio::time::timeout(Duration::from_secs(2), task)
+        .await
+        .expect("stops promptly")
+        .expect("no panic");
+    assert!(result.is_ok());
+    assert_eq!(*state_rx.borrow(), BusState::Stopped);
+}
+
+#[tokio::test(flavor = "current_thread")]
+async fn bad_config_is_an_error_not_a_retry_loop() {
+    let c = codec();
+    let (_stop_tx, stop_rx) = watch::channel(false);
+    let (handles, _state) = BusHandles::new(stop_rx);
+    let mut cfg = fast_cfg("vcan0");
+    cfg.heartbeat_period_ms = 0;
+    let boards = ControllerBoards {
+        sensors: Arc::new(SensorBoard::default()),
+        outputs: Arc::new(OutputBoard::default()),
+        wake: Arc::new(Wakeup::new().expect("eventfd")),
+    };
+    let e = run_controller(cfg, (*c).clone(), boards, handles)
+        .await
+        .expect_err("invalid");
+    assert!(
+        matches!(
+            e,
+            CanBusError::Config {
+                key: "heartbeat_period_ms",
+                ..
+            }
+        ),
+        "{e}"
+    );
+}
+
+#[test]
+fn codec_errors_are_reported() {
+    let e = BusCodec::load(Path::new("/nonexistent/skid.dbc"), &skid_bindings())
+        .expect_err("missing file");
+    assert!(matches!(e, CanBusError::Dbc(_)), "{e}");
+    let db = CanDatabase::from_file(Path::new(env!("CARGO_MANIFEST_DIR")).join("config/skid.dbc"))
+        .expect("dbc");
+    let bindings = vec![crate::io::can::SignalBinding::sensor(
+        SensorId::PSuction,
+        "NoSuchMessage",
+        "X",
+    )];
+    assert!(matches!(
+        BusCodec::new(&db, &bindings),
+        Err(CanBusError::Binding(_))
+    ));
+}
