@@ -8,8 +8,12 @@
 //!   exponential backoff after any link failure, typed errors and counters.
 //! - [`server`]: a Modbus TCP (and RTU) server answering from a [`SharedImage`], for the
 //!   simulated plant and hardware-in-the-loop tests.
+//! - [`link`]: the link tasks. Controller: poll sensors into the sensor board, write the
+//!   control thread's outputs and a heartbeat block. Plant: a server over the snapshot,
+//!   command and heartbeat boards.
 
 pub mod client;
+pub mod link;
 pub mod plan;
 pub mod register;
 pub mod server;
@@ -17,6 +21,11 @@ pub mod server;
 pub use client::{
     ClientConfig, ClientCounters, ConfigError, ConnectionState, ModbusClient, ModbusError, Parity,
     RtuConfig, TransportConfig, WriteReport,
+};
+pub use link::{
+    run_controller, run_plant_server, ExceptionInfo, FailureCause, HeartbeatRegister,
+    HeartbeatWords, LinkCounters, LinkCounts, LinkError, LinkMonitor, LinkState, ModbusLinkConfig,
+    ModbusServerConfig, Pacing, PlantCounters, PlantCounts, PlantServer,
 };
 pub use plan::{PlanError, PlannedRequest, ReadPlan, WritePlan};
 pub use register::{

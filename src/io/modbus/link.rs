@@ -1,0 +1,1149 @@
+//! Modbus link tasks: the controller's poll/write loop and the plant node's server.
+//!
+//! **Controller role** ([`run_controller`]): one [`ModbusClient`] (TCP or RTU) reads every
+//! Modbus sensor of the signal map once per link cycle and publishes the values into the
+//! [`SensorBoard`], stamped with the monotonic time the response arrived. It then writes the
+//! control thread's latest setpoints from the [`OutputBoard`]. A failed or timed-out read
+//! publishes nothing: the control loop sees its inputs age and goes fail-safe by itself.
+//! The link never decides fail-safe; it only keeps trying (the client reconnects with
+//! backoff) and reports its state through a [`tokio::sync::watch`] channel
+//! ([`LinkMonitor`]).
+//!
+//! **Plant role** ([`run_plant_server`], [`PlantServer`]): a Modbus TCP server whose register
+//! image holds the plant's sensors, re-encoded from the [`SnapshotBoard`] whenever a read
+//! request arrives and a newer snapshot exists (so answers are never older than the latest
+//! published snapshot). Client writes to actuator registers are published into the
+//! [`CommandBoard`] with their arrival time, and as the controller heartbeat into the
+//! [`HeartbeatBoard`] (see [`HeartbeatRegister`]).
+//!
+//! [`SnapshotBoard`]: crate::runtime::handoff::SnapshotBoard
+//! [`CommandBoard`]: crate::runtime::handoff::CommandBoard
+//! [`HeartbeatBoard`]: crate::runtime::handoff::HeartbeatBoard
+//!
+//! **Pacing.** Modbus is request/response: every value costs a round trip (≈0.1–1 ms on TCP,
+//! tens of ms per request on RTU at 19 200 Bd), so the link rate must be chosen for the bus,
+//! not derived from the control rate. The default [`Pacing::Interval`] therefore runs a
+//! fixed-rate loop at `poll_rate_hz` (a `tokio::time::interval`, adequate at ≥ 1 ms periods;
+//! 50 Hz by default), which samples the sensors at regular instants and needs no coupling to
+//! the control thread. [`Pacing::Wakeup`] instead runs one cycle after each control-thread
+//! wakeup (rate-limited to `poll_rate_hz`), writing the fresh outputs first and reading the
+//! sensors right after, which removes up to one link period of output latency when the
+//! control thread runs at or below the link rate.
+//!
+//! **Output freshness.** Each new output set (new control-thread cycle number) is written
+//! once (retried only until the device acknowledges it); sets older than `max_output_age_ms`
+//! are never written. If the control thread
+//! stops, the writes (and the heartbeat) stop with it, so the plant's heartbeat timeout sees
+//! the controller die instead of a link task replaying its last setpoints.
+
+mod plant;
+
+pub use plant::{run_plant_server, PlantCounters, PlantCounts, PlantServer};
+
+use std::future::Future;
+use std::io;
+use std::sync::atomic::{AtomicU64, Ordering};
+use std::sync::Arc;
+use std::time::Duration;
+
+use serde::{Deserialize, Serialize};
+use thiserror::Error;
+use tokio::io::unix::AsyncFd;
+use tokio::io::Interest;
+use tokio::sync::watch;
+use tokio::time::{Instant, MissedTickBehavior};
+use tokio_modbus::ExceptionCode;
+
+use super::client::{ClientConfig, ConfigError, ConnectionState, ModbusClient, ModbusError};
+use super::plan::{PlanError, ReadPlan, WritePlan};
+use super::register::{find_overlaps, DataType, RegisterBinding, RegisterTable};
+use crate::io::signal_map::SignalMap;
+use crate::runtime::handoff::{monotonic_ns, OutputBoard, SensorBoard, Wakeup};
+use crate::signals::{ActuatorId, SensorId};
+
+/// Highest accepted `poll_rate_hz` (the tokio timer has 1 ms resolution).
+pub const MAX_POLL_RATE_HZ: f64 = 1000.0;
+
+/// Number of holding registers a [`HeartbeatRegister`] block spans.
+pub const HEARTBEAT_REGISTERS: u16 = 4;
+
+/// The optional controller heartbeat block: four consecutive holding registers the
+/// controller writes with every new output set, so the plant can tell a live controller
+/// from a dead one even when no setpoint changes (Modbus has no heartbeat frame).
+///
+/// Layout (16-bit registers from `address`, standard big-endian bytes):
+///
+/// | register      | content                                                        |
+/// |---------------|----------------------------------------------------------------|
+/// | `address + 0` | high byte: controller mode (0 init, 1 manual, 2 auto, 3 fail-safe, 4 shutdown); low byte: alive counter (+1 per write, wraps at 255) |
+/// | `address + 1` | active law id (low byte; high byte 0)                          |
+/// | `address + 2` | fault bits 31..16                                              |
+/// | `address + 3` | fault bits 15..0                                               |
+///
+/// Config keys: `unit_id`, `address` (0-based protocol address of the first register).
+/// The controller's [`ModbusLinkConfig`] and the plant's [`ModbusServerConfig`] must name
+/// the same block.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct HeartbeatRegister {
+    /// Unit (slave) id of the block.
+    pub unit_id: u8,
+    /// 0-based protocol address of the first of the four holding registers.
+    pub address: u16,
+}
+
+/// Content of a heartbeat block.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+pub struct HeartbeatWords {
+    /// Controller mode code.
+    pub mode: u8,
+    /// Alive counter (increments with every write, wraps).
+    pub alive: u8,
+    /// Active law id.
+    pub law: u8,
+    /// Fault bits.
+    pub faults: u32,
+}
+
+impl HeartbeatRegister {
+    /// The block as register bindings (u16 mode/alive, u16 law, u32 faults), for a write plan.
+    pub fn bindings(&self) -> [RegisterBinding; 3] {
+        let a = self.address;
+        [
+            RegisterBinding::new(self.unit_id, RegisterTable::Holding, a, DataType::U16),
+            RegisterBinding::new(
+                self.unit_id,
+                RegisterTable::Holding,
+                a.wrapping_add(1),
+                DataType::U16,
+            ),
+            RegisterBinding::new(
+                self.unit_id,
+                RegisterTable::Holding,
+                a.wrapping_add(2),
+                DataType::U32,
+            ),
+        ]
+    }
+
+    /// Whether the block fits below address 65536.
+    pub fn validate(&self) -> Result<(), LinkError> {
+        if u32::from(self.address) + u32::from(HEARTBEAT_REGISTERS) > 1 << 16 {
+            return Err(LinkError::Invalid(format!(
+                "heartbeat_register: {HEARTBEAT_REGISTERS} registers from address {} run past 65535",
+                self.address
+            )));
+        }
+        Ok(())
+    }
+
+    /// Whether the write `[address, address + count)` on `unit_id` touches the block.
+    pub fn touched_by(&self, unit_id: u8, address: u16, count: u16) -> bool {
+        unit_id == self.unit_id
+            && ranges_intersect(
+                u32::from(address),
+                u32::from(count),
+                u32::from(self.address),
+                u32::from(HEARTBEAT_REGISTERS),
+            )
+    }
+}
+
+impl HeartbeatWords {
+    /// The four register words of the block.
+    pub fn encode(&self) -> [u16; 4] {
+        [
+            (u16::from(self.mode) << 8) | u16::from(self.alive),
+            u16::from(self.law),
+            (self.faults >> 16) as u16,
+            self.faults as u16,
+        ]
+    }
+
+    /// Decode the four register words of the block.
+    pub fn decode(words: &[u16; 4]) -> HeartbeatWords {
+        HeartbeatWords {
+            mode: (words[0] >> 8) as u8,
+            alive: words[0] as u8,
+            law: words[1] as u8,
+            faults: (u32::from(words[2]) << 16) | u32::from(words[3]),
+        }
+    }
+}
+
+fn ranges_intersect(a: u32, a_len: u32, b: u32, b_len: u32) -> bool {
+    a < b + b_len && b < a + a_len
+}
+
+fn default_poll_rate_hz() -> f64 {
+    50.0
+}
+fn default_max_output_age_ms() -> u64 {
+    500
+}
+
+/// Controller-side Modbus link configuration.
+///
+/// Config keys:
+/// - `client`: transport, `timeout_ms`, `backoff_initial_ms`, `backoff_max_ms`
+///   (see [`ClientConfig`]);
+/// - `poll_rate_hz`: link cycles per second, each one sensor read and one write
+///   (default 50, at most 1000);
+/// - `write_on_change_only`: write a setpoint only when its value differs from the last one
+///   the device acknowledged (default false: every new output set is written in full). All
+///   setpoints are rewritten after any link failure or exception. With this on, the plant's
+///   command timestamps show the last change, not liveness: configure `heartbeat_register`;
+/// - `max_output_age_ms`: outputs the control thread published longer ago than this are not
+///   written (default 500);
+/// - `heartbeat_register`: optional `{ unit_id, address }` of the heartbeat block
+///   ([`HeartbeatRegister`]).
+///
+/// ```toml
+/// poll_rate_hz = 50
+/// heartbeat_register = { unit_id = 1, address = 300 }
+/// [client]
+/// timeout_ms = 100
+/// transport = { kind = "tcp", address = "192.168.0.10:502" }
+/// ```
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct ModbusLinkConfig {
+    /// Transport (TCP address or RTU serial line), timeouts and reconnect backoff.
+    pub client: ClientConfig,
+    /// Link cycles per second, Hz.
+    #[serde(default = "default_poll_rate_hz")]
+    pub poll_rate_hz: f64,
+    /// Write only setpoints that changed since the last acknowledged write.
+    #[serde(default)]
+    pub write_on_change_only: bool,
+    /// Oldest output set still written, ms.
+    #[serde(default = "default_max_output_age_ms")]
+    pub max_output_age_ms: u64,
+    /// Heartbeat block written with every output set, if any.
+    #[serde(default)]
+    pub heartbeat_register: Option<HeartbeatRegister>,
+}
+
+impl ModbusLinkConfig {
+    /// A configuration with default rate, full writes and no heartbeat block.
+    pub fn new(client: ClientConfig) -> ModbusLinkConfig {
+        ModbusLinkConfig {
+            client,
+            poll_rate_hz: default_poll_rate_hz(),
+            write_on_change_only: false,
+            max_output_age_ms: default_max_output_age_ms(),
+            heartbeat_register: None,
+        }
+    }
+
+    /// Check ranges: the client settings, 0 < `poll_rate_hz` ≤ [`MAX_POLL_RATE_HZ`],
+    /// `max_output_age_ms` > 0, heartbeat block inside the address space.
+    pub fn validate(&self) -> Result<(), LinkError> {
+        self.client.validate()?;
+        if !(self.poll_rate_hz.is_finite()
+            && self.poll_rate_hz > 0.0
+            && self.poll_rate_hz <= MAX_POLL_RATE_HZ)
+        {
+            return Err(LinkError::Invalid(format!(
+                "poll_rate_hz must be in (0, {MAX_POLL_RATE_HZ}], got {}",
+                self.poll_rate_hz
+            )));
+        }
+        if self.max_output_age_ms == 0 {
+            return Err(LinkError::Invalid("max_output_age_ms must be > 0".into()));
+        }
+        if let Some(hb) = &self.heartbeat_register {
+            hb.validate()?;
+        }
+        Ok(())
+    }
+
+    /// Link cycle period.
+    pub fn period(&self) -> Duration {
+        Duration::from_secs_f64(1.0 / self.poll_rate_hz)
+    }
+}
+
+fn default_listen() -> std::net::SocketAddr {
+    std::net::SocketAddr::from(([127, 0, 0, 1], 5020))
+}
+
+/// Plant-side Modbus server configuration. The unit ids and registers served are those of
+/// the signal map's Modbus bindings (plus the heartbeat block).
+///
+/// Config keys: `listen` (socket address, default `"127.0.0.1:5020"`; port 0 picks a free
+/// port), `heartbeat_register` (optional `{ unit_id, address }`, see [`HeartbeatRegister`]:
+/// when set, only writes to that block count as controller heartbeats; when absent, every
+/// client write does, reported as mode 2 (auto) with the write count as alive counter).
+#[derive(Debug, Clone, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct ModbusServerConfig {
+    /// Address to listen on.
+    #[serde(default = "default_listen")]
+    pub listen: std::net::SocketAddr,
+    /// Heartbeat block, if the controller writes one.
+    #[serde(default)]
+    pub heartbeat_register: Option<HeartbeatRegister>,
+}
+
+impl Default for ModbusServerConfig {
+    fn default() -> Self {
+        ModbusServerConfig {
+            listen: default_listen(),
+            heartbeat_register: None,
+        }
+    }
+}
+
+/// Why a link task could not start or had to stop.
+#[derive(Debug, Error)]
+pub enum LinkError {
+    /// The client settings are unusable.
+    #[error(transparent)]
+    Client(#[from] ConfigError),
+    /// A link setting is out of range; the message says which.
+    #[error("invalid Modbus link config: {0}")]
+    Invalid(String),
+    /// The signal map's Modbus bindings are inconsistent (overlaps, read-only actuators,
+    /// heartbeat block on top of a signal).
+    #[error("signal map: {0}")]
+    Map(String),
+    /// The bindings could not be planned into requests.
+    #[error("Modbus request plan: {0}")]
+    Plan(#[from] PlanError),
+    /// An OS-level failure (binding the listener, registering the wakeup eventfd, accept).
+    #[error("{context}: {source}")]
+    Io {
+        /// What was being done.
+        context: &'static str,
+        /// The OS error.
+        #[source]
+        source: io::Error,
+    },
+}
+
+/// Check the map and that the heartbeat block does not sit on a mapped signal.
+pub(crate) fn check_map(
+    map: &SignalMap,
+    heartbeat: Option<&HeartbeatRegister>,
+) -> Result<(), LinkError> {
+    let problems = map.check();
+    if !problems.is_empty() {
+        let text: Vec<String> = problems
+            .iter()
+            .map(|p| format!("{}: {}", p.key, p.message))
+            .collect();
+        return Err(LinkError::Map(text.join("; ")));
+    }
+    let Some(hb) = heartbeat else {
+        return Ok(());
+    };
+    let mut all: Vec<RegisterBinding> = map.modbus_sensors().iter().map(|(_, b)| *b).collect();
+    all.extend(map.modbus_actuators().iter().map(|(_, b)| *b));
+    let signals = all.len();
+    all.extend(hb.bindings());
+    if let Some(o) = find_overlaps(&all)
+        .iter()
+        .find(|o| (o.first < signals) != (o.second < signals))
+    {
+        let b = all[o.first.min(o.second)];
+        return Err(LinkError::Map(format!(
+            "heartbeat_register (unit {}, holding {}..{}) overlaps the signal at unit {} {} register {}",
+            hb.unit_id,
+            hb.address,
+            u32::from(hb.address) + u32::from(HEARTBEAT_REGISTERS) - 1,
+            b.unit_id,
+            b.table.name(),
+            b.address
+        )));
+    }
+    Ok(())
+}
+
+/// Why the link is down (the last real failure; fast-failing backoff waits keep it).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum FailureCause {
+    /// A request got no answer within `timeout_ms`.
+    Timeout,
+    /// Connecting did not finish within `timeout_ms`.
+    ConnectTimeout,
+    /// Connecting failed (refused, unreachable, no such serial device).
+    Connect,
+    /// I/O error during a request (reset, EOF, broken pipe).
+    Transport,
+    /// A malformed or mismatched response.
+    Protocol,
+}
+
+impl FailureCause {
+    fn of(e: &ModbusError) -> Option<FailureCause> {
+        Some(match e {
+            ModbusError::Timeout { .. } => FailureCause::Timeout,
+            ModbusError::ConnectTimeout { .. } => FailureCause::ConnectTimeout,
+            ModbusError::Connect(_) => FailureCause::Connect,
+            ModbusError::Transport(_) => FailureCause::Transport,
+            ModbusError::Protocol(_) => FailureCause::Protocol,
+            ModbusError::Exception { .. }
+            | ModbusError::Backoff { .. }
+            | ModbusError::LengthMismatch { .. } => return None,
+        })
+    }
+}
+
+/// A Modbus exception answer, as reported in [`LinkState::Exception`].
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct ExceptionInfo {
+    /// Unit that answered.
+    pub unit_id: u8,
+    /// Function code of the refused request.
+    pub function: u8,
+    /// First address of the refused request.
+    pub address: u16,
+    /// Exception code.
+    pub code: ExceptionCode,
+}
+
+impl ExceptionInfo {
+    fn of(e: &ModbusError) -> Option<ExceptionInfo> {
+        match *e {
+            ModbusError::Exception {
+                unit_id,
+                function,
+                address,
+                code,
+            } => Some(ExceptionInfo {
+                unit_id,
+                function,
+                address,
+                code,
+            }),
+            _ => None,
+        }
+    }
+}
+
+/// State of a controller link, published on change through [`LinkMonitor::subscribe`].
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum LinkState {
+    /// No exchange yet.
+    Idle,
+    /// Every request of the last cycle was answered normally.
+    Up,
+    /// Connected, but the device refused at least one request of the last cycle with an
+    /// exception (the first one is shown). Values of the refused requests go stale.
+    Exception(ExceptionInfo),
+    /// The link failed and the client is reconnecting with backoff. Sensor values go stale.
+    Down {
+        /// Failures since the last good exchange (connect attempts included).
+        consecutive_failures: u32,
+        /// Current backoff before the next connect attempt, ms.
+        backoff_ms: u64,
+        /// The last failure.
+        cause: FailureCause,
+    },
+    /// The task has stopped (shutdown).
+    Stopped,
+}
+
+macro_rules! counters {
+    (
+        $(#[$atomic_meta:meta])* atomic $atomic:ident;
+        $(#[$plain_meta:meta])* plain $plain:ident;
+        { $( $(#[doc = $doc:literal])* $field:ident ),* $(,)? }
+    ) => {
+        $(#[$atomic_meta])*
+        #[derive(Debug, Default)]
+        pub struct $atomic {
+            $( $(#[doc = $doc])* $field: AtomicU64, )*
+        }
+
+        $(#[$plain_meta])*
+        #[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+        pub struct $plain {
+            $( $(#[doc = $doc])* pub $field: u64, )*
+        }
+
+        impl $atomic {
+            /// A consistent-enough copy of every counter (each read atomically, relaxed).
+            pub fn snapshot(&self) -> $plain {
+                $plain { $( $field: self.$field.load(Ordering::Relaxed), )* }
+            }
+        }
+    };
+}
+pub(crate) use counters;
+
+counters! {
+    /// Controller link counters (atomics, updated by the link task, read by anyone).
+    atomic LinkCounters;
+    /// A copy of [`LinkCounters`].
+    plain LinkCounts;
+    {
+        /// Link cycles run.
+        cycles,
+        /// Cycles that took longer than the period (e.g. waiting for timeouts).
+        overruns,
+        /// Duration of the last cycle, µs.
+        last_cycle_us,
+        /// Longest cycle, µs.
+        max_cycle_us,
+        /// Sensor polls (one read plan per cycle).
+        polls,
+        /// Polls in which every read request was answered.
+        polls_ok,
+        /// Sensor values published into the sensor board.
+        values_published,
+        /// Write attempts (cycles that had a new output set to send).
+        writes,
+        /// Write attempts acknowledged in full.
+        writes_ok,
+        /// Output sets not written because they were older than `max_output_age_ms`.
+        writes_stale,
+        /// Setpoints left out because they had not changed (`write_on_change_only`).
+        setpoints_unchanged,
+        /// Heartbeat blocks written and acknowledged.
+        heartbeats,
+        /// Requests sent (client counter).
+        requests,
+        /// Requests without an answer within the timeout (client counter).
+        timeouts,
+        /// Exception answers (client counter).
+        exceptions,
+        /// I/O errors during requests (client counter).
+        transport_errors,
+        /// Malformed or mismatched answers (client counter).
+        protocol_errors,
+        /// Connect attempts (client counter).
+        connect_attempts,
+        /// Failed connect attempts (client counter).
+        connect_failures,
+        /// Successful connects after the first (client counter).
+        reconnects,
+        /// Setpoints saturated to the register type's range (client counter).
+        clamped_values,
+    }
+}
+
+impl LinkCounters {
+    fn add(c: &AtomicU64, n: u64) {
+        c.fetch_add(n, Ordering::Relaxed);
+    }
+}
+
+/// Where a controller link reports: counters and the state channel. Share it (`Arc`) with
+/// whoever logs or displays the link.
+#[derive(Debug)]
+pub struct LinkMonitor {
+    counters: LinkCounters,
+    state: watch::Sender<LinkState>,
+}
+
+impl Default for LinkMonitor {
+    fn default() -> Self {
+        LinkMonitor::new()
+    }
+}
+
+impl LinkMonitor {
+    /// Counters at zero, state [`LinkState::Idle`].
+    pub fn new() -> LinkMonitor {
+        LinkMonitor {
+            counters: LinkCounters::default(),
+            state: watch::Sender::new(LinkState::Idle),
+        }
+    }
+
+    /// A receiver that sees every state change (`changed().await`, then `borrow()`).
+    pub fn subscribe(&self) -> watch::Receiver<LinkState> {
+        self.state.subscribe()
+    }
+
+    /// Current state.
+    pub fn state(&self) -> LinkState {
+        *self.state.borrow()
+    }
+
+    /// Live counters.
+    pub fn counters(&self) -> &LinkCounters {
+        &self.counters
+    }
+
+    fn set_state(&self, new: LinkState) {
+        self.state.send_if_modified(|s| {
+            if *s == new {
+                false
+            } else {
+                *s = new;
+                true
+            }
+        });
+    }
+}
+
+/// What starts a controller link cycle.
+#[derive(Debug, Clone)]
+pub enum Pacing {
+    /// A fixed-rate loop at `poll_rate_hz`: read sensors, publish, then write the latest
+    /// outputs. A cycle that overruns delays the next tick (no catch-up bursts).
+    Interval,
+    /// One cycle per control-thread wakeup, at most `poll_rate_hz`: write the fresh outputs,
+    /// then read sensors for the next control cycle. Nothing happens while the control
+    /// thread is silent. The eventfd must be this task's own: each waiter clears it, and
+    /// tokio cannot register one descriptor twice.
+    Wakeup(Arc<Wakeup>),
+}
+
+/// The sensors of one planned read request (a contiguous range of one unit and table), so
+/// each group gets the arrival time of its own response and an exception spoils only it.
+#[derive(Debug)]
+struct SensorGroup {
+    plan: ReadPlan,
+    ids: Vec<SensorId>,
+    values: Vec<f64>,
+}
+
+/// What happened during one cycle.
+#[derive(Debug, Default)]
+struct Outcome {
+    /// At least one exchange got a normal answer.
+    answered: bool,
+    /// First exception answer.
+    exception: Option<ExceptionInfo>,
+    /// A link failure (including a backoff wait) ended an operation.
+    link_failed: bool,
+}
+
+/// The controller link's state between cycles.
+struct Controller {
+    client: ModbusClient,
+    groups: Vec<SensorGroup>,
+    write_plan: WritePlan,
+    actuators: Vec<ActuatorId>,
+    /// Values for `write_plan` (actuators, then the heartbeat bindings).
+    write_values: Vec<f64>,
+    /// Bits of the last acknowledged value per actuator (`write_on_change_only`).
+    acknowledged: Vec<u64>,
+    /// Whether `acknowledged` reflects the device (false after any failure).
+    acknowledged_valid: bool,
+    heartbeat: bool,
+    alive: u8,
+    change_only: bool,
+    max_output_age_ns: u64,
+    /// Control cycle number of the last output set written in full.
+    last_written_cycle: Option<u64>,
+    last_cause: FailureCause,
+    sensors: Arc<SensorBoard>,
+    outputs: Arc<OutputBoard>,
+    monitor: Arc<LinkMonitor>,
+}
+
+impl Controller {
+    fn new(
+        cfg: &ModbusLinkConfig,
+        map: &SignalMap,
+        sensors: Arc<SensorBoard>,
+        outputs: Arc<OutputBoard>,
+        monitor: Arc<LinkMonitor>,
+    ) -> Result<Controller, LinkError> {
+        cfg.validate()?;
+        check_map(map, cfg.heartbeat_register.as_ref())?;
+        let sensor_bindings = map.modbus_sensors();
+        let all: Vec<RegisterBinding> = sensor_bindings.iter().map(|(_, b)| *b).collect();
+        let full = ReadPlan::new(&all)?;
+        let mut groups = Vec::with_capacity(full.requests().len());
+        for req in full.requests() {
+            let members = full.members(req);
+            let bindings: Vec<RegisterBinding> = members.iter().map(|&i| all[i]).collect();
+            let ids: Vec<SensorId> = members.iter().map(|&i| sensor_bindings[i].0).collect();
+            let plan = ReadPlan::new(&bindings)?;
+            debug_assert_eq!(plan.requests().len(), 1);
+            groups.push(SensorGroup {
+                values: vec![f64::NAN; ids.len()],
+                plan,
+                ids,
+            });
+        }
+        let actuator_bindings = map.modbus_actuators();
+        let actuators: Vec<ActuatorId> = actuator_bindings.iter().map(|(id, _)| *id).collect();
+        let mut writes: Vec<RegisterBinding> = actuator_bindings.iter().map(|(_, b)| *b).collect();
+        if let Some(hb) = &cfg.heartbeat_register {
+            writes.extend(hb.bindings());
+        }
+        let write_plan = WritePlan::new(&writes)?;
+        Ok(Controller {
+            client: ModbusClient::new(cfg.client.clone())?,
+            groups,
+            write_values: vec![f64::NAN; write_plan.len()],
+            write_plan,
+            acknowledged: vec![0; actuators.len()],
+            acknowledged_valid: false,
+            actuators,
+            heartbeat: cfg.heartbeat_register.is_some(),
+            alive: 0,
+            change_only: cfg.write_on_change_only,
+            max_output_age_ns: cfg.max_output_age_ms.saturating_mul(1_000_000),
+            last_written_cycle: None,
+            last_cause: FailureCause::Connect,
+            sensors,
+            outputs,
+            monitor,
+        })
+    }
+
+    /// Nothing to read and nothing to write.
+    fn is_idle(&self) -> bool {
+        self.groups.is_empty() && self.write_plan.is_empty()
+    }
+
+    /// Note a failed operation; returns whether it was a link failure.
+    fn note_error(&mut self, e: &ModbusError, out: &mut Outcome) -> bool {
+        if let Some(x) = ExceptionInfo::of(e) {
+            out.exception.get_or_insert(x);
+            return false;
+        }
+        if let Some(cause) = FailureCause::of(e) {
+            self.last_cause = cause;
+        }
+        if !e.is_link_failure() {
+            // Only a length mismatch remains: a planning bug, not a device answer.
+            tracing::error!(target: "modbus", error = %e, "link: inconsistent request plan");
+        }
+        out.link_failed = true;
+        true
+    }
+
+    /// One read of every sensor group; publishes what was answered.
+    async fn read(&mut self, out: &mut Outcome) {
+        if self.groups.is_empty() {
+            return;
+        }
+        let c = &self.monitor.counters;
+        LinkCounters::add(&c.polls, 1);
+        let mut all_ok = true;
+        let mut published = 0u64;
+        for k in 0..self.groups.len() {
+            let g = &mut self.groups[k];
+            let result = self.client.read(&g.plan, &mut g.values).await;
+            let t_ns = monotonic_ns();
+            match result {
+                Ok(()) => {
+                    for (id, v) in g.ids.iter().zip(&g.values) {
+                        self.sensors.publish(*id, *v, t_ns);
+                    }
+                    published += g.ids.len() as u64;
+                    out.answered = true;
+                }
+                Err(e) => {
+                    all_ok = false;
+                    if self.note_error(&e, out) {
+                        break;
+                    }
+                }
+            }
+        }
+        let c = &self.monitor.counters;
+        LinkCounters::add(&c.values_published, published);
+        if all_ok {
+            LinkCounters::add(&c.polls_ok, 1);
+        }
+    }
+
+    /// Write the latest output set if it is new and fresh.
+    async fn write(&mut self, out: &mut Outcome) {
+        if self.write_plan.is_empty() {
+            return;
+        }
+        let Some(o) = self.outputs.latest() else {
+            return;
+        };
+        if self.last_written_cycle == Some(o.cycle) {
+            return;
+        }
+        let c = &self.monitor.counters;
+        if monotonic_ns().saturating_sub(o.t_ns) > self.max_output_age_ns {
+            LinkCounters::add(&c.writes_stale, 1);
+            return;
+        }
+        let mut unchanged = 0u64;
+        for (k, id) in self.actuators.iter().enumerate() {
+            let v = o.commands.get(*id);
+            self.write_values[k] = if self.change_only
+                && self.acknowledged_valid
+                && !v.is_nan()
+                && v.to_bits() == self.acknowledged[k]
+            {
+                unchanged += 1;
+                f64::NAN
+            } else {
+                v
+            };
+        }
+        if self.heartbeat {
+            let n = self.actuators.len();
+            self.alive = self.alive.wrapping_add(1);
+            let w = HeartbeatWords {
+                mode: o.mode,
+                alive: self.alive,
+                law: o.law,
+                faults: o.faults,
+            }
+            .encode();
+            self.write_values[n] = f64::from(w[0]);
+            self.write_values[n + 1] = f64::from(w[1]);
+            self.write_values[n + 2] = f64::from(o.faults);
+        }
+        LinkCounters::add(&c.setpoints_unchanged, unchanged);
+        if self.write_values.iter().all(|v| v.is_nan()) {
+            // Nothing commanded or nothing changed: this set is done.
+            self.last_written_cycle = Some(o.cycle);
+            return;
+        }
+        LinkCounters::add(&c.writes, 1);
+        match self
+            .client
+            .write(&self.write_plan, &self.write_values)
+            .await
+        {
+            Ok(report) => {
+                let c = &self.monitor.counters;
+                LinkCounters::add(&c.writes_ok, 1);
+                if self.heartbeat {
+                    LinkCounters::add(&c.heartbeats, 1);
+                }
+                out.answered |= report.requests > 0;
+                self.last_written_cycle = Some(o.cycle);
+                if !self.acknowledged_valid {
+                    // Start from the device's view: what this write carried. Setpoints
+                    // left out as NaN stay unknown, so keep them distinct from any value.
+                    self.acknowledged.fill(f64::NAN.to_bits());
+                }
+                for (k, v) in self.write_values[..self.actuators.len()].iter().enumerate() {
+                    if !v.is_nan() {
+                        self.acknowledged[k] = v.to_bits();
+                    }
+                }
+                self.acknowledged_valid = true;
+            }
+            Err(e) => {
+                self.acknowledged_valid = false;
+                self.note_error(&e, out);
+            }
+        }
+    }
+
+    /// One link cycle. `write_first`: outputs before sensors (wakeup pacing).
+    async fn cycle(&mut self, write_first: bool) -> Outcome {
+        let mut out = Outcome::default();
+        if write_first {
+            self.write(&mut out).await;
+            if !out.link_failed {
+                self.read(&mut out).await;
+            }
+        } else {
+            self.read(&mut out).await;
+            if !out.link_failed {
+                self.write(&mut out).await;
+            }
+        }
+        out
+    }
+
+    /// Counters and state after a cycle that took `elapsed`.
+    fn finish(&mut self, out: &Outcome, elapsed: Duration, period: Duration) {
+        let c = &self.monitor.counters;
+        LinkCounters::add(&c.cycles, 1);
+        if elapsed > period {
+            LinkCounters::add(&c.overruns, 1);
+        }
+        let us = u64::try_from(elapsed.as_micros()).unwrap_or(u64::MAX);
+        c.last_cycle_us.store(us, Ordering::Relaxed);
+        c.max_cycle_us.fetch_max(us, Ordering::Relaxed);
+        self.mirror_client_counters();
+        if out.link_failed {
+            self.acknowledged_valid = false;
+        }
+        let new = match self.client.state() {
+            ConnectionState::Broken {
+                consecutive_failures,
+                backoff_ms,
+            } => LinkState::Down {
+                consecutive_failures,
+                backoff_ms,
+                cause: self.last_cause,
+            },
+            ConnectionState::Connected => match (out.exception, out.answered) {
+                (Some(x), _) => LinkState::Exception(x),
+                (None, true) => LinkState::Up,
+                (None, false) => return,
+            },
+            ConnectionState::Idle => return,
+        };
+        self.monitor.set_state(new);
+    }
+
+    /// Copy the client's counters into the shared atomics.
+    fn mirror_client_counters(&self) {
+        let c = &self.monitor.counters;
+        let k = self.client.counters();
+        for (slot, v) in [
+            (&c.requests, k.requests),
+            (&c.timeouts, k.timeouts),
+            (&c.exceptions, k.exceptions),
+            (&c.transport_errors, k.transport_errors),
+            (&c.protocol_errors, k.protocol_errors),
+            (&c.connect_attempts, k.connect_attempts),
+            (&c.connect_failures, k.connect_failures),
+            (&c.reconnects, k.reconnects),
+            (&c.clamped_values, k.clamped_values),
+        ] {
+            slot.store(v, Ordering::Relaxed);
+        }
+    }
+}
+
+/// Run the controller side of the Modbus link until `shutdown` completes.
+///
+/// Reads every Modbus sensor of `map` each cycle (requests grouped by unit, table and
+/// contiguous range) and publishes the values into `sensors` with the monotonic arrival time
+/// of their response; writes the latest new output set of `outputs` (NaN setpoints are
+/// skipped: the device keeps its last value) and the heartbeat block if configured. Link
+/// failures and exceptions never stop the task: the client reconnects with backoff and the
+/// state goes to `monitor`. Returns at once (Ok, state [`LinkState::Stopped`]) if there is
+/// nothing to read or write: no Modbus signal in `map` and no heartbeat block.
+///
+/// Errors: invalid configuration or map, or (wakeup pacing) a failure to register the
+/// eventfd with the runtime.
+pub async fn run_controller(
+    cfg: &ModbusLinkConfig,
+    map: &SignalMap,
+    sensors: Arc<SensorBoard>,
+    outputs: Arc<OutputBoard>,
+    pacing: Pacing,
+    monitor: Arc<LinkMonitor>,
+    shutdown: impl Future<Output = ()>,
+) -> Result<(), LinkError> {
+    let mut ctl = Controller::new(cfg, map, sensors, outputs, Arc::clone(&monitor))?;
+    if ctl.is_idle() {
+        tracing::debug!(target: "modbus", "link: no Modbus signals in the map, nothing to do");
+        monitor.set_state(LinkState::Stopped);
+        return Ok(());
+    }
+    let period = cfg.period();
+    tokio::pin!(shutdown);
+    let result = match pacing {
+        Pacing::Interval => {
+            let mut ticker = tokio::time::interval(period);
+            ticker.set_missed_tick_behavior(MissedTickBehavior::Delay);
+            loop {
+                tokio::select! {
+                    biased;
+                    () = &mut shutdown => break Ok(()),
+                    _ = ticker.tick() => {}
+                }
+                let start = Instant::now();
+                let out = tokio::select! {
+                    biased;
+                    () = &mut shutdown => break Ok(()),
+                    out = ctl.cycle(false) => out,
+                };
+                ctl.finish(&out, start.elapsed(), period);
+            }
+        }
+        Pacing::Wakeup(wake) => run_on_wakeup(&mut ctl, &wake, period, &mut shutdown).await,
+    };
+    ctl.client.disconnect().await;
+    ctl.mirror_client_counters();
+    monitor.set_state(LinkState::Stopped);
+    result
+}
+
+async fn run_on_wakeup<S: Future<Output = ()> + Unpin>(
+    ctl: &mut Controller,
+    wake: &Wakeup,
+    period: Duration,
+    shutdown: &mut S,
+) -> Result<(), LinkError> {
+    // SAFETY: the descriptor is owned by `wake`, which this function borrows for longer than
+    // `fd` lives, and a `Wakeup` never replaces or closes its eventfd while it exists.
+    let fd =
+        unsafe { AsyncFd::register_with_interest(wake.fd(), Interest::READABLE) }.map_err(|e| {
+            LinkError::Io {
+                context: "registering the wakeup eventfd",
+                source: e.into(),
+            }
+        })?;
+    let mut next_allowed = Instant::now();
+    loop {
+        tokio::select! {
+            biased;
+            () = &mut *shutdown => return Ok(()),
+            ready = fd.readable() => {
+                let mut guard = ready.map_err(|source| LinkError::Io {
+                    context: "waiting on the wakeup eventfd",
+                    source,
+                })?;
+                // Drain first, then clear readiness: a signal in between re-arms the fd.
+                wake.clear();
+                guard.clear_ready();
+            }
+        }
+        if Instant::now() < next_allowed {
+            tokio::select! {
+                biased;
+                () = &mut *shutdown => return Ok(()),
+                () = tokio::time::sleep_until(next_allowed) => {}
+            }
+        }
+        let start = Instant::now();
+        next_allowed = start + period;
+        let out = tokio::select! {
+            biased;
+            () = &mut *shutdown => return Ok(()),
+            out = ctl.cycle(true) => out,
+        };
+        ctl.finish(&out, start.elapsed(), period);
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::io::signal_map::Binding;
+
+    #[test]
+    fn link_config_from_toml_with_defaults() {
+        let c: ModbusLinkConfig = toml::from_str(
+            r#"
+            heartbeat_register = { unit_id = 1, address = 300 }
+            [client]
+            timeout_ms = 40
+            transport = { kind = "tcp", address = "10.0.0.5:502" }
+            "#,
+        )
+        .unwrap();
+        assert_eq!(c.poll_rate_hz, 50.0);
+        assert!(!c.write_on_change_only);
+        assert_eq!(c.max_output_age_ms, 500);
+        assert_eq!(c.client.timeout_ms, 40);
+        assert_eq!(c.client.backoff_max_ms, 5000);
+        assert_eq!(
+            c.heartbeat_register,
+            Some(HeartbeatRegister {
+                unit_id: 1,
+                address: 300
+            })
+        );
+        assert_eq!(c.period(), Duration::from_millis(20));
+        assert!(c.validate().is_ok());
+
+        let rtu: ModbusLinkConfig = toml::from_str(
+            "poll_rate_hz = 10\nwrite_on_change_only = true\n\
+             [client]\ntransport = { kind = \"rtu\", path = \"/dev/ttyUSB0\", baud = 19200 }\n",
+        )
+        .unwrap();
+        assert!(rtu.write_on_change_only && rtu.validate().is_ok());
+
+        for bad in [
+            "pol_rate_hz = 5\n[client]\ntransport = { kind = \"tcp\", address = \"1.2.3.4:502\" }",
+            "heartbeat_register = { unit_id = 1, address = 3, table = \"input\" }\n\
+             [client]\ntransport = { kind = \"tcp\", address = \"1.2.3.4:502\" }",
+        ] {
+            assert!(toml::from_str::<ModbusLinkConfig>(bad).is_err(), "{bad}");
+        }
+    }
+
+    #[test]
+    fn link_config_validation() {
+        let mut c = ModbusLinkConfig::new(ClientConfig::tcp("127.0.0.1:502".parse().unwrap()));
+        assert!(c.validate().is_ok());
+        for rate in [0.0, -1.0, f64::NAN, 1000.5] {
+            c.poll_rate_hz = rate;
+            assert!(matches!(c.validate(), Err(LinkError::Invalid(_))), "{rate}");
+        }
+        c.poll_rate_hz = 1000.0;
+        assert!(c.validate().is_ok());
+        c.max_output_age_ms = 0;
+        assert!(c.validate().is_err());
+        c.max_output_age_ms = 1;
+        c.heartbeat_register = Some(HeartbeatRegister {
+            unit_id: 1,
+            address: 65533,
+        });
+        assert!(c.validate().is_err());
+        c.heartbeat_register = Some(HeartbeatRegister {
+            unit_id: 1,
+            address: 65532,
+        });
+        assert!(c.validate().is_ok());
+        c.client.timeout_ms = 0;
+        assert!(matches!(c.validate(), Err(LinkError::Client(_))));
+    }
+
+    #[test]
+    fn server_config_defaults() {
+        let s: ModbusServerConfig = toml::from_str("").unwrap();
+        assert_eq!(s, ModbusServerConfig::default());
+        assert_eq!(s.listen.port(), 5020);
+        assert!(toml::from_str::<ModbusServerConfig>("listn = \"0.0.0.0:502\"").is_err());
+    }
+
+    #[test]
+    fn heartbeat_words_round_trip_through_bindings() {
+        let hb = HeartbeatRegister {
+            unit_id: 3,
+            address: 10,
+        };
+        let w = HeartbeatWords {
+            mode: 3,
+            alive: 255,
+            law: 7,
+            faults: 0xdead_beef,
+        };
+        let words = w.encode();
+        assert_eq!(words, [0x03ff, 7, 0xdead, 0xbeef]);
+        assert_eq!(HeartbeatWords::decode(&words), w);
+        // The controller writes the block through the bindings: same words on the wire.
+        let b = hb.bindings();
+        let mut wire = [0u16; 4];
+        let _ = b[0].encode(f64::from(words[0]), &mut wire[0..1]).unwrap();
+        let _ = b[1].encode(f64::from(words[1]), &mut wire[1..2]).unwrap();
+        let _ = b[2].encode(f64::from(w.faults), &mut wire[2..4]).unwrap();
+        assert_eq!(wire, words);
+        assert!(hb.touched_by(3, 13, 1));
+        assert!(hb.touched_by(3, 0, 11));
+        assert!(!hb.touched_by(3, 14, 2));
+        assert!(!hb.touched_by(3, 0, 10));
+        assert!(!hb.touched_by(2, 10, 4));
+    }
+
+    #[test]
+    fn heartbeat_block_must_not_overlap_signals() {
+        let mut map = SignalMap::default();
+        map.actuators.insert(
+            ActuatorId::RecycleValve,
+            Binding::Modbus(RegisterBinding::new(
+                1,
+                RegisterTable::Holding,
+                102,
+                DataType::F32,
+            )),
+        );
+        let at = |address| HeartbeatRegister {
+            unit_id: 1,
+            address,
+        };
+        assert!(check_map(&map, Some(&at(104))).is_ok());
+        assert!(check_map(&map, Some(&at(99))).is_err());
+        let e = check_map(&map, Some(&at(103))).unwrap_err();
+        assert!(e.to_string().contains("holding register 102"), "{e}");
+        // Same address on another unit is fine.
+        assert!(check_map(
+            &map,
+            Some(&HeartbeatRegister {
+                unit_id: 2,
+                address: 102
+            })
+        )
+        .is_ok());
+    }
+}

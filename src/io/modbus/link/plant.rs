@@ -1,0 +1,444 @@
+//! The plant node's Modbus TCP server: sensors from the snapshot board, setpoint writes into
+//! the command board, write arrivals into the heartbeat board.
+//!
+//! The server answers from a [`RegisterImage`] mapped from the signal map (so only mapped
+//! registers exist, like a real device). Instead of a refresh loop, each read request first
+//! re-encodes the sensor registers if the [`SnapshotBoard`] holds a newer snapshot than the
+//! image: an answer always carries the latest published snapshot, at no cost while nobody
+//! reads. Writes are published with the monotonic time the request reached the service.
+//!
+//! The boards are single-writer seqlocks; connection tasks call the service concurrently, but
+//! every publish happens while the image mutex is held, so the writes to each board are
+//! serialised.
+
+use std::future::Future;
+use std::io;
+use std::net::SocketAddr;
+use std::pin::Pin;
+use std::sync::atomic::{AtomicU64, Ordering};
+use std::sync::{Arc, Mutex, MutexGuard, PoisonError};
+
+use tokio::net::{TcpListener, TcpSocket, TcpStream};
+use tokio_modbus::server::Service;
+use tokio_modbus::{ExceptionCode, Request, Response, SlaveRequest};
+
+use super::{
+    check_map, counters, HeartbeatRegister, HeartbeatWords, LinkError, ModbusServerConfig,
+    HEARTBEAT_REGISTERS,
+};
+use crate::io::modbus::plan::{MAX_READ_REGISTERS, MAX_WRITE_REGISTERS};
+use crate::io::modbus::register::{RegisterBinding, RegisterTable};
+use crate::io::modbus::server::{lock_image, RegisterImage, ResponseMode, SharedImage};
+use crate::io::signal_map::SignalMap;
+use crate::runtime::handoff::{
+    monotonic_ns, CommandBoard, HeartbeatBoard, HeartbeatSeen, SnapshotBoard,
+};
+use crate::signals::{ActuatorId, SensorId};
+
+/// Mode reported for a heartbeat inferred from a plain client write (no heartbeat block):
+/// 2 = auto, as in the CAN heartbeat's mode table.
+const INFERRED_MODE: u8 = 2;
+
+counters! {
+    /// Plant server counters (atomics, updated by the connection tasks).
+    atomic PlantCounters;
+    /// A copy of [`PlantCounters`].
+    plain PlantCounts;
+    {
+        /// Client connections accepted.
+        connections,
+        /// Requests received (answered or not).
+        requests,
+        /// Read requests answered.
+        reads,
+        /// Write requests applied.
+        writes,
+        /// Exception answers sent.
+        exceptions,
+        /// Requests left unanswered (fault injection: [`ResponseMode::Silent`]).
+        dropped,
+        /// Times the sensor registers were re-encoded from a new snapshot.
+        refreshes,
+        /// Setpoints published into the command board.
+        commands,
+        /// Heartbeats published into the heartbeat board.
+        heartbeats,
+    }
+}
+
+/// Per-server mutable state, locked after the image.
+#[derive(Debug)]
+struct PlantState {
+    /// (cycle, t_ns) of the snapshot the image holds; `None` before the first.
+    snapshot: Option<(u64, u64)>,
+    /// Per sensor binding: whether the image holds a value from the snapshot (false for
+    /// NaN, i.e. a sensor this plant does not produce).
+    sensor_valid: Vec<bool>,
+    /// Client writes applied, for the inferred heartbeat's alive counter.
+    writes: u64,
+}
+
+#[derive(Debug)]
+struct Shared {
+    image: SharedImage,
+    state: Mutex<PlantState>,
+    sensors: Vec<(SensorId, RegisterBinding)>,
+    actuators: Vec<(ActuatorId, RegisterBinding)>,
+    heartbeat_register: Option<HeartbeatRegister>,
+    snapshots: Arc<SnapshotBoard>,
+    commands: Arc<CommandBoard>,
+    heartbeat: Arc<HeartbeatBoard>,
+    counters: Arc<PlantCounters>,
+}
+
+fn binding_in(b: &RegisterBinding, unit_id: u8, table: RegisterTable, addr: u16, n: u16) -> bool {
+    b.unit_id == unit_id
+        && b.table == table
+        && u32::from(b.address) < u32::from(addr) + u32::from(n)
+        && u32::from(addr) < b.end_address()
+}
+
+impl Shared {
+    fn lock_state(&self) -> MutexGuard<'_, PlantState> {
+        self.state.lock().unwrap_or_else(PoisonError::into_inner)
+    }
+
+    /// Re-encode the sensor registers if a newer snapshot was published.
+    fn refresh(&self, image: &mut RegisterImage, state: &mut PlantState) {
+        let Some((snap, cycle, t_ns)) = self.snapshots.latest() else {
+            return;
+        };
+        if state.snapshot == Some((cycle, t_ns)) {
+            return;
+        }
+        state.snapshot = Some((cycle, t_ns));
+        for ((id, b), valid) in self.sensors.iter().zip(state.sensor_valid.iter_mut()) {
+            *valid = image.set_value(b, snap.get(*id)).is_ok();
+        }
+        self.counters.refreshes.fetch_add(1, Ordering::Relaxed);
+    }
+
+    /// Handle one request; `None` = no answer.
+    fn handle(
+        &self,
+        unit_id: u8,
+        request: &Request<'_>,
+        t_ns: u64,
+    ) -> (ResponseMode, Result<Option<Response>, ExceptionCode>) {
+        let c = &self.counters;
+        c.requests.fetch_add(1, Ordering::Relaxed);
+        let mut image = lock_image(&self.image);
+        let mode = image.response_mode();
+        if mode == ResponseMode::Silent {
+            c.dropped.fetch_add(1, Ordering::Relaxed);
+            return (mode, Ok(None));
+        }
+        let mut state = self.lock_state();
+        let result = self.dispatch(&mut image, &mut state, unit_id, request, t_ns);
+        if result.is_err() {
+            c.exceptions.fetch_add(1, Ordering::Relaxed);
+        }
+        (mode, result.map(Some))
+    }
+
+    fn dispatch(
+        &self,
+        image: &mut RegisterImage,
+        state: &mut PlantState,
+        unit_id: u8,
+        request: &Request<'_>,
+        t_ns: u64,
+    ) -> Result<Response, ExceptionCode> {
+        if !image.has_unit(unit_id) {
+            // TCP: we act as a gateway whose target device does not answer.
+            return Err(ExceptionCode::GatewayTargetDevice);
+        }
+        let unmapped = |_| ExceptionCode::IllegalDataAddress;
+        match request {
+            Request::ReadHoldingRegisters(addr, cnt) | Request::ReadInputRegisters(addr, cnt) => {
+                let holding = matches!(request, Request::ReadHoldingRegisters(..));
+                let table = if holding {
+                    RegisterTable::Holding
+                } else {
+                    RegisterTable::Input
+                };
+                if *cnt == 0 || *cnt > MAX_READ_REGISTERS {
+                    return Err(ExceptionCode::IllegalDataValue);
+                }
+                self.refresh(image, state);
+                let mut words = vec![0u16; usize::from(*cnt)];
+                image
+                    .read_words(unit_id, table, *addr, &mut words)
+                    .map_err(unmapped)?;
+                let stale = self
+                    .sensors
+                    .iter()
+                    .zip(&state.sensor_valid)
+                    .any(|((_, b), ok)| !ok && binding_in(b, unit_id, table, *addr, *cnt));
+                if stale {
+                    // No snapshot yet: busy (transient). A NaN sensor: the device has no
+                    // value to give for it.
+                    return Err(if state.snapshot.is_none() {
+                        ExceptionCode::ServerDeviceBusy
+                    } else {
+                        ExceptionCode::ServerDeviceFailure
+                    });
+                }
+                self.counters.reads.fetch_add(1, Ordering::Relaxed);
+                Ok(if holding {
+                    Response::ReadHoldingRegisters(words)
+                } else {
+                    Response::ReadInputRegisters(words)
+                })
+            }
+            Request::WriteSingleRegister(addr, word) => {
+                image
+                    .write_words(unit_id, RegisterTable::Holding, *addr, &[*word])
+                    .map_err(unmapped)?;
+                self.after_write(image, state, unit_id, *addr, 1, t_ns);
+                Ok(Response::WriteSingleRegister(*addr, *word))
+            }
+            Request::WriteMultipleRegisters(addr, words) => {
+                if words.is_empty() || words.len() > usize::from(MAX_WRITE_REGISTERS) {
+                    return Err(ExceptionCode::IllegalDataValue);
+                }
+                image
+                    .write_words(unit_id, RegisterTable::Holding, *addr, words)
+                    .map_err(unmapped)?;
+                let n = words.len() as u16;
+                self.after_write(image, state, unit_id, *addr, n, t_ns);
+                Ok(Response::WriteMultipleRegisters(*addr, n))
+            }
+            _ => Err(ExceptionCode::IllegalFunction),
+        }
+    }
+
+    /// Publish the setpoints a write touched, and the heartbeat.
+    fn after_write(
+        &self,
+        image: &RegisterImage,
+        state: &mut PlantState,
+        unit_id: u8,
+        addr: u16,
+        n: u16,
+        t_ns: u64,
+    ) {
+        let c = &self.counters;
+        c.writes.fetch_add(1, Ordering::Relaxed);
+        state.writes = state.writes.wrapping_add(1);
+        for (id, b) in &self.actuators {
+            if binding_in(b, unit_id, RegisterTable::Holding, addr, n) {
+                if let Ok(v) = image.value(b) {
+                    self.commands.publish(*id, v, t_ns);
+                    c.commands.fetch_add(1, Ordering::Relaxed);
+                }
+            }
+        }
+        let seen = match &self.heartbeat_register {
+            Some(hb) => {
+                if !hb.touched_by(unit_id, addr, n) {
+                    return;
+                }
+                let mut words = [0u16; HEARTBEAT_REGISTERS as usize];
+                if image
+                    .read_words(hb.unit_id, RegisterTable::Holding, hb.address, &mut words)
+                    .is_err()
+                {
+                    return;
+                }
+                let w = HeartbeatWords::decode(&words);
+                HeartbeatSeen {
+                    mode: w.mode,
+                    law: w.law,
+                    alive: w.alive,
+                    faults: w.faults,
+                    t_ns,
+                }
+            }
+            None => HeartbeatSeen {
+                mode: INFERRED_MODE,
+                law: 0,
+                alive: state.writes as u8,
+                faults: 0,
+                t_ns,
+            },
+        };
+        self.heartbeat.publish(&seen);
+        c.heartbeats.fetch_add(1, Ordering::Relaxed);
+    }
+}
+
+type ServiceFuture = Pin<Box<dyn Future<Output = Result<Option<Response>, ExceptionCode>> + Send>>;
+
+/// tokio-modbus service of the plant server.
+#[derive(Debug, Clone)]
+struct PlantService(Arc<Shared>);
+
+impl Service for PlantService {
+    type Request = SlaveRequest<'static>;
+    type Response = Option<Response>;
+    type Exception = ExceptionCode;
+    type Future = ServiceFuture;
+
+    fn call(&self, req: Self::Request) -> Self::Future {
+        let t_ns = monotonic_ns();
+        let (mode, result) = self.0.handle(req.slave, &req.request, t_ns);
+        match mode {
+            ResponseMode::Delay(d) => Box::pin(async move {
+                tokio::time::sleep(d).await;
+                result
+            }),
+            _ => Box::pin(std::future::ready(result)),
+        }
+    }
+}
+
+/// A bound, not yet running plant Modbus server. [`bind`](Self::bind) then
+/// [`run`](Self::run); in between, [`local_addr`](Self::local_addr) tells the port when
+/// listening on port 0.
+#[derive(Debug)]
+pub struct PlantServer {
+    listener: TcpListener,
+    local_addr: SocketAddr,
+    shared: Arc<Shared>,
+}
+
+impl PlantServer {
+    /// Check the map, build the register image (every Modbus sensor and actuator of `map`,
+    /// plus the heartbeat block) and bind `cfg.listen` (with `SO_REUSEADDR`, so a restarted
+    /// server can take the port back at once).
+    pub async fn bind(
+        cfg: &ModbusServerConfig,
+        map: &SignalMap,
+        snapshots: Arc<SnapshotBoard>,
+        commands: Arc<CommandBoard>,
+        heartbeat: Arc<HeartbeatBoard>,
+    ) -> Result<PlantServer, LinkError> {
+        if let Some(hb) = &cfg.heartbeat_register {
+            hb.validate()?;
+        }
+        check_map(map, cfg.heartbeat_register.as_ref())?;
+        let sensors = map.modbus_sensors();
+        let actuators = map.modbus_actuators();
+        let mut image = RegisterImage::new();
+        for (_, b) in &sensors {
+            image.map_binding(b);
+        }
+        for (_, b) in &actuators {
+            image.map_binding(b);
+        }
+        if let Some(hb) = &cfg.heartbeat_register {
+            image.map(
+                hb.unit_id,
+                RegisterTable::Holding,
+                hb.address,
+                HEARTBEAT_REGISTERS,
+            );
+        }
+        let listener = listen(cfg.listen).map_err(|source| LinkError::Io {
+            context: "binding the Modbus server",
+            source,
+        })?;
+        let local_addr = listener.local_addr().map_err(|source| LinkError::Io {
+            context: "reading the Modbus server address",
+            source,
+        })?;
+        let state = PlantState {
+            snapshot: None,
+            sensor_valid: vec![false; sensors.len()],
+            writes: 0,
+        };
+        Ok(PlantServer {
+            listener,
+            local_addr,
+            shared: Arc::new(Shared {
+                image: image.into_shared(),
+                state: Mutex::new(state),
+                sensors,
+                actuators,
+                heartbeat_register: cfg.heartbeat_register,
+                snapshots,
+                commands,
+                heartbeat,
+                counters: Arc::new(PlantCounters::default()),
+            }),
+        })
+    }
+
+    /// The address the server listens on.
+    pub fn local_addr(&self) -> SocketAddr {
+        self.local_addr
+    }
+
+    /// The register image, e.g. to inject faults with
+    /// [`RegisterImage::set_response_mode`] (a hung or slow device).
+    pub fn image(&self) -> SharedImage {
+        Arc::clone(&self.shared.image)
+    }
+
+    /// Live counters.
+    pub fn counters(&self) -> Arc<PlantCounters> {
+        Arc::clone(&self.shared.counters)
+    }
+
+    /// Serve until `shutdown` completes. On return the listener and every client connection
+    /// are closed (connection tasks are cancelled as the server stops).
+    ///
+    /// Errors: accepting a connection failed (e.g. out of file descriptors).
+    pub async fn run(self, shutdown: impl Future<Output = ()>) -> Result<(), LinkError> {
+        let server = tokio_modbus::server::tcp::Server::new(self.listener);
+        let service = PlantService(Arc::clone(&self.shared));
+        let counters = Arc::clone(&self.shared.counters);
+        let on_connected = move |stream: TcpStream, peer: SocketAddr| {
+            let service = service.clone();
+            counters.connections.fetch_add(1, Ordering::Relaxed);
+            async move {
+                let _ = stream.set_nodelay(true);
+                tracing::debug!(target: "modbus", %peer, "plant server: client connected");
+                Ok(Some((service, stream)))
+            }
+        };
+        let on_error = |e: io::Error| {
+            tracing::debug!(target: "modbus", error = %e, "plant server: connection ended");
+        };
+        tokio::select! {
+            r = server.serve(&on_connected, on_error) => r.map_err(|source| LinkError::Io {
+                context: "accepting Modbus connections",
+                source,
+            }),
+            () = shutdown => Ok(()),
+        }
+    }
+}
+
+fn listen(addr: SocketAddr) -> io::Result<TcpListener> {
+    let socket = match addr {
+        SocketAddr::V4(_) => TcpSocket::new_v4()?,
+        SocketAddr::V6(_) => TcpSocket::new_v6()?,
+    };
+    socket.set_reuseaddr(true)?;
+    socket.bind(addr)?;
+    socket.listen(64)
+}
+
+/// Run the plant side of the Modbus link until `shutdown` completes: bind `cfg.listen` and
+/// serve the signal map's registers (see [`PlantServer`]).
+///
+/// Sensor registers follow `snapshots` (re-encoded when a read arrives and a newer snapshot
+/// exists; reads of sensors before the first snapshot get exception 0x06 "server device
+/// busy", of sensors whose snapshot value is NaN 0x04 "server device failure"). Writes to
+/// actuator registers are published into `commands` with their arrival time (monotonic ns),
+/// and as controller heartbeats into `heartbeat` (see [`ModbusServerConfig`]).
+pub async fn run_plant_server(
+    cfg: &ModbusServerConfig,
+    map: &SignalMap,
+    snapshots: Arc<SnapshotBoard>,
+    commands: Arc<CommandBoard>,
+    heartbeat: Arc<HeartbeatBoard>,
+    shutdown: impl Future<Output = ()>,
+) -> Result<(), LinkError> {
+    PlantServer::bind(cfg, map, snapshots, commands, heartbeat)
+        .await?
+        .run(shutdown)
+        .await
+}
