@@ -244,6 +244,19 @@ pub struct SpoolParams {
     pub throttle: ValveSpec,
     /// Close-coupled valve authority: |u₂| ≤ this (seed 003 §IV uses 0.1 and 0.2).
     pub ccv_max: f64,
+    /// Matched model uncertainty of seed 003 eq. 53 in the plant, off by default: amplitude A
+    /// of Δf = ΔCss = A sin(k x₂), which enters eq. 4 as ā Δf and eq. 5 as b̄ ΔCss (seed 003
+    /// eq. 38, 41–42; §IV uses A = 0.1). x₂ = φ − φ⁰ with φ⁰ the nominal steady state of the
+    /// plant's current throttle position at nominal speed, so the equilibrium is unchanged.
+    #[serde(default)]
+    pub uncertainty_amplitude: f64,
+    /// k of eq. 53 (per unit φ; seed 003 §IV: 10).
+    #[serde(default = "default_uncertainty_frequency")]
+    pub uncertainty_frequency: f64,
+}
+
+fn default_uncertainty_frequency() -> f64 {
+    10.0
 }
 
 /// Initial conditions: the sim starts from the steady state for these inputs.

@@ -10,6 +10,13 @@
 //! through its scales: p_d = p01 + ψ·pressure_scale, m = φ·flow_scale, ω = ω̃·speed_scale,
 //! torque = τ·torque_scale; its SI compressor map is the exact image of ψc.
 //! State x = (ω̃, φ, ψ, throttle position).
+//!
+//! Optional matched uncertainty (seed 003 eq. 38, 41–42, 53; off unless
+//! `spool.uncertainty_amplitude` ≠ 0): Δf = ΔCss = A sin(k x₂) is added to eq. 4 as ā Δf and to
+//! eq. 5 as b̄ ΔCss. x₂ = φ − φ⁰, where φ⁰ is the steady state of the *nominal* model at the
+//! plant's current throttle position and nominal speed (rightmost root, recomputed at the start
+//! of each step when the throttle moved): the uncertainty vanishes at the nominal equilibrium,
+//! as eq. 53 does at x = 0, and the plant does not need to know any controller's x⁰.
 
 use super::file::{MapSpec, PlantDescription, SpoolParams};
 use super::{sensor_snapshot, PlantError, PlantInputs, PlantTruth};
@@ -51,6 +58,12 @@ pub struct SpoolPlant {
     torque: f64,
     ccv: f64,
     throttle_cmd: f64,
+    /// Nominal speed, units of speed_scale.
+    omega_nominal: f64,
+    /// φ⁰ of the uncertainty term (nominal steady state at `phi_ref_throttle`).
+    phi_ref: f64,
+    /// Throttle position `phi_ref` was computed for.
+    phi_ref_throttle: f64,
 }
 
 /// Steady-state speed of the spool model: the nominal drive speed in units of speed_scale.
@@ -101,8 +114,11 @@ impl SpoolPlant {
             torque: 0.0,
             ccv: 0.0,
             throttle_cmd: inputs.throttle_target(),
+            omega_nominal: nominal_speed(desc, &params),
+            phi_ref: 0.0,
+            phi_ref_throttle: f64::NAN,
         };
-        let w0 = nominal_speed(desc, &params);
+        let w0 = plant.omega_nominal;
         let eq = plant
             .equilibria(inputs.throttle_target(), w0)
             .into_iter()
@@ -113,7 +129,55 @@ impl SpoolPlant {
             })?;
         plant.x = eq;
         plant.torque = plant.params.torque_coefficient * eq[1] * eq[0];
+        plant.update_uncertainty_reference();
         Ok(plant)
+    }
+
+    /// Rightmost steady-state flow of the nominal model at a throttle opening and speed ω̃
+    /// (seed 003 eq. 8–9: F(γ, ψc(φ, ω̃)) = φ), without allocation: scan down from four times
+    /// the peak flow for the first sign change, then bisect.
+    pub fn operating_flow(&self, throttle: f64, omega: f64) -> f64 {
+        let gamma = self.params.gamma_max * throttle.clamp(0.0, 1.0);
+        let r = |phi: f64| Self::throttle_function(gamma, self.psi_c(phi, omega).value) - phi;
+        let hi = 4.0 * self.cubic.peak(omega, 0.0).0.max(1e-6);
+        let n = 200;
+        let (mut a, mut b) = (0.0, hi);
+        for i in (0..n).rev() {
+            let phi = hi * i as f64 / n as f64;
+            if r(phi) >= 0.0 {
+                a = phi;
+                b = hi * (i + 1) as f64 / n as f64;
+                break;
+            }
+        }
+        for _ in 0..60 {
+            let m = 0.5 * (a + b);
+            if r(m) >= 0.0 {
+                a = m;
+            } else {
+                b = m;
+            }
+        }
+        0.5 * (a + b)
+    }
+
+    /// Recompute φ⁰ of the uncertainty term if the throttle moved (no-op when it is off).
+    fn update_uncertainty_reference(&mut self) {
+        if self.params.uncertainty_amplitude == 0.0 || self.x[3] == self.phi_ref_throttle {
+            return;
+        }
+        self.phi_ref_throttle = self.x[3];
+        self.phi_ref = self.operating_flow(self.x[3], self.omega_nominal);
+    }
+
+    /// The matched uncertainty Δf = ΔCss = A sin(k (φ − φ⁰)) of seed 003 eq. 53 (0 when off).
+    #[inline]
+    pub fn uncertainty(&self, phi: f64) -> f64 {
+        let p = &self.params;
+        if p.uncertainty_amplitude == 0.0 {
+            return 0.0;
+        }
+        p.uncertainty_amplitude * (p.uncertainty_frequency * (phi - self.phi_ref)).sin()
     }
 
     /// ψc and its partial derivatives (nondimensional).
@@ -202,6 +266,7 @@ impl SpoolPlant {
             .command_or(ActuatorId::CloseCoupledValve, 0.0)
             .clamp(-lim, lim);
         self.throttle_cmd = inputs.throttle_target();
+        self.update_uncertainty_reference();
         let mut x = self.x;
         let mut h = self.h_state_s;
         solver::advance_adaptive(self, self.settings, self.t_s, &mut x, dt_s, &mut h);
@@ -269,10 +334,11 @@ impl OdeSystem<N> for SpoolPlant {
         let (w, phi, psi, l) = (x[0], x[1], x[2], x[3]);
         let inv_t = 1.0 / p.time_scale_s;
         let gamma = p.gamma_max * l;
+        let delta = self.uncertainty(phi); // eq. 53 (0 unless enabled): ā Δf in (4), b̄ ΔCss in (5)
         SVector::<f64, N>::new(
-            inv_t * p.a_bar * (self.torque - p.torque_coefficient * phi * w), // seed 003 eq. 4
-            inv_t * p.b_bar * (self.psi_c(phi, w).value - psi + self.ccv),    // eq. 5
-            inv_t * p.c_bar * (phi - Self::throttle_function(gamma, psi)),    // eq. 6
+            inv_t * p.a_bar * (self.torque - p.torque_coefficient * phi * w + delta), // seed 003 eq. 4
+            inv_t * p.b_bar * (self.psi_c(phi, w).value - psi + self.ccv + delta),    // eq. 5
+            inv_t * p.c_bar * (phi - Self::throttle_function(gamma, psi)),            // eq. 6
             p.throttle.positioner_rate(self.throttle_cmd, l),
         )
     }
