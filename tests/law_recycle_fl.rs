@@ -289,7 +289,8 @@ fn observer_fallback_keeps_the_machine_out_of_surge() {
 }
 
 /// Gaussian noise of 10 Pa on the orifice Δp (≈ 3 kPa: 0.16 % of the flow) during the
-/// throttle closure: the law is stable and passes the noise at most 1.5× to the true flow.
+/// throttle closure: the law is stable and passes the noise at most 2× to the true flow
+/// (measured 1.46×; limiting the command rate to the valve's stroke rate gave 2.5×).
 #[test]
 fn tolerates_flow_transmitter_noise() {
     let text = "name='noisy'\ndescription='d'\nduration_s=14\nseed=7\n[initial]\nthrottle=0.6\n\
@@ -309,7 +310,7 @@ fn tolerates_flow_transmitter_noise() {
     let flow = sd(&|x| x.m_kg_s);
     assert!(noise > 3e-4, "noise {noise}");
     assert!(
-        flow < 1.5 * noise,
+        flow < 2.0 * noise,
         "flow sd {flow} for measurement noise {noise}"
     );
 }
