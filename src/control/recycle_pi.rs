@@ -1,32 +1,572 @@
-//! `recycle-pi` (stub: to be implemented).
+//! `recycle-pi`: industrial surge avoidance with the recycle valve (seed 001 ch. 3, seed 002
+//! §2.2.2, §2.3, ch. 4).
+//!
+//! The operating point (q, R) is taken in invariant coordinates: q is the compressor flow in
+//! the map's coordinate (volumetric flow at suction for seed 002's map, eq. 2.14: the density
+//! correction with p1 and T1 is done by the core from the orifice Δp or the observer's mass
+//! flow) and R = p_d/p_s (seed 002 eq. 2.6: the pressure rise corrected to the reference inlet
+//! pressure is equivalent to R). The surge control line q_SCL = c(R) is built on the *derived*
+//! surge line j(R) (seed 002 eq. 2.7, 4.1/4.17/4.36 or 4.2; [`SurgeControlLine`]).
+//!
+//! Control variable, z > 0 left of the line (opens the valve), selectable:
+//! - strategy 1 (seed 002 eq. 4.15–4.19): z = c(R)² − q̄, q̄ = Δp_o K_f/p1 ∝ q², normalised with
+//!   K_f/c_q² = 1 so that q̄ = q|q| (map flow units²);
+//! - strategy 2 (seed 002 eq. 4.33–4.38): z = 1 − q̄/c(R)², q̄ = Δp_o p_ref/p1 with p_ref/c_q² = 1
+//!   (dimensionless). The p_ref/p1 correction of eq. 4.33–4.35 is what the core's density
+//!   correction already does: Δp_o/p1 ∝ q², and Δp_m p_ref/p1 = (R − 1) p_ref is a function of R.
+//!
+//! Correction, stated: the seed's q̄ is the orifice Δp, which carries the sign of the flow; we keep
+//! that sign (q̄ = q|q|, not q²) so that reversed flow in deep surge reads as far *left* of the
+//! line (a squared flow would read a reversal as a large forward flow and close the valve).
+//!
+//! The valve command (seed 001 eq. 3.7, PI with K_d = 0; seed 002 §2.2.2):
+//! - PI on z (optionally low-passed, `z_filter_hz`) with anti-windup: against the static limits
+//!   the integrator tracks the clamped demand; while the closing-rate limit holds the valve above
+//!   the demand it stops integrating in the closing direction (conditional integration: the
+//!   demand cannot dive below the valve, and noise cannot ratchet the valve open the way
+//!   instantaneous tracking of a rate-limited output does);
+//! - fast opening, rate-limited closing ([15]): the command never falls faster than
+//!   `closing_rate_per_s`; it rises as fast as the PI asks;
+//! - a minimum opening (`min_opening`);
+//! - the recycle trip ([11], [13]): an open-loop step of `trip_step` when the operating point
+//!   crosses the trip line (surge margin below `trip_margin_pct`, between surge line and SCL)
+//!   or, at or left of the control line (z ≥ 0), approaches it too fast: the filtered rate of
+//!   approach −d(margin)/dt exceeds (margin − trip margin)/`trip_lead_time_s`, i.e. the trip line
+//!   would be crossed within the lead time. (Armed only at z ≥ 0: the valve closing back towards
+//!   the line after a trip is an approach too, and must not re-trip.) The step is held for
+//!   `trip_hold_s` (the integrator tracks the held opening), then the PI takes over from it;
+//! - safety-on ([13] surge-count bias): after each detected surge the SCL moves right by
+//!   `safety_on_step_pct` of the surge-line flow (up to `safety_on_max_pct`), counted and
+//!   reported as [`LawEvent::SafetyOnShift`];
+//! - flow-transmitter fallback: when the core feeds the observer's flow
+//!   (`Measurements::flow_fallback`), the law cross-checks it against the steady flow on the
+//!   speed line at the measured pressure ratio and speed (seed 002 §2.2.2, category four:
+//!   control without flow measurement) and uses the smaller. On the seed 002 plant the
+//!   observer, whose outflow model uses the quasi-steady valve equations, misreads the throttle
+//!   transient of the long discharge line by up to +30 % (it would close the valve).
+//!
+//! Deviation from seed 001 eq. 3.6, stated: there the error is clamped to zero right of the
+//! line, so the integral can only grow and the valve never closes again. We use the signed z:
+//! right of the line the PI closes the valve (at the closing rate) down to the minimum opening,
+//! where the anti-windup holds the integrator.
+//!
+//! Gains. Seed 001 (ch. 3.4) tunes Kp = 35.5, Ki = 85 on the linear flow error W_SA − W_op in kg/s
+//! with the output a valve fraction. Strategy 1's and 2's z are not linear flow errors: near the
+//! line z₁ ≈ 2 q (c − q) and z₂ ≈ 2 (c − q)/q. The configured gains are therefore per unit of
+//! *equivalent linear flow error* in the map's flow unit (kg/s, or m³/s at suction for seed
+//! 002's volumetric map), and are converted once, at the design point q_ref (the SCL flow at
+//! nominal speed), into gains on z: K_z = K/(2 q_ref) for strategy 1 and K_z = K q_ref/2 for
+//! strategy 2. Both strategies thus have seed 001's loop gain at the design point; away from it
+//! their gains differ as seed 002 Fig. 4.7 / 4.11 describe (the constant conversion does not
+//! normalise that away).
 
-use super::law::{LawError, LawInputs, LawOutput, SurgeLaw};
+use super::law::{LawError, LawEvent, LawId, LawInputs, LawOutput, SurgeLaw};
 use super::model::ControlModel;
-use crate::signals::ActuatorCommands;
+use super::surge_control_line::{ControlLineForm, SurgeControlLine};
+use crate::physics::compressor_map::CompressorMap;
+use crate::signals::{ActuatorCommands, ActuatorId};
 use serde::{Deserialize, Serialize};
 
-/// Settings (`[controller.recycle_pi]`).
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize, Default)]
-#[serde(deny_unknown_fields, default)]
-pub struct RecyclePiConfig {
-    /// The surge control line.
-    pub control_line: super::surge_control_line::ControlLineForm,
+/// Which control variable the PI acts on (seed 002 ch. 4).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize, Default)]
+#[serde(rename_all = "snake_case")]
+pub enum ControlVariable {
+    /// Strategy 1: z = c(R)² − q̄ (seed 002 eq. 4.19), in map flow units squared.
+    Strategy1,
+    /// Strategy 2: z = 1 − q̄/c(R)² (seed 002 eq. 4.38), dimensionless. Its steady-state gain
+    /// varies less with speed (seed 002 Fig. 4.11 vs 4.7).
+    #[default]
+    Strategy2,
 }
 
-/// Law state.
+impl ControlVariable {
+    /// z for a flow `q` (map units, signed) and control-line flow `c` at the measured ratio.
+    /// q̄ = q|q| keeps the sign of the orifice Δp. NaN if c ≤ 0 for strategy 2.
+    #[inline]
+    pub fn z(self, q: f64, c: f64) -> f64 {
+        let q_bar = q * q.abs();
+        match self {
+            // seed 002 eq. 4.19 with eq. 4.15, K_f/c_q² = 1
+            ControlVariable::Strategy1 => c * c - q_bar,
+            // seed 002 eq. 4.38 with eq. 4.33, p_ref/c_q² = 1
+            ControlVariable::Strategy2 => {
+                if c > 0.0 {
+                    1.0 - q_bar / (c * c)
+                } else {
+                    f64::NAN
+                }
+            }
+        }
+    }
+
+    /// ∂z/∂q on the line (q = c): the factor that turns a linear flow error into z.
+    #[inline]
+    pub fn slope_on_line(self, q_line: f64) -> f64 {
+        match self {
+            ControlVariable::Strategy1 => 2.0 * q_line,
+            ControlVariable::Strategy2 => 2.0 / q_line,
+        }
+    }
+}
+
+/// Settings (`[controller.recycle_pi]`).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct RecyclePiConfig {
+    /// The surge control line (seed 002 eq. 4.1/4.17/4.36 margin form, or eq. 4.2 c0 √(R−1);
+    /// App. A uses c0 = 0.6). Default: 10 % of surge-line flow.
+    pub control_line: ControlLineForm,
+    /// Control variable: `strategy1` (eq. 4.19) or `strategy2` (eq. 4.38). Default strategy 2.
+    pub control_variable: ControlVariable,
+    /// Proportional gain: valve opening (fraction) per map flow unit (kg/s or m³/s at suction) of
+    /// equivalent linear flow error at the design point. Seed 001 §3.4: 35.5 (per kg/s).
+    pub kp_per_map_flow: f64,
+    /// Integral gain: valve opening (fraction) per map flow unit and second. Seed 001 §3.4: 85.
+    pub ki_per_map_flow_s: f64,
+    /// Largest closing speed of the valve command, opening fraction per second (seed 002
+    /// §2.2.2, [15]: rate-limited closing). Opening is not rate-limited. Default 0.1/s.
+    pub closing_rate_per_s: f64,
+    /// Smallest valve opening the law commands, fraction (0..1). Default 0.
+    pub min_opening: f64,
+    /// Trip line: surge margin (q − j(R))/j(R), percent, below which the recycle trip fires
+    /// (between the surge line and the SCL). Default 5 %.
+    pub trip_margin_pct: f64,
+    /// Rate-of-approach trip: fires when the surge margin, extrapolated at its current
+    /// (filtered) rate of approach over this horizon, falls below the trip line, s. 0 disables
+    /// the rate criterion. Default 0.5 s.
+    pub trip_lead_time_s: f64,
+    /// Cut-off of the low-pass on the surge margin before differentiation, Hz (two
+    /// cascaded stages). Default 2 Hz.
+    pub approach_filter_hz: f64,
+    /// Cut-off of a first-order low-pass on z before the PI, Hz (0: none). Default 0.
+    pub z_filter_hz: f64,
+    /// Open-loop step of the trip, valve opening fraction added to the current command
+    /// (seed 002 §2.2.2 [11], [13]); 0 disables the trip. Default 0.3.
+    pub trip_step: f64,
+    /// Time the tripped opening is held before the PI takes over, s. Default 1 s.
+    pub trip_hold_s: f64,
+    /// While the flow comes from the observer, cross-check it against the steady flow from the
+    /// pressure ratio and speed on the speed line (seed 002 §2.2.2, category four) and use the
+    /// smaller. Default true.
+    pub fallback_speed_line_check: bool,
+    /// Safety-on: control-line shift per detected surge, percent of surge-line flow (seed 002
+    /// §2.2.2 [13] surge-count bias). Default 5 %.
+    pub safety_on_step_pct: f64,
+    /// Largest total safety-on shift, percent of surge-line flow. Default 20 %.
+    pub safety_on_max_pct: f64,
+}
+
+impl Default for RecyclePiConfig {
+    fn default() -> Self {
+        RecyclePiConfig {
+            control_line: ControlLineForm::default(),
+            control_variable: ControlVariable::default(),
+            kp_per_map_flow: 35.5,
+            ki_per_map_flow_s: 85.0,
+            closing_rate_per_s: 0.1,
+            min_opening: 0.0,
+            trip_margin_pct: 5.0,
+            trip_lead_time_s: 0.5,
+            approach_filter_hz: 2.0,
+            z_filter_hz: 0.0,
+            trip_step: 0.3,
+            trip_hold_s: 1.0,
+            fallback_speed_line_check: true,
+            safety_on_step_pct: 5.0,
+            safety_on_max_pct: 20.0,
+        }
+    }
+}
+
+/// The SCL flow at a speed: the crossing of the speed line with the control line, found by
+/// bisection on R between 1 and the speed line's peak ratio. `None` if there is no crossing.
+pub fn control_line_flow_at_speed(
+    map: &CompressorMap,
+    scl: &SurgeControlLine,
+    omega_rad_s: f64,
+) -> Option<(f64, f64)> {
+    let (_, r_peak) = map.peak(omega_rad_s)?;
+    // f(R) = Ψ(c(R), ω) − R: positive near R = 1 (c → 0, left of the peak), negative at the
+    // peak ratio (c(R_peak) lies right of the peak, where Ψ < R_peak)
+    let f = |r: f64| map.pressure_ratio(scl.flow_at_ratio(r), omega_rad_s) - r;
+    let (mut lo, mut hi) = (1.0 + 1e-6, r_peak);
+    if !(f(lo) > 0.0 && f(hi) < 0.0) {
+        return None;
+    }
+    for _ in 0..100 {
+        let mid = 0.5 * (lo + hi);
+        if f(mid) > 0.0 {
+            lo = mid;
+        } else {
+            hi = mid;
+        }
+    }
+    let r = 0.5 * (lo + hi);
+    Some((scl.flow_at_ratio(r), r))
+}
+
+/// Flow on the stable branch of the speed line at ω that gives pressure ratio `ratio`: the
+/// steady operating point from pressure ratio and speed alone (seed 002 §2.2.2, category four:
+/// "control without flow measurements"). Above the speed line's peak ratio the point is at or
+/// left of the surge line: the peak flow is returned. NaN if the speed line has no peak.
+pub fn speed_line_flow(map: &CompressorMap, ratio: f64, omega_rad_s: f64) -> f64 {
+    let Some((q_peak, r_peak)) = map.peak(omega_rad_s) else {
+        return f64::NAN;
+    };
+    if ratio >= r_peak || ratio.is_nan() {
+        return q_peak;
+    }
+    // Ψ decreases right of the peak: bracket, then bisect
+    let (mut lo, mut hi) = (q_peak, 2.0 * q_peak.abs().max(1e-9));
+    for _ in 0..20 {
+        if map.pressure_ratio(hi, omega_rad_s) < ratio {
+            break;
+        }
+        lo = hi;
+        hi *= 2.0;
+    }
+    for _ in 0..60 {
+        let mid = 0.5 * (lo + hi);
+        if map.pressure_ratio(mid, omega_rad_s) > ratio {
+            lo = mid;
+        } else {
+            hi = mid;
+        }
+    }
+    0.5 * (lo + hi)
+}
+
+/// Law state (fixed size, no allocation).
 #[derive(Debug, Clone)]
-pub struct RecyclePi {}
+pub struct RecyclePi {
+    cfg: RecyclePiConfig,
+    scl: SurgeControlLine,
+    /// Design-point SCL flow (nominal speed), map units.
+    q_ref: f64,
+    /// Gains on z.
+    kp_z: f64,
+    ki_z: f64,
+    /// z through the optional low-pass.
+    z_f: f64,
+    /// Integrator state (valve fraction).
+    integ: f64,
+    /// Last command, fraction.
+    u_last: f64,
+    /// Surge margin through two cascaded first-order low-passes, and the previous output.
+    margin_f1: f64,
+    margin_f2: f64,
+    margin_f2_last: f64,
+    /// Remaining trip hold time, s (≤ 0: not tripped).
+    trip_left_s: f64,
+    /// Opening held by the trip.
+    trip_level: f64,
+    /// Trips so far.
+    trips: u32,
+    /// Safety-on shifts so far.
+    shifts: u32,
+    /// A safety-on shift not yet reported.
+    shift_pending: bool,
+    started: bool,
+}
 
 impl RecyclePi {
-    /// Build for a machine.
-    pub fn new(_cfg: &RecyclePiConfig, _model: &ControlModel) -> Result<Self, LawError> {
-        Ok(RecyclePi {})
+    /// Build for a machine: binds the control line to the machine's derived surge line, checks
+    /// that it lies right of the trip line over the map's range and converts the gains at the
+    /// design point.
+    pub fn new(cfg: &RecyclePiConfig, model: &ControlModel) -> Result<Self, LawError> {
+        let err = |key: &str, message: String| LawError::Setting {
+            law: LawId::RecyclePi,
+            key: format!("recycle_pi.{key}"),
+            message,
+        };
+        let positive = |key: &str, v: f64| {
+            if v.is_finite() && v >= 0.0 {
+                Ok(())
+            } else {
+                Err(err(key, format!("must be a finite number ≥ 0, found {v}")))
+            }
+        };
+        positive("kp_per_map_flow", cfg.kp_per_map_flow)?;
+        positive("ki_per_map_flow_s", cfg.ki_per_map_flow_s)?;
+        positive("trip_lead_time_s", cfg.trip_lead_time_s)?;
+        positive("trip_hold_s", cfg.trip_hold_s)?;
+        positive("safety_on_step_pct", cfg.safety_on_step_pct)?;
+        positive("safety_on_max_pct", cfg.safety_on_max_pct)?;
+        positive("trip_margin_pct", cfg.trip_margin_pct)?;
+        positive("z_filter_hz", cfg.z_filter_hz)?;
+        if !(cfg.closing_rate_per_s.is_finite() && cfg.closing_rate_per_s > 0.0) {
+            return Err(err(
+                "closing_rate_per_s",
+                format!("must be positive, found {}", cfg.closing_rate_per_s),
+            ));
+        }
+        if !(cfg.approach_filter_hz.is_finite() && cfg.approach_filter_hz > 0.0) {
+            return Err(err(
+                "approach_filter_hz",
+                format!("must be positive, found {}", cfg.approach_filter_hz),
+            ));
+        }
+        if !(0.0..=1.0).contains(&cfg.min_opening) {
+            return Err(err(
+                "min_opening",
+                format!("must be in 0..1, found {}", cfg.min_opening),
+            ));
+        }
+        if !(0.0..=1.0).contains(&cfg.trip_step) {
+            return Err(err(
+                "trip_step",
+                format!("must be in 0..1, found {}", cfg.trip_step),
+            ));
+        }
+        let scl = SurgeControlLine::new(model.map.surge_line, cfg.control_line);
+        // the trip line must lie between the surge line and the SCL over the map's range
+        let mut pts = model.map.surge_line.points();
+        let r_lo = pts.next().map_or(f64::NAN, |p| p.1);
+        let r_hi = pts.last().map_or(f64::NAN, |p| p.1);
+        if let Err((r, margin)) =
+            scl.check_right_of_surge_line((r_lo, r_hi), 0.01 * cfg.trip_margin_pct)
+        {
+            return Err(err(
+                "control_line",
+                format!(
+                    "lies {:.1} % right of the surge line at pressure ratio {r:.3}: not right of the \
+                     trip line ({} %)",
+                    100.0 * margin,
+                    cfg.trip_margin_pct
+                ),
+            ));
+        }
+        let q_ref = control_line_flow_at_speed(&model.map, &scl, model.drive.nominal_speed_rad_s)
+            .map(|(q, _)| q)
+            .ok_or_else(|| {
+                err(
+                    "control_line",
+                    format!(
+                        "does not cross the speed line at the nominal speed {} rad/s",
+                        model.drive.nominal_speed_rad_s
+                    ),
+                )
+            })?;
+        // gains on z = gains on the linear flow error / (∂z/∂q on the line at q_ref)
+        let s = cfg.control_variable.slope_on_line(q_ref);
+        Ok(RecyclePi {
+            cfg: cfg.clone(),
+            scl,
+            q_ref,
+            kp_z: cfg.kp_per_map_flow / s,
+            ki_z: cfg.ki_per_map_flow_s / s,
+            z_f: f64::NAN,
+            integ: 0.0,
+            u_last: f64::NAN,
+            margin_f1: f64::NAN,
+            margin_f2: f64::NAN,
+            margin_f2_last: f64::NAN,
+            trip_left_s: 0.0,
+            trip_level: 0.0,
+            trips: 0,
+            shifts: 0,
+            shift_pending: false,
+            started: false,
+        })
+    }
+
+    /// The control line in use (with its safety-on shift).
+    pub fn control_line(&self) -> &SurgeControlLine {
+        &self.scl
+    }
+
+    /// Design-point SCL flow at nominal speed, map units.
+    pub fn design_flow(&self) -> f64 {
+        self.q_ref
+    }
+
+    /// Gains on z actually used: (K_p, K_i).
+    pub fn z_gains(&self) -> (f64, f64) {
+        (self.kp_z, self.ki_z)
+    }
+
+    /// Safety-on shifts so far.
+    pub fn safety_on_count(&self) -> u32 {
+        self.shifts
+    }
+
+    /// Recycle trips so far.
+    pub fn trip_count(&self) -> u32 {
+        self.trips
+    }
+
+    /// Whether the trip currently holds the valve.
+    pub fn tripped(&self) -> bool {
+        self.trip_left_s > 0.0
+    }
+
+    /// The control variable at an operating point (flow in map units, pressure ratio).
+    #[inline]
+    pub fn z_at(&self, flow_map: f64, pressure_ratio: f64) -> f64 {
+        self.cfg
+            .control_variable
+            .z(flow_map, self.scl.flow_at_ratio(pressure_ratio))
+    }
+
+    fn reset_margin_filter(&mut self, margin: f64) {
+        self.margin_f1 = margin;
+        self.margin_f2 = margin;
+        self.margin_f2_last = margin;
+    }
+
+    #[inline]
+    fn limits(&self) -> (f64, f64) {
+        (self.cfg.min_opening, 1.0)
     }
 }
 
 impl SurgeLaw for RecyclePi {
-    fn start(&mut self, _inputs: &LawInputs<'_>, _current: &ActuatorCommands) {}
-    fn update(&mut self, _inputs: &LawInputs<'_>, _dt_s: f64) -> LawOutput {
-        LawOutput::idle()
+    fn start(&mut self, inputs: &LawInputs<'_>, current: &ActuatorCommands) {
+        let m = inputs.m;
+        let mut u0 = current.get(ActuatorId::RecycleValve);
+        if !u0.is_finite() {
+            u0 = m.recycle_position;
+        }
+        if !u0.is_finite() {
+            u0 = self.cfg.min_opening;
+        }
+        // bumpless: the first PI output equals the applied opening
+        let z0 = self.z_at(m.flow_map, m.pressure_ratio);
+        self.u_last = u0;
+        self.z_f = z0;
+        self.integ = if z0.is_finite() {
+            u0 - self.kp_z * z0
+        } else {
+            u0
+        };
+        let margin = inputs.model.surge_margin(m.flow_map, m.pressure_ratio);
+        self.reset_margin_filter(margin);
+        self.trip_left_s = 0.0;
+        self.started = true;
+    }
+
+    fn update(&mut self, inputs: &LawInputs<'_>, dt_s: f64) -> LawOutput {
+        if !self.started {
+            let cur = ActuatorCommands::default();
+            self.start(inputs, &cur);
+        }
+        let m = inputs.m;
+        let r = m.pressure_ratio;
+        let mut q = m.flow_map;
+        if m.flow_fallback && self.cfg.fallback_speed_line_check {
+            // transmitter failed: cross-check the observer's flow against the steady flow from
+            // pressure ratio and speed, and use the smaller (the safer for surge)
+            let q_line = speed_line_flow(&inputs.model.map, r, m.omega_rad_s);
+            if q_line < q {
+                q = q_line;
+            }
+        }
+        let z = self.z_at(q, r);
+        let mut out = LawOutput::idle();
+        if !z.is_finite() || !self.u_last.is_finite() {
+            // no usable operating point: hold the valve (the core goes fail-safe on lost inputs)
+            if self.u_last.is_finite() {
+                out.commands.set(ActuatorId::RecycleValve, self.u_last);
+            }
+            return out;
+        }
+        let dt = dt_s.max(0.0);
+        let z_raw = z;
+        let z = if self.cfg.z_filter_hz > 0.0 && self.z_f.is_finite() {
+            let a = 1.0 - (-2.0 * std::f64::consts::PI * self.cfg.z_filter_hz * dt).exp();
+            self.z_f += a * (z_raw - self.z_f);
+            self.z_f
+        } else {
+            self.z_f = z_raw;
+            z_raw
+        };
+
+        // rate of approach: the surge margin through two first-order low-passes (the
+        // derivative of noisy pressures needs the second), then differentiated
+        let margin = inputs.model.surge_margin(q, r);
+        let mut d_margin = 0.0;
+        if margin.is_finite() && self.margin_f2.is_finite() {
+            let a = 1.0 - (-2.0 * std::f64::consts::PI * self.cfg.approach_filter_hz * dt).exp();
+            self.margin_f2_last = self.margin_f2;
+            self.margin_f1 += a * (margin - self.margin_f1);
+            self.margin_f2 += a * (self.margin_f1 - self.margin_f2);
+            if dt > 0.0 {
+                d_margin = (self.margin_f2 - self.margin_f2_last) / dt;
+            }
+        } else {
+            self.reset_margin_filter(margin);
+        }
+
+        // recycle trip ([11], [13]): the trip line is crossed, or, at or left of the control
+        // line (z ≥ 0), it would be crossed within the lead time at the present rate of approach
+        let trip_margin = 0.01 * self.cfg.trip_margin_pct;
+        let predicted = margin + self.cfg.trip_lead_time_s * d_margin.min(0.0);
+        let trip_now =
+            margin.is_finite() && (margin < trip_margin || (z >= 0.0 && predicted < trip_margin));
+        self.trip_left_s -= dt;
+        let mut event = None;
+        if trip_now && self.trip_left_s <= 0.0 && self.cfg.trip_step > 0.0 {
+            let (_, hi) = self.limits();
+            self.trip_level = (self.u_last + self.cfg.trip_step).min(hi);
+            self.trip_left_s = self.cfg.trip_hold_s.max(dt);
+            self.trips = self.trips.saturating_add(1);
+            event = Some(LawEvent::RecycleTrip {
+                opening: self.trip_level,
+            });
+        }
+
+        // PI on z (seed 001 eq. 3.7, K_d = 0) with anti-windup against the static limits: the
+        // integrator tracks the clamped demand
+        let (lo, hi) = self.limits();
+        let integ_next = self.integ + self.ki_z * z * dt;
+        let u_pi = integ_next + self.kp_z * z;
+        let demand = u_pi.clamp(lo, hi);
+        // fast opening, rate-limited closing ([15]): the valve follows the demand up at once and
+        // down at most at the closing rate; the PI keeps its own demand meanwhile
+        let follow = demand.max(self.u_last - self.cfg.closing_rate_per_s * dt);
+        let mut u = follow;
+        // trip hold: at least the tripped opening
+        if self.trip_left_s > 0.0 {
+            u = u.max(self.trip_level);
+        }
+        u = u.clamp(lo, hi);
+        // anti-windup: when the trip holds the valve above the PI, the integrator tracks the
+        // applied opening (the PI takes over from it bumplessly); while the closing-rate limit
+        // holds the valve above the demand, the integrator does not integrate further in the
+        // closing direction (conditional integration), so the demand cannot dive below the
+        // valve; against the static limits it tracks the clamped demand
+        self.integ = if u > follow {
+            u - self.kp_z * z
+        } else if demand != u_pi {
+            demand - self.kp_z * z
+        } else if u > demand && z < 0.0 {
+            self.integ
+        } else {
+            integ_next
+        };
+        self.u_last = u;
+
+        if event.is_none() && self.shift_pending {
+            self.shift_pending = false;
+            event = Some(LawEvent::SafetyOnShift {
+                total_margin: self.scl.shift,
+                count: self.shifts,
+            });
+        }
+        out.commands.set(ActuatorId::RecycleValve, u);
+        out.diagnostic = z_raw;
+        out.event = event;
+        out
+    }
+
+    fn surge_detected(&mut self) {
+        // safety-on: move the control line right by one step (seed 002 §2.2.2, [13])
+        let max = 0.01 * self.cfg.safety_on_max_pct;
+        let next = (self.scl.shift + 0.01 * self.cfg.safety_on_step_pct).min(max);
+        if next > self.scl.shift {
+            self.scl.shift = next;
+            self.shifts = self.shifts.saturating_add(1);
+            self.shift_pending = true;
+        }
     }
 }

@@ -1,8 +1,9 @@
 //! The simulation loop.
 
-use super::summary::{is_steady, settle_time, ActuatorPeaks, Summary};
+use super::summary::{is_steady, settle_time, ActuatorPeaks, LawEventCounts, Summary};
 use super::trace::TraceRow;
 use crate::control::core::{ControlCore, CoreSettings};
+use crate::control::law::LawEvent;
 use crate::control::measurements::{OperatorInputs, RawSensors};
 use crate::control::model::ControlModel;
 use crate::control::LawId;
@@ -147,6 +148,7 @@ pub fn run(
     let mut min_margin = f64::INFINITY;
     let mut recycle_energy = 0.0;
     let mut last_recycle_pos = plant.truth().recycle_valve_position;
+    let mut law_events = LawEventCounts::default();
 
     for k in 0..=n_steps {
         let t = k as f64 * dt;
@@ -166,6 +168,17 @@ pub fn run(
             recycle_manual: st.recycle_manual,
         };
         let out = core.cycle(t, &raw, &op);
+        match out.law_event {
+            Some(LawEvent::RecycleTrip { .. }) => law_events.recycle_trips += 1,
+            Some(LawEvent::SafetyOnShift {
+                total_margin,
+                count: _,
+            }) => {
+                law_events.safety_on_shifts += 1;
+                law_events.safety_on_total_margin = total_margin;
+            }
+            None => {}
+        }
 
         // score the true state
         let truth = plant.truth();
@@ -298,6 +311,7 @@ pub fn run(
         settle_time_s: settle,
         recycle_energy_j: recycle_energy,
         actuator_peaks: peaks,
+        law_events,
         wall_time_s: wall_s,
         realtime_factor: duration / wall_s.max(1e-9),
     };

@@ -39,6 +39,17 @@ pub struct ActuatorPeaks {
     pub thrust_slew_rating_n_s: f64,
 }
 
+/// Events the law reported over the run (the daemon logs them; a run counts them).
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Default)]
+pub struct LawEventCounts {
+    /// Recycle trips (open-loop step openings).
+    pub recycle_trips: u32,
+    /// Safety-on shifts of the control line.
+    pub safety_on_shifts: u32,
+    /// Total safety-on margin after the last shift, fraction of surge-line flow.
+    pub safety_on_total_margin: f64,
+}
+
 /// Result summary of one run.
 #[derive(Debug, Clone, PartialEq, Serialize)]
 pub struct Summary {
@@ -78,6 +89,8 @@ pub struct Summary {
     pub recycle_energy_j: f64,
     /// Actuator peaks and ratings.
     pub actuator_peaks: ActuatorPeaks,
+    /// Events the law reported.
+    pub law_events: LawEventCounts,
     /// Wall-clock time of the simulation loop, s.
     pub wall_time_s: f64,
     /// Simulated seconds per wall-clock second.
