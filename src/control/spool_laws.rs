@@ -355,6 +355,38 @@ impl Spool {
         (phi0, self.psi_c(map, phi0, omega0).value)
     }
 
+    /// The same root as [`Spool::equilibrium`] by at most 8 Newton steps from `guess` (the
+    /// previous φ⁰). Accepted only if it converges to a root where the residual is falling,
+    /// i.e. the rightmost branch it started on; `None` otherwise (the caller scans).
+    fn equilibrium_newton(
+        &self,
+        map: &CompressorMap,
+        gamma0: f64,
+        omega0: f64,
+        guess: f64,
+    ) -> Option<(f64, f64)> {
+        let mut phi = guess;
+        for _ in 0..8 {
+            let pc = self.psi_c(map, phi, omega0);
+            if pc.value <= 0.0 {
+                return None;
+            }
+            let sq = pc.value.sqrt();
+            let r = gamma0 * sq - phi;
+            let dr = gamma0 * pc.d_dphi / (2.0 * sq) - 1.0;
+            if dr >= 0.0 {
+                return None;
+            }
+            let step = r / dr;
+            phi -= step;
+            if step.abs() <= 1e-13 * phi.abs().max(1e-6) {
+                let psi0 = self.psi_c(map, phi, omega0).value;
+                return (phi > 0.0 && psi0 > 0.0).then_some((phi, psi0));
+            }
+        }
+        None
+    }
+
     /// Γ(φ, ω̃) = σ φ ω̃ (seed 003 eq. 48, after its ref. [3]).
     #[inline]
     fn gamma_torque(&self, phi: f64, omega: f64) -> f64 {
@@ -462,8 +494,16 @@ impl Common {
             return None;
         }
         if (gamma0, omega0) != self.key {
+            let had = self.key.0.is_finite() && self.eq.0.is_finite() && self.eq.0 > 0.0;
             self.key = (gamma0, omega0);
-            self.eq = sp.equilibrium(&inputs.model.map, gamma0, omega0);
+            // warm start from the previous steady state while the throttle moves (a few Newton
+            // steps), the full scan otherwise or when Newton does not land on the same branch
+            self.eq = match had
+                .then(|| sp.equilibrium_newton(&inputs.model.map, gamma0, omega0, self.eq.0))
+            {
+                Some(Some(e)) => e,
+                _ => sp.equilibrium(&inputs.model.map, gamma0, omega0),
+            };
         }
         let (phi0, psi0) = self.eq;
         let omega = m.omega_rad_s / sp.speed_scale_rad_s;
@@ -966,6 +1006,37 @@ mod tests {
                 let f = SpoolPlant::throttle_function(sp.gamma_max * opening, psi0);
                 assert!((f - phi0).abs() < 1e-12, "eq. 8");
             }
+        }
+    }
+
+    #[test]
+    fn warm_started_newton_finds_the_scans_root() {
+        let desc = description();
+        let model = ControlModel::from_plant(&desc);
+        let sp = Spool::from_model(LawId::Ccv, &model).unwrap();
+        // a throttle ramp in small steps, as during the closure scenario
+        let mut prev = sp.equilibrium(&model.map, sp.gamma_max * 0.6, 1.0).0;
+        let mut newton_used = 0;
+        for k in 1..=400 {
+            let opening = 0.6 - 0.001 * k as f64;
+            let scan = sp.equilibrium(&model.map, sp.gamma_max * opening, 1.0);
+            if let Some(nw) = sp.equilibrium_newton(&model.map, sp.gamma_max * opening, 1.0, prev) {
+                assert!(
+                    (nw.0 - scan.0).abs() < 1e-9,
+                    "opening {opening}: {nw:?} vs {scan:?}"
+                );
+                newton_used += 1;
+            }
+            prev = scan.0;
+        }
+        assert!(
+            newton_used > 350,
+            "Newton should carry almost all steps: {newton_used}"
+        );
+        // a guess on the wrong side of the peak is refused, not misconverged
+        let (phi_r, _) = sp.equilibrium(&model.map, sp.gamma_max * 0.2, 1.0);
+        if let Some(e) = sp.equilibrium_newton(&model.map, sp.gamma_max * 0.2, 1.0, 3.0 * phi_r) {
+            assert!((e.0 - phi_r).abs() < 1e-9);
         }
     }
 
