@@ -16,12 +16,15 @@ struct Cli {
 enum Command {
     /// Simulate a scenario on a benchmark plant (no hardware needed).
     Sim(cli::sim::SimArgs),
+    /// Print the benchmark table (every plant × applicable law) that README.md shows.
+    Table(cli::table::TableArgs),
 }
 
 fn main() -> std::process::ExitCode {
     let cli = Cli::parse();
     let result = match cli.command {
         Some(Command::Sim(args)) => cli::sim::run(&args),
+        Some(Command::Table(args)) => cli::table::run(&args),
         None => {
             // a bare `antisurge` runs the default simulation
             let args = cli::sim::SimArgs {

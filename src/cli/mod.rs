@@ -3,3 +3,4 @@
 pub mod locate;
 pub mod pictures;
 pub mod sim;
+pub mod table;

@@ -4,7 +4,8 @@
 pub mod output;
 pub mod runner;
 pub mod summary;
+pub mod table;
 pub mod trace;
 
-pub use runner::{run, SimOptions, SimResult};
+pub use runner::{run, SimError, SimOptions, SimResult};
 pub use summary::Summary;
