@@ -11,11 +11,11 @@ use std::path::{Path, PathBuf};
 use std::time::Instant;
 
 /// Defaults of a bare `antisurge sim`.
-pub const DEFAULT_PLANT: &str = "bohagen2007";
+pub const DEFAULT_PLANT: &str = "kvangardsnes2009";
 /// Default scenario.
 pub const DEFAULT_SCENARIO: &str = "throttle-closure";
 /// Default law.
-pub const DEFAULT_LAW: &str = "none";
+pub const DEFAULT_LAW: &str = "recycle-pi";
 
 /// Arguments.
 #[derive(Debug, clap::Args)]
