@@ -1,0 +1,40 @@
+//! README.md's results table is the output of `antisurge table`, not a copy that can drift:
+//! this test reruns the command and compares it with the block between the markers.
+
+mod common;
+
+use std::process::Command;
+
+#[test]
+fn readme_table_is_the_output_of_antisurge_table() {
+    let readme = std::fs::read_to_string(common::root().join("README.md")).expect("README.md");
+    let begin = "<!-- table:begin -->\n";
+    let end = "<!-- table:end -->";
+    let start = readme
+        .find(begin)
+        .expect("README.md lacks <!-- table:begin -->")
+        + begin.len();
+    let stop = readme[start..]
+        .find(end)
+        .expect("README.md lacks <!-- table:end -->")
+        + start;
+    let in_readme = &readme[start..stop];
+
+    let out = Command::new(env!("CARGO_BIN_EXE_antisurge"))
+        .arg("table")
+        .arg("--config-dir")
+        .arg(common::root().join("config"))
+        .output()
+        .expect("run antisurge table");
+    assert!(
+        out.status.success(),
+        "antisurge table failed: {}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let fresh = String::from_utf8(out.stdout).expect("utf-8");
+    assert!(fresh.lines().count() >= 3 + 5, "table too short:\n{fresh}");
+    assert_eq!(
+        in_readme, fresh,
+        "README.md's table differs from `antisurge table`: rerun `cargo run --release -- table` and paste its output between the markers"
+    );
+}
