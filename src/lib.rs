@@ -12,6 +12,7 @@
 
 pub mod config;
 pub mod control;
+pub mod daemon;
 pub mod events;
 pub mod io;
 pub mod physics;

@@ -18,6 +18,14 @@ enum Command {
     Sim(cli::sim::SimArgs),
     /// Print the benchmark table (every plant × applicable law) that README.md shows.
     Table(cli::table::TableArgs),
+    /// Run the controller service (SocketCAN / Modbus, or the in-process simulated plant).
+    Run(cli::daemon::RunArgs),
+    /// Run the simulated skid as a node on the field buses (hardware-in-the-loop).
+    Plant(cli::daemon::PlantArgs),
+    /// Check a configuration (the same checks as start-up and reload); exit status 1 on errors.
+    CheckConfig(cli::daemon::CheckArgs),
+    /// Print the event log readably.
+    Events(cli::daemon::EventsArgs),
 }
 
 fn main() -> std::process::ExitCode {
@@ -25,6 +33,13 @@ fn main() -> std::process::ExitCode {
     let result = match cli.command {
         Some(Command::Sim(args)) => cli::sim::run(&args),
         Some(Command::Table(args)) => cli::table::run(&args),
+        Some(Command::Run(args)) => cli::daemon::run(&args),
+        Some(Command::Plant(args)) => cli::daemon::plant(&args),
+        Some(Command::CheckConfig(args)) => match cli::daemon::check(&args) {
+            Ok(code) => return code,
+            Err(e) => Err(e),
+        },
+        Some(Command::Events(args)) => cli::daemon::events(&args),
         None => {
             // a bare `antisurge` runs the default simulation
             let args = cli::sim::SimArgs {

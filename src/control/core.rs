@@ -257,6 +257,25 @@ impl ControlCore {
         Ok(())
     }
 
+    /// Replace the input limits and fail-safe opening (hot reload); takes effect next cycle.
+    pub fn set_settings(&mut self, settings: CoreSettings) {
+        self.settings = settings;
+    }
+
+    /// Settings in force.
+    pub fn settings(&self) -> &CoreSettings {
+        &self.settings
+    }
+
+    /// Enter the fail-safe state now (shutdown, loss of the control thread's inputs) and
+    /// return its setpoints: recycle valve to its safe opening, thrust to centre, CCV
+    /// neutral, drive torque held. The next healthy cycle resumes bumplessly.
+    pub fn safe_state(&mut self) -> ActuatorCommands {
+        let meas = Measurements::unavailable(self.last_t_s);
+        let validity = self.settings.supervisor.check(&RawSensors::missing());
+        self.failsafe(meas, validity).commands
+    }
+
     /// Request automatic (true) or manual (false) mode.
     pub fn request_auto(&mut self, auto: bool) {
         if self.auto_requested && !auto {

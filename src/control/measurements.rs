@@ -13,6 +13,14 @@ pub struct RawSensors {
 }
 
 impl RawSensors {
+    /// No readings at all (every value NaN, never received).
+    pub fn missing() -> Self {
+        RawSensors {
+            values: SensorSnapshot::default(),
+            age_s: [f64::INFINITY; SensorId::COUNT],
+        }
+    }
+
     /// Fresh readings (age 0).
     pub fn fresh(values: SensorSnapshot) -> Self {
         RawSensors {
@@ -71,4 +79,29 @@ pub struct Measurements {
     pub dp_discharge_dt_pa_s: f64,
     /// Whether the flow comes from the observer because the transmitter failed.
     pub flow_fallback: bool,
+}
+
+impl Measurements {
+    /// Nothing measured (every value NaN) at time `t_s`.
+    pub fn unavailable(t_s: f64) -> Self {
+        let n = f64::NAN;
+        Measurements {
+            t_s,
+            p_suction_pa: n,
+            p_discharge_pa: n,
+            omega_rad_s: n,
+            t_suction_k: n,
+            m_kg_s: n,
+            m_measured_kg_s: n,
+            m_observer_kg_s: n,
+            flow_map: n,
+            pressure_ratio: n,
+            recycle_position: n,
+            throttle_position: n,
+            thrust_position_m: n,
+            dp_suction_dt_pa_s: n,
+            dp_discharge_dt_pa_s: n,
+            flow_fallback: false,
+        }
+    }
 }

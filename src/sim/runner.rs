@@ -9,7 +9,9 @@ use crate::control::model::ControlModel;
 use crate::control::LawId;
 use crate::plant::file::PlantDescription;
 use crate::plant::{PlantError, PlantInputs, SimPlant};
+use crate::scenario::ScenarioState;
 use crate::scenario::{NoiseSource, Scenario, SensorState, Timeline};
+use crate::signals::ActuatorCommands;
 use crate::signals::{ActuatorId, SensorId, SensorSnapshot};
 use crate::surge::{DetectorConfig, SurgeDetector};
 use std::time::Instant;
@@ -90,114 +92,189 @@ fn field_readings(
     raw
 }
 
-/// Run a scenario on a plant with a law. `progress` receives the completed fraction.
-pub fn run(
-    desc: &PlantDescription,
-    scenario: &Scenario,
-    options: SimOptions,
-    progress: &mut dyn FnMut(f64),
-) -> Result<SimResult, SimError> {
-    let wall = Instant::now();
-    let init = desc.file.initial;
-    let mut timeline = Timeline::new(scenario, init.throttle, init.recycle_valve, init.feed);
-    let st0 = timeline.initial();
-    let mut inputs = PlantInputs {
-        throttle_process: st0.throttle,
-        recycle_manual: st0.recycle_manual,
-        feed: st0.feed,
-        ..PlantInputs::default()
-    };
-    let mut plant = SimPlant::new(desc, &inputs)?;
-    let model = ControlModel::from_plant(desc);
-    let settings = CoreSettings::defaults_for(&model);
-    let nominal_speed = model.drive.nominal_speed_rad_s;
-    let t0_torque = plant.truth().load_torque_nm;
-    let config = model.controller.clone();
-    let mut core = ControlCore::new(model, config, settings, options.law, t0_torque)?;
-    let law_ids: Vec<LawId> = scenario
-        .law_names
-        .iter()
-        .map(|n| {
-            n.parse::<LawId>().map_err(|e| SimError::Scenario {
-                scenario: scenario.name().to_string(),
-                message: e.to_string(),
-            })
-        })
-        .collect::<Result<_, _>>()?;
+/// The plant side of a run: the simulated plant under a scenario timeline, with field
+/// readings (noise, faults), scoring of the true state (surge detection, margins, actuator
+/// peaks, recycle energy) and the trace. `sim::run` pairs it with a control core in the same
+/// loop; the plant node (`antisurge plant`) steps it in real time with setpoints from a bus.
+pub struct PlantRun<'a> {
+    desc: &'a PlantDescription,
+    scenario: &'a Scenario,
+    timeline: Timeline<'a>,
+    inputs: PlantInputs,
+    plant: SimPlant,
+    detector: SurgeDetector,
+    rng: NoiseSource,
+    frozen: SensorSnapshot,
+    peaks: ActuatorPeaks,
+    min_flow: f64,
+    min_margin: f64,
+    recycle_energy: f64,
+    last_recycle_pos: f64,
+    law_events: LawEventCounts,
+    trace: Vec<TraceRow>,
+    trace_every: usize,
+    surge_margin: Box<dyn Fn(f64, f64) -> f64 + Send + 'a>,
+    wall: Instant,
+}
 
-    let dt = scenario.file.control_period_s;
-    let n_steps = (scenario.file.duration_s / dt).round() as usize;
-    let trace_every = ((scenario.file.trace_period_s / dt).round() as usize).max(1);
-    let mut trace = Vec::with_capacity(n_steps / trace_every + 2);
-    let mut detector = SurgeDetector::new(DetectorConfig::default());
-    let mut rng = NoiseSource::new(scenario.file.seed);
-    let mut frozen = plant.sensors();
-    let mut peaks = ActuatorPeaks {
-        drive_torque_rating_nm: desc.file.drive.rated_torque_nm,
-        nominal_load_torque_nm: t0_torque,
-        ccv_rating: desc.file.spool.map_or(f64::NAN, |s| s.ccv_max),
-        tip_clearance_nominal_m: desc
-            .file
-            .thrust_rating
-            .map_or(f64::NAN, |t| t.nominal_clearance_m),
-        thrust_force_rating_n: desc.file.thrust_rating.map_or(f64::NAN, |t| t.force_max_n),
-        thrust_slew_rating_n_s: desc.file.thrust_rating.map_or(f64::NAN, |t| t.slew_max_n_s),
-        ..Default::default()
-    };
-    let mut min_flow = f64::INFINITY;
-    let mut min_margin = f64::INFINITY;
-    let mut recycle_energy = 0.0;
-    let mut last_recycle_pos = plant.truth().recycle_valve_position;
-    let mut law_events = LawEventCounts::default();
+/// What the controller side reports for the trace (NaN where unknown, e.g. over a bus).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct ControllerView {
+    /// Flow from the orifice, kg/s.
+    pub m_measured_kg_s: f64,
+    /// Observer estimate, kg/s.
+    pub m_observer_kg_s: f64,
+    /// Flow the law used, kg/s.
+    pub m_used_kg_s: f64,
+    /// Mode code.
+    pub mode: f64,
+    /// Law diagnostic.
+    pub law_diagnostic: f64,
+}
 
-    for k in 0..=n_steps {
-        let t = k as f64 * dt;
-        let st = timeline.state_at(t);
-        if let Some(i) = st.law_request {
-            core.select_law(law_ids[i])?;
-        }
-        if let Some(auto) = st.mode_request {
-            core.request_auto(auto);
-        }
-        let clean = plant.sensors();
-        let raw = field_readings(t, &clean, &st.faults, &st.noise, &mut frozen, &mut rng);
-        let op = OperatorInputs {
-            speed_setpoint_rad_s: nominal_speed * st.speed_setpoint,
-            throttle_demand: st.throttle,
-            flow_setpoint_kg_s: st.flow_setpoint_kg_s,
-            recycle_manual: st.recycle_manual,
+impl ControllerView {
+    /// Nothing known about the controller's internals.
+    pub const UNKNOWN: ControllerView = ControllerView {
+        m_measured_kg_s: f64::NAN,
+        m_observer_kg_s: f64::NAN,
+        m_used_kg_s: f64::NAN,
+        mode: f64::NAN,
+        law_diagnostic: f64::NAN,
+    };
+}
+
+impl<'a> PlantRun<'a> {
+    /// Start the plant at the scenario's initial state.
+    pub fn new(desc: &'a PlantDescription, scenario: &'a Scenario) -> Result<Self, SimError> {
+        let init = desc.file.initial;
+        let timeline = Timeline::new(scenario, init.throttle, init.recycle_valve, init.feed);
+        let st0 = timeline.initial();
+        let inputs = PlantInputs {
+            throttle_process: st0.throttle,
+            recycle_manual: st0.recycle_manual,
+            feed: st0.feed,
+            ..PlantInputs::default()
         };
-        let out = core.cycle(t, &raw, &op);
-        match out.law_event {
-            Some(LawEvent::RecycleTrip { .. }) => law_events.recycle_trips += 1,
-            Some(LawEvent::SafetyOnShift {
+        let plant = SimPlant::new(desc, &inputs)?;
+        let model = ControlModel::from_plant(desc);
+        let t0_torque = plant.truth().load_torque_nm;
+        let dt = scenario.file.control_period_s;
+        let n_steps = (scenario.file.duration_s / dt).round() as usize;
+        let trace_every = ((scenario.file.trace_period_s / dt).round() as usize).max(1);
+        let frozen = plant.sensors();
+        let last_recycle_pos = plant.truth().recycle_valve_position;
+        Ok(PlantRun {
+            desc,
+            scenario,
+            timeline,
+            inputs,
+            plant,
+            detector: SurgeDetector::new(DetectorConfig::default()),
+            rng: NoiseSource::new(scenario.file.seed),
+            frozen,
+            peaks: ActuatorPeaks {
+                drive_torque_rating_nm: desc.file.drive.rated_torque_nm,
+                nominal_load_torque_nm: t0_torque,
+                ccv_rating: desc.file.spool.map_or(f64::NAN, |s| s.ccv_max),
+                tip_clearance_nominal_m: desc
+                    .file
+                    .thrust_rating
+                    .map_or(f64::NAN, |t| t.nominal_clearance_m),
+                thrust_force_rating_n: desc.file.thrust_rating.map_or(f64::NAN, |t| t.force_max_n),
+                thrust_slew_rating_n_s: desc
+                    .file
+                    .thrust_rating
+                    .map_or(f64::NAN, |t| t.slew_max_n_s),
+                ..Default::default()
+            },
+            min_flow: f64::INFINITY,
+            min_margin: f64::INFINITY,
+            recycle_energy: 0.0,
+            last_recycle_pos,
+            law_events: LawEventCounts::default(),
+            trace: Vec::with_capacity(n_steps / trace_every + 2),
+            trace_every,
+            surge_margin: Box::new(move |q, r| model.surge_margin(q, r)),
+            wall: Instant::now(),
+        })
+    }
+
+    /// The plant.
+    pub fn plant(&self) -> &SimPlant {
+        &self.plant
+    }
+
+    /// The scenario.
+    pub fn scenario(&self) -> &Scenario {
+        self.scenario
+    }
+
+    /// Control period of the scenario, s.
+    pub fn dt_s(&self) -> f64 {
+        self.scenario.file.control_period_s
+    }
+
+    /// Number of steps of the scenario.
+    pub fn n_steps(&self) -> usize {
+        (self.scenario.file.duration_s / self.dt_s()).round() as usize
+    }
+
+    /// Scenario state at `t_s` and the field readings (noise, faults) of the plant now.
+    pub fn sense(&mut self, t_s: f64) -> (ScenarioState, RawSensors) {
+        let st = self.timeline.state_at(t_s);
+        let clean = self.plant.sensors();
+        let raw = field_readings(
+            t_s,
+            &clean,
+            &st.faults,
+            &st.noise,
+            &mut self.frozen,
+            &mut self.rng,
+        );
+        (st, raw)
+    }
+
+    /// Count a law event (for the summary).
+    pub fn count_law_event(&mut self, e: LawEvent) {
+        match e {
+            LawEvent::RecycleTrip { .. } => self.law_events.recycle_trips += 1,
+            LawEvent::SafetyOnShift {
                 total_margin,
                 count: _,
-            }) => {
-                law_events.safety_on_shifts += 1;
-                law_events.safety_on_total_margin = total_margin;
+            } => {
+                self.law_events.safety_on_shifts += 1;
+                self.law_events.safety_on_total_margin = total_margin;
             }
-            None => {}
         }
+    }
 
-        // score the true state
-        let truth = plant.truth();
-        detector.update(t, dt, truth.m_kg_s);
-        min_flow = min_flow.min(truth.m_kg_s);
-        let margin = core
-            .model()
-            .surge_margin(truth.flow_map, truth.pressure_ratio());
+    /// Score the true state at step `k` (time `t_s`, step `dt_s`) under `commands`, and add a
+    /// trace row every trace period.
+    pub fn record(
+        &mut self,
+        k: usize,
+        t_s: f64,
+        dt_s: f64,
+        raw: &RawSensors,
+        c: &ActuatorCommands,
+        view: &ControllerView,
+    ) {
+        let truth = self.plant.truth();
+        self.detector.update(t_s, dt_s, truth.m_kg_s);
+        self.min_flow = self.min_flow.min(truth.m_kg_s);
+        let margin = (self.surge_margin)(truth.flow_map, truth.pressure_ratio());
         if margin.is_finite() {
-            min_margin = min_margin.min(margin);
+            self.min_margin = self.min_margin.min(margin);
         }
         if truth.recycle_flow_kg_s > 0.0 {
-            let head = desc
+            let head = self
+                .desc
                 .file
                 .gas
                 .polytropic_head_j_kg(truth.t_suction_k, truth.pressure_ratio());
-            recycle_energy += truth.recycle_flow_kg_s * head * dt;
+            self.recycle_energy += truth.recycle_flow_kg_s * head * dt_s;
         }
-        let c = &out.commands;
+        let peaks = &mut self.peaks;
         let absmax = |a: &mut f64, v: f64| {
             if v.is_finite() {
                 *a = a.max(v.abs())
@@ -220,17 +297,16 @@ pub fn run(
         absmax(&mut peaks.tip_clearance_m, truth.tip_clearance_m);
         absmax(&mut peaks.thrust_force_n, truth.thrust_force_n);
         absmax(&mut peaks.thrust_slew_n_s, truth.thrust_slew_n_s);
-        if k > 0 && truth.recycle_valve_position.is_finite() {
-            let rate = (last_recycle_pos - truth.recycle_valve_position) / dt;
+        if k > 0 && truth.recycle_valve_position.is_finite() && dt_s > 0.0 {
+            let rate = (self.last_recycle_pos - truth.recycle_valve_position) / dt_s;
             peaks.recycle_valve_closing_rate_per_s =
                 peaks.recycle_valve_closing_rate_per_s.max(rate);
         }
-        last_recycle_pos = truth.recycle_valve_position;
+        self.last_recycle_pos = truth.recycle_valve_position;
 
-        if k % trace_every == 0 {
-            let m = &out.measurements;
-            trace.push(TraceRow {
-                t_s: t,
+        if k % self.trace_every == 0 {
+            self.trace.push(TraceRow {
+                t_s,
                 m_kg_s: truth.m_kg_s,
                 flow_map: truth.flow_map,
                 p_suction_pa: truth.p_suction_pa,
@@ -253,67 +329,144 @@ pub fn run(
                 meas_p_discharge_pa: raw.values.get(SensorId::PDischarge),
                 meas_omega_rad_s: raw.values.get(SensorId::ShaftSpeed),
                 meas_orifice_dp_pa: raw.values.get(SensorId::OrificeDp),
-                meas_m_kg_s: m.m_measured_kg_s,
-                est_m_kg_s: m.m_observer_kg_s,
-                used_m_kg_s: m.m_kg_s,
+                meas_m_kg_s: view.m_measured_kg_s,
+                est_m_kg_s: view.m_observer_kg_s,
+                used_m_kg_s: view.m_used_kg_s,
                 cmd_drive_torque_nm: c.get(ActuatorId::DriveTorque),
                 cmd_recycle_valve: c.get(ActuatorId::RecycleValve),
                 cmd_ccv: c.get(ActuatorId::CloseCoupledValve),
                 cmd_throttle: c.get(ActuatorId::Throttle),
                 cmd_tip_clearance_m: c.get(ActuatorId::TipClearance),
-                mode: f64::from(out.mode.code()),
-                law_diagnostic: out.law_diagnostic,
+                mode: view.mode,
+                law_diagnostic: view.law_diagnostic,
             });
         }
+    }
+
+    /// Advance the plant by `dt_s` under the scenario state `st` and `commands` (NaN: the
+    /// actuator is not driven by the controller).
+    pub fn advance(&mut self, st: &ScenarioState, commands: &ActuatorCommands, dt_s: f64) {
+        self.inputs.commands = *commands;
+        self.inputs.throttle_process = st.throttle;
+        self.inputs.recycle_manual = st.recycle_manual;
+        self.inputs.feed = st.feed;
+        self.inputs.downstream = st.downstream;
+        self.inputs.drive_tripped = st.drive_tripped;
+        self.plant.step(&self.inputs, dt_s);
+    }
+
+    /// The result so far, labelled with the law's name.
+    pub fn finish(&self, law: &str) -> SimResult {
+        let wall_s = self.wall.elapsed().as_secs_f64();
+        let trace = &self.trace;
+        let last = trace.last().copied().unwrap_or_default();
+        let duration = trace.last().map_or(0.0, |r| r.t_s);
+        let window = (0.25 * duration).clamp(1.0, 3.0);
+        let stable = is_steady(trace, window, 0.02, 1e-4) && !self.detector.in_surge();
+        let settle = if stable {
+            settle_time(trace, self.scenario.last_event_s(), 0.02, 1e-4)
+        } else {
+            None
+        };
+        let summary = Summary {
+            plant: self.desc.name().to_string(),
+            scenario: self.scenario.name().to_string(),
+            law: law.to_string(),
+            duration_s: duration,
+            stable,
+            flow_reversal: self.detector.reversals > 0,
+            flow_reversals: self.detector.reversals,
+            surge_cycles: self.detector.surge_cycles,
+            surge_frequency_hz: self
+                .detector
+                .frequency_hz
+                .is_finite()
+                .then_some(self.detector.frequency_hz),
+            min_flow_kg_s: self.min_flow,
+            final_flow_kg_s: last.m_kg_s,
+            final_pressure_ratio: last.pressure_ratio,
+            min_surge_margin: self.min_margin,
+            final_surge_margin: last.surge_margin,
+            settle_time_s: settle,
+            recycle_energy_j: self.recycle_energy,
+            actuator_peaks: self.peaks,
+            law_events: self.law_events,
+            wall_time_s: wall_s,
+            realtime_factor: duration / wall_s.max(1e-9),
+            field_failsafe_entries: None,
+        };
+        SimResult {
+            trace: trace.clone(),
+            summary,
+        }
+    }
+}
+
+/// Run a scenario on a plant with a law. `progress` receives the completed fraction.
+pub fn run(
+    desc: &PlantDescription,
+    scenario: &Scenario,
+    options: SimOptions,
+    progress: &mut dyn FnMut(f64),
+) -> Result<SimResult, SimError> {
+    let mut pr = PlantRun::new(desc, scenario)?;
+    let model = ControlModel::from_plant(desc);
+    let settings = CoreSettings::defaults_for(&model);
+    let nominal_speed = model.drive.nominal_speed_rad_s;
+    let t0_torque = pr.plant().truth().load_torque_nm;
+    let config = model.controller.clone();
+    let mut core = ControlCore::new(model, config, settings, options.law, t0_torque)?;
+    let law_ids: Vec<LawId> = scenario
+        .law_names
+        .iter()
+        .map(|n| {
+            n.parse::<LawId>().map_err(|e| SimError::Scenario {
+                scenario: scenario.name().to_string(),
+                message: e.to_string(),
+            })
+        })
+        .collect::<Result<_, _>>()?;
+
+    let dt = pr.dt_s();
+    let n_steps = pr.n_steps();
+    for k in 0..=n_steps {
+        let t = k as f64 * dt;
+        let (st, raw) = pr.sense(t);
+        if let Some(i) = st.law_request {
+            core.select_law(law_ids[i])?;
+        }
+        if let Some(auto) = st.mode_request {
+            core.request_auto(auto);
+        }
+        let op = OperatorInputs {
+            speed_setpoint_rad_s: nominal_speed * st.speed_setpoint,
+            throttle_demand: st.throttle,
+            flow_setpoint_kg_s: st.flow_setpoint_kg_s,
+            recycle_manual: st.recycle_manual,
+        };
+        let out = core.cycle(t, &raw, &op);
+        if let Some(e) = out.law_event {
+            pr.count_law_event(e);
+        }
+        let m = &out.measurements;
+        let view = ControllerView {
+            m_measured_kg_s: m.m_measured_kg_s,
+            m_observer_kg_s: m.m_observer_kg_s,
+            m_used_kg_s: m.m_kg_s,
+            mode: f64::from(out.mode.code()),
+            law_diagnostic: out.law_diagnostic,
+        };
+        pr.record(k, t, dt, &raw, &out.commands, &view);
         if k == n_steps {
             break;
         }
-        inputs.commands = out.commands;
-        inputs.throttle_process = st.throttle;
-        inputs.recycle_manual = st.recycle_manual;
-        inputs.feed = st.feed;
-        inputs.downstream = st.downstream;
-        inputs.drive_tripped = st.drive_tripped;
-        plant.step(&inputs, dt);
+        pr.advance(&st, &out.commands, dt);
         if options.progress_every > 0 && k % options.progress_every == 0 {
             progress(k as f64 / n_steps as f64);
         }
     }
     progress(1.0);
-    let wall_s = wall.elapsed().as_secs_f64();
-    let last = trace.last().copied().unwrap_or_default();
-    let duration = scenario.file.duration_s;
-    let window = (0.25 * duration).clamp(1.0, 3.0);
-    let stable = is_steady(&trace, window, 0.02, 1e-4) && !detector.in_surge();
-    let settle = if stable {
-        settle_time(&trace, scenario.last_event_s(), 0.02, 1e-4)
-    } else {
-        None
-    };
-    let summary = Summary {
-        plant: desc.name().to_string(),
-        scenario: scenario.name().to_string(),
-        law: core.law().name().to_string(),
-        duration_s: duration,
-        stable,
-        flow_reversal: detector.reversals > 0,
-        flow_reversals: detector.reversals,
-        surge_cycles: detector.surge_cycles,
-        surge_frequency_hz: detector
-            .frequency_hz
-            .is_finite()
-            .then_some(detector.frequency_hz),
-        min_flow_kg_s: min_flow,
-        final_flow_kg_s: last.m_kg_s,
-        final_pressure_ratio: last.pressure_ratio,
-        min_surge_margin: min_margin,
-        final_surge_margin: last.surge_margin,
-        settle_time_s: settle,
-        recycle_energy_j: recycle_energy,
-        actuator_peaks: peaks,
-        law_events,
-        wall_time_s: wall_s,
-        realtime_factor: duration / wall_s.max(1e-9),
-    };
-    Ok(SimResult { trace, summary })
+    let mut result = pr.finish(core.law().name());
+    result.summary.duration_s = scenario.file.duration_s;
+    Ok(result)
 }

@@ -95,6 +95,10 @@ pub struct Summary {
     pub wall_time_s: f64,
     /// Simulated seconds per wall-clock second.
     pub realtime_factor: f64,
+    /// Plant node only: how often the field devices entered their own fail-safe because the
+    /// controller's heartbeat stopped.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub field_failsafe_entries: Option<u64>,
 }
 
 /// Settling time of the flow after `t_event`: the time after which it stays within the band

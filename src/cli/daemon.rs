@@ -1,0 +1,201 @@
+//! `antisurge run`, `antisurge plant`, `antisurge check-config`, `antisurge events`.
+
+use antisurge::daemon::{config, plant_service, service};
+use antisurge::events::{log_files, print_events, EventFilter, PrintFormat, Timestamp};
+use anyhow::{anyhow, Result};
+use std::path::{Path, PathBuf};
+
+/// Where the config file is when none is given.
+pub fn default_config() -> PathBuf {
+    if let Ok(dir) = std::env::var("ANTISURGE_CONFIG_DIR") {
+        return Path::new(&dir).join("antisurge.toml");
+    }
+    let local = PathBuf::from("config/antisurge.toml");
+    if local.is_file() {
+        return local;
+    }
+    PathBuf::from("/etc/antisurge/antisurge.toml")
+}
+
+/// Logging: journald under systemd, readable text on a terminal. `RUST_LOG` or
+/// `ANTISURGE_LOG` filter (default `info`).
+pub fn init_logging() {
+    use tracing_subscriber::prelude::*;
+    let filter = std::env::var("ANTISURGE_LOG")
+        .ok()
+        .or_else(|| std::env::var("RUST_LOG").ok())
+        .unwrap_or_else(|| "info".into());
+    let filter = tracing_subscriber::EnvFilter::try_new(filter)
+        .unwrap_or_else(|_| tracing_subscriber::EnvFilter::new("info"));
+    let under_systemd = std::env::var_os("JOURNAL_STREAM").is_some();
+    if under_systemd {
+        if let Ok(j) = tracing_journald::layer() {
+            let _ = tracing_subscriber::registry()
+                .with(filter)
+                .with(j)
+                .try_init();
+            return;
+        }
+    }
+    let _ = tracing_subscriber::registry()
+        .with(filter)
+        .with(
+            tracing_subscriber::fmt::layer()
+                .with_writer(std::io::stderr)
+                .with_target(true),
+        )
+        .try_init();
+}
+
+/// `antisurge run`.
+#[derive(Debug, clap::Args)]
+pub struct RunArgs {
+    /// Config file (default: ./config/antisurge.toml, else /etc/antisurge/antisurge.toml).
+    #[arg(long)]
+    pub config: Option<PathBuf>,
+    /// Stop after this many seconds (tests and benchmarks).
+    #[arg(long)]
+    pub duration_s: Option<f64>,
+    /// In-process plant: write its trace and summary here at exit.
+    #[arg(long)]
+    pub out: Option<PathBuf>,
+}
+
+/// Run the controller service.
+pub fn run(args: &RunArgs) -> Result<()> {
+    init_logging();
+    service::run(&service::RunOptions {
+        config: args.config.clone().unwrap_or_else(default_config),
+        duration_s: args.duration_s,
+        out_dir: args.out.clone(),
+    })
+}
+
+/// `antisurge plant`.
+#[derive(Debug, clap::Args)]
+pub struct PlantArgs {
+    /// Config file (the controller's; uses [plant], [bus] and [simulation]).
+    #[arg(long)]
+    pub config: Option<PathBuf>,
+    /// Scenario name or file (default: simulation.scenario).
+    #[arg(long)]
+    pub scenario: Option<String>,
+    /// Output directory for trace.csv and summary.json.
+    #[arg(long)]
+    pub out: Option<PathBuf>,
+}
+
+/// Run the plant node.
+pub fn plant(args: &PlantArgs) -> Result<()> {
+    init_logging();
+    plant_service::run(&plant_service::PlantOptions {
+        config: args.config.clone().unwrap_or_else(default_config),
+        scenario: args.scenario.clone(),
+        out_dir: args.out.clone(),
+    })
+}
+
+/// `antisurge check-config`.
+#[derive(Debug, clap::Args)]
+pub struct CheckArgs {
+    /// Config file (default: ./config/antisurge.toml, else /etc/antisurge/antisurge.toml).
+    pub file: Option<PathBuf>,
+}
+
+/// Check a config; exit status 1 on errors.
+pub fn check(args: &CheckArgs) -> Result<std::process::ExitCode> {
+    let file = args.file.clone().unwrap_or_else(default_config);
+    match config::load(&file) {
+        Ok(l) => {
+            for w in &l.warnings {
+                eprintln!("{w}");
+            }
+            let layers: Vec<String> = l
+                .layers
+                .iter()
+                .map(|x| x.path.display().to_string())
+                .collect();
+            println!(
+                "{}: OK (plant {}, law {}, transport {:?}, {} Hz; layers: {})",
+                file.display(),
+                l.plant.name(),
+                l.law,
+                l.config.bus.transport,
+                l.config.cycle.rate_hz,
+                layers.join(", ")
+            );
+            Ok(std::process::ExitCode::SUCCESS)
+        }
+        Err(problems) => {
+            for p in &problems {
+                eprintln!("{p}");
+            }
+            let n = problems.iter().filter(|p| !p.warning).count();
+            eprintln!(
+                "{}: {n} error(s); the configuration was not accepted",
+                file.display()
+            );
+            Ok(std::process::ExitCode::from(1))
+        }
+    }
+}
+
+/// `antisurge events`.
+#[derive(Debug, clap::Args)]
+pub struct EventsArgs {
+    /// Only events at or after this time: RFC 3339 (`2026-11-22T08:00:00Z`) or an age
+    /// (`10m`, `2h`, `1d`).
+    #[arg(long)]
+    pub since: Option<String>,
+    /// The event log (default: event_log.path of the config).
+    #[arg(long)]
+    pub file: Option<PathBuf>,
+    /// Config file to take the event log path from.
+    #[arg(long)]
+    pub config: Option<PathBuf>,
+    /// Print the stored JSON lines.
+    #[arg(long)]
+    pub json: bool,
+    /// Times in UTC instead of local time.
+    #[arg(long)]
+    pub utc: bool,
+}
+
+/// Print the event log.
+pub fn events(args: &EventsArgs) -> Result<()> {
+    let path = match &args.file {
+        Some(p) => p.clone(),
+        None => {
+            let cfg = args.config.clone().unwrap_or_else(default_config);
+            match config::load(&cfg) {
+                Ok(l) => l.config.event_log.path.clone(),
+                Err(p) => {
+                    return Err(anyhow!(
+                        "cannot find the event log from {} (use --file):\n{}",
+                        cfg.display(),
+                        service::format_problems(&p)
+                    ))
+                }
+            }
+        }
+    };
+    let filter = match &args.since {
+        Some(s) => EventFilter::since_arg(s, Timestamp::now()).map_err(|e| anyhow!("{e}"))?,
+        None => EventFilter::default(),
+    };
+    let files = log_files(&path).map_err(|e| anyhow!("{e}"))?;
+    let format = if args.json {
+        PrintFormat::Json
+    } else if args.utc {
+        PrintFormat::PrettyUtc
+    } else {
+        PrintFormat::Pretty
+    };
+    let stdout = std::io::stdout();
+    let stats =
+        print_events(&mut stdout.lock(), &files, &filter, format).map_err(|e| anyhow!("{e}"))?;
+    for w in stats.warnings() {
+        eprintln!("warning: {w}");
+    }
+    Ok(())
+}

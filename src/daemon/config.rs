@@ -1,0 +1,984 @@
+//! The daemon's configuration: one typed schema, loaded in layers with the `config` crate.
+//!
+//! Layers, later ones win key by key:
+//! 1. the main file (`antisurge.toml`),
+//! 2. every `*.toml` in the `conf.d/` directory beside it, in file-name order,
+//! 3. environment variables `ANTISURGE_<SECTION>__<KEY>` (double underscore between levels,
+//!    e.g. `ANTISURGE_CONTROL__LAW=drive-torque`, `ANTISURGE_CYCLE__RATE_HZ=500`).
+//!
+//! The `config` crate merges the layers but forgets where a key came from, so every error is
+//! located again here: the last layer that sets the key is searched with `toml_edit` spans
+//! ([`crate::config::toml_file::locate_key`]) and the message names that file and line.
+//!
+//! [`load`] returns the typed [`DaemonConfig`] plus everything resolved from it (the machine
+//! model, the signal map, the controller settings with the overrides applied, the input
+//! limits). [`check`] runs the cross-field rules; `antisurge check-config`, start-up and hot
+//! reload all call the same two functions.
+
+use crate::config::toml_file::{line_col, locate_key};
+use crate::config::FileError;
+use crate::control::config::ControllerConfig;
+use crate::control::core::CoreSettings;
+use crate::control::law::{Law, LawError, LawId};
+use crate::control::model::ControlModel;
+use crate::control::supervisor::InputLimits;
+use crate::events::EventLogConfig;
+use crate::io::can::bus::CanBusConfig;
+use crate::io::modbus::{ModbusLinkConfig, ModbusServerConfig};
+use crate::io::signal_map::SignalMap;
+use crate::plant::file::PlantDescription;
+use crate::runtime::rt_loop::RtSettings;
+use crate::signals::{ActuatorId, SensorId};
+use serde::{Deserialize, Serialize};
+use std::collections::BTreeMap;
+use std::path::{Path, PathBuf};
+
+/// Prefix of the environment variables that override config keys.
+pub const ENV_PREFIX: &str = "ANTISURGE";
+
+/// `[plant]`: the machine the controller runs (its model: map, volumes, drive, valves).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct PlantSection {
+    /// Plant description file (`config/plants/*.toml`), relative to the main config file.
+    pub file: PathBuf,
+}
+
+/// Controller mode at start.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize, Default)]
+#[serde(rename_all = "snake_case")]
+pub enum StartMode {
+    /// The selected law runs as soon as the inputs are healthy.
+    #[default]
+    Auto,
+    /// Speed loop only; the recycle valve holds its position (manual station).
+    Manual,
+}
+
+/// `[control]`: which law, in which mode, around which setpoints.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct ControlSection {
+    /// Surge law (`none`, `recycle-pi`, `recycle-fl`, `drive-torque`, `ccv`,
+    /// `throttle-backstep`, `robust`, `tip-sliding`).
+    pub law: String,
+    /// Mode at start.
+    #[serde(default)]
+    pub mode: StartMode,
+    /// Speed setpoint, rad/s; absent: the plant file's nominal speed.
+    #[serde(default)]
+    pub speed_setpoint_rad_s: Option<f64>,
+    /// Mass-flow setpoint of flow-tracking laws (`recycle-fl`), kg/s; absent: hold the flow.
+    #[serde(default)]
+    pub flow_setpoint_kg_s: Option<f64>,
+    /// Recycle-valve opening in fail-safe, percent (100: fully open, the usual safe state).
+    #[serde(default = "d_failsafe_pct")]
+    pub failsafe_recycle_opening_pct: f64,
+}
+
+fn d_failsafe_pct() -> f64 {
+    100.0
+}
+
+/// One `[inputs.<sensor>]` table: plausibility range in the sensor's SI unit and freshness.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct InputSection {
+    /// Lowest plausible value (Pa, rad/s, K, fraction or m, per sensor).
+    pub min: f64,
+    /// Highest plausible value, same unit.
+    pub max: f64,
+    /// The input is stale when no new value arrived for this long, ms.
+    pub timeout_ms: f64,
+}
+
+/// How the daemon reaches the skid.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize, Default)]
+#[serde(rename_all = "snake_case")]
+pub enum Transport {
+    /// The simulated plant runs in this process (no hardware; the embedded default).
+    #[default]
+    InProcess,
+    /// Field buses: the signal map binds each signal to CAN (`[bus.can]`) or Modbus
+    /// (`[bus.modbus]`).
+    Field,
+}
+
+/// `[bus]`: transport, signal map and the bus settings.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct BusSection {
+    /// `in_process` (simulated plant inside the daemon) or `field` (CAN and/or Modbus).
+    #[serde(default)]
+    pub transport: Transport,
+    /// Signal map file (sensor/actuator ↔ CAN signal or Modbus register), relative to the
+    /// main config file. Required for `field`.
+    #[serde(default)]
+    pub signal_map: Option<PathBuf>,
+    /// SocketCAN settings (required if the map has CAN bindings).
+    #[serde(default)]
+    pub can: Option<CanBusConfig>,
+    /// Modbus client settings (required if the map has Modbus bindings).
+    #[serde(default)]
+    pub modbus: Option<ModbusLinkConfig>,
+}
+
+/// `[simulation]`: the simulated skid, in-process or as `antisurge plant`.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct SimulationSection {
+    /// Scenario name (`config/scenarios`) or file, relative to the main config file.
+    #[serde(default = "d_scenario")]
+    pub scenario: String,
+    /// Where the plant writes `trace.csv` and `summary.json` when the scenario ends.
+    #[serde(default)]
+    pub out_dir: Option<PathBuf>,
+    /// Field devices go to their own fail-safe when no controller heartbeat arrived for this
+    /// long, ms.
+    #[serde(default = "d_hb_timeout")]
+    pub heartbeat_timeout_ms: f64,
+    /// Keep running (holding the final scenario state) after the scenario ends.
+    #[serde(default)]
+    pub hold_after_end: bool,
+    /// The plant node also serves its signals as a Modbus TCP server.
+    #[serde(default)]
+    pub modbus_server: Option<ModbusServerConfig>,
+}
+
+fn d_scenario() -> String {
+    "hold".into()
+}
+fn d_hb_timeout() -> f64 {
+    100.0
+}
+
+impl Default for SimulationSection {
+    fn default() -> Self {
+        SimulationSection {
+            scenario: d_scenario(),
+            out_dir: None,
+            heartbeat_timeout_ms: d_hb_timeout(),
+            hold_after_end: false,
+            modbus_server: None,
+        }
+    }
+}
+
+/// `[status]`: periodic status line and statistics.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct StatusSection {
+    /// Status line to the log every this many seconds (0: never).
+    #[serde(default = "d_status_s")]
+    pub log_interval_s: f64,
+    /// Write cycle statistics (JSON) here at exit, if set.
+    #[serde(default)]
+    pub stats_file: Option<PathBuf>,
+}
+
+fn d_status_s() -> f64 {
+    10.0
+}
+
+impl Default for StatusSection {
+    fn default() -> Self {
+        StatusSection {
+            log_interval_s: d_status_s(),
+            stats_file: None,
+        }
+    }
+}
+
+/// The whole configuration file (`config/antisurge.toml` documents every key).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct DaemonConfig {
+    /// The machine.
+    pub plant: PlantSection,
+    /// Law, mode, setpoints, fail-safe opening.
+    pub control: ControlSection,
+    /// The control thread: rate, priority, CPU, memory locking.
+    #[serde(default)]
+    pub cycle: RtSettings,
+    /// Input supervision per sensor; sensors not listed get defaults derived from the plant.
+    #[serde(default)]
+    pub inputs: BTreeMap<SensorId, InputSection>,
+    /// Transport and signal map.
+    #[serde(default = "d_bus")]
+    pub bus: BusSection,
+    /// Overrides of the plant file's `[controller]` keys (law gains, observer, detector).
+    #[serde(default)]
+    pub controller: toml::Table,
+    /// The event log.
+    #[serde(default)]
+    pub event_log: EventLogConfig,
+    /// The simulated skid.
+    #[serde(default)]
+    pub simulation: SimulationSection,
+    /// Status reporting.
+    #[serde(default)]
+    pub status: StatusSection,
+}
+
+fn d_bus() -> BusSection {
+    BusSection {
+        transport: Transport::InProcess,
+        signal_map: None,
+        can: None,
+        modbus: None,
+    }
+}
+
+/// One source layer with its text (for locating keys).
+#[derive(Debug, Clone)]
+pub struct Layer {
+    /// File (or `environment`).
+    pub path: PathBuf,
+    /// Its text (for env: `key = value` lines).
+    pub text: String,
+    /// Its parsed table.
+    pub table: toml::Table,
+}
+
+/// A configuration problem: an error (refused) or a warning (printed, accepted).
+#[derive(Debug, Clone, PartialEq)]
+pub struct Problem {
+    /// Located error message.
+    pub error: FileError,
+    /// A warning does not fail the check.
+    pub warning: bool,
+}
+
+impl std::fmt::Display for Problem {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        if self.warning {
+            write!(f, "warning: {}", self.error)
+        } else {
+            write!(f, "error: {}", self.error)
+        }
+    }
+}
+
+/// A loaded, resolved and checked configuration.
+#[derive(Debug, Clone)]
+pub struct Loaded {
+    /// The typed schema.
+    pub config: DaemonConfig,
+    /// Main file.
+    pub main_path: PathBuf,
+    /// Source layers, main first.
+    pub layers: Vec<Layer>,
+    /// The machine.
+    pub plant: PlantDescription,
+    /// The controller's machine model.
+    pub model: ControlModel,
+    /// Controller settings: the plant file's `[controller]` with the overrides applied.
+    pub controller: ControllerConfig,
+    /// Core settings (fail-safe opening, input limits).
+    pub core: CoreSettings,
+    /// Selected law.
+    pub law: LawId,
+    /// Signal map (empty for in-process).
+    pub signal_map: SignalMap,
+    /// The merged key/value view (for diffs on reload).
+    pub flat: BTreeMap<String, String>,
+    /// Warnings found by the checks.
+    pub warnings: Vec<Problem>,
+}
+
+/// Where the main file's relative paths are resolved from.
+fn base_dir(main: &Path) -> PathBuf {
+    main.parent()
+        .filter(|p| !p.as_os_str().is_empty())
+        .map(Path::to_path_buf)
+        .unwrap_or_else(|| PathBuf::from("."))
+}
+
+/// Resolve `p` against the main file's directory.
+pub fn resolve(main: &Path, p: &Path) -> PathBuf {
+    if p.is_absolute() {
+        p.to_path_buf()
+    } else {
+        base_dir(main).join(p)
+    }
+}
+
+fn read_layer(path: &Path) -> Result<Layer, FileError> {
+    let text = std::fs::read_to_string(path).map_err(|e| FileError {
+        file: path.to_path_buf(),
+        key: String::new(),
+        line: 0,
+        column: 0,
+        message: format!("cannot read: {e}"),
+        hint: Some("check the path and that the antisurge user may read it".into()),
+    })?;
+    let table: toml::Table = crate::config::toml_file::parse(&text, path)?;
+    Ok(Layer {
+        path: path.to_path_buf(),
+        text,
+        table,
+    })
+}
+
+/// The `conf.d/` directory of a main file.
+pub fn conf_d(main: &Path) -> PathBuf {
+    base_dir(main).join("conf.d")
+}
+
+/// Environment overrides (`ANTISURGE_A__B=v` → `a.b`), sorted, from `vars`.
+fn env_layer(vars: &[(String, String)]) -> Option<Layer> {
+    let mut lines = Vec::new();
+    for (k, v) in vars {
+        let Some(rest) = k.strip_prefix(&format!("{ENV_PREFIX}_")) else {
+            continue;
+        };
+        // variables of the tools themselves, not config keys
+        if rest == "CONFIG_DIR" || rest == "LOG" || !rest.contains("__") {
+            continue;
+        }
+        let key = rest.to_ascii_lowercase().replace("__", ".");
+        lines.push((key, v.clone()));
+    }
+    if lines.is_empty() {
+        return None;
+    }
+    lines.sort();
+    let text = lines
+        .iter()
+        .map(|(k, v)| format!("{k} = {v}\n"))
+        .collect::<String>();
+    let mut table = toml::Table::new();
+    for (k, v) in &lines {
+        let value = parse_env_value(v);
+        insert_path(&mut table, k, value);
+    }
+    Some(Layer {
+        path: PathBuf::from("environment"),
+        text,
+        table,
+    })
+}
+
+fn parse_env_value(v: &str) -> toml::Value {
+    if let Ok(t) = toml::from_str::<toml::Table>(&format!("v = {v}")) {
+        if let Some(x) = t.get("v") {
+            return x.clone();
+        }
+    }
+    toml::Value::String(v.to_string())
+}
+
+fn insert_path(table: &mut toml::Table, dotted: &str, value: toml::Value) {
+    let mut parts = dotted.split('.').peekable();
+    let mut cur = table;
+    while let Some(p) = parts.next() {
+        if parts.peek().is_none() {
+            cur.insert(p.to_string(), value);
+            return;
+        }
+        let entry = cur
+            .entry(p.to_string())
+            .or_insert_with(|| toml::Value::Table(toml::Table::new()));
+        if !entry.is_table() {
+            *entry = toml::Value::Table(toml::Table::new());
+        }
+        cur = entry.as_table_mut().expect("table");
+    }
+}
+
+/// Does the table set the dotted key (prefix match for tables)?
+fn table_has(table: &toml::Table, dotted: &str) -> bool {
+    let mut cur = table;
+    let parts: Vec<&str> = dotted.split('.').filter(|s| !s.is_empty()).collect();
+    for (i, p) in parts.iter().enumerate() {
+        let p = p.split('[').next().unwrap_or(p);
+        match cur.get(p) {
+            Some(toml::Value::Table(t)) if i + 1 < parts.len() => cur = t,
+            Some(_) => return true,
+            None => return false,
+        }
+    }
+    true
+}
+
+/// An error about `key`, located in the last layer that sets it (or its nearest parent).
+pub fn locate(layers: &[Layer], key: &str, message: impl Into<String>) -> FileError {
+    let message = message.into();
+    let mut probe = key.to_string();
+    loop {
+        for layer in layers.iter().rev() {
+            if !probe.is_empty() && table_has(&layer.table, &probe) {
+                let (line, column) = if layer.path.as_os_str() == "environment" {
+                    layer
+                        .text
+                        .lines()
+                        .position(|l| l.starts_with(&probe))
+                        .map(|i| (i + 1, 1))
+                        .unwrap_or((0, 0))
+                } else {
+                    locate_key(&layer.text, &probe).unwrap_or((0, 0))
+                };
+                let file = if layer.path.as_os_str() == "environment" {
+                    PathBuf::from(format!(
+                        "environment ({ENV_PREFIX}_{})",
+                        probe.replace('.', "__").to_ascii_uppercase()
+                    ))
+                } else {
+                    layer.path.clone()
+                };
+                return FileError {
+                    file,
+                    key: key.to_string(),
+                    line,
+                    column,
+                    message,
+                    hint: None,
+                };
+            }
+        }
+        match probe.rfind('.') {
+            Some(i) => probe.truncate(i),
+            None => break,
+        }
+    }
+    FileError {
+        file: layers
+            .first()
+            .map(|l| l.path.clone())
+            .unwrap_or_else(|| PathBuf::from("antisurge.toml")),
+        key: key.to_string(),
+        line: 0,
+        column: 0,
+        message,
+        hint: None,
+    }
+}
+
+/// Where a relative output path (event log, statistics) goes: under `$LOGS_DIRECTORY` (set by
+/// systemd's `LogsDirectory=`), else under `./out/`.
+pub fn output_path(p: &Path) -> PathBuf {
+    if p.is_absolute() {
+        return p.to_path_buf();
+    }
+    match std::env::var_os("LOGS_DIRECTORY") {
+        Some(d) => PathBuf::from(d).join(p),
+        None => Path::new("out").join(p),
+    }
+}
+
+/// Read the layers of `main`: the file, `conf.d/*.toml`, then the environment `vars`.
+pub fn read_layers(main: &Path, vars: &[(String, String)]) -> Result<Vec<Layer>, FileError> {
+    let mut layers = vec![read_layer(main)?];
+    let dir = conf_d(main);
+    if dir.is_dir() {
+        let mut files: Vec<PathBuf> = std::fs::read_dir(&dir)
+            .map_err(|e| FileError {
+                file: dir.clone(),
+                key: String::new(),
+                line: 0,
+                column: 0,
+                message: format!("cannot list: {e}"),
+                hint: None,
+            })?
+            .filter_map(|e| e.ok().map(|e| e.path()))
+            .filter(|p| p.extension().is_some_and(|x| x == "toml"))
+            .collect();
+        files.sort();
+        for f in files {
+            layers.push(read_layer(&f)?);
+        }
+    }
+    if let Some(env) = env_layer(vars) {
+        layers.push(env);
+    }
+    Ok(layers)
+}
+
+/// Merge the layers with the `config` crate and deserialize the schema; errors are located.
+pub fn merge(layers: &[Layer]) -> Result<(DaemonConfig, toml::Table), FileError> {
+    let mut builder = config::Config::builder();
+    for layer in layers {
+        // each layer re-serialized from its parsed table, so env values keep their types
+        let text = toml::to_string(&layer.table).map_err(|e| FileError {
+            file: layer.path.clone(),
+            key: String::new(),
+            line: 0,
+            column: 0,
+            message: format!("cannot re-serialize: {e}"),
+            hint: None,
+        })?;
+        builder = builder.add_source(config::File::from_str(&text, config::FileFormat::Toml));
+    }
+    let merged = builder.build().map_err(|e| FileError {
+        file: layers[0].path.clone(),
+        key: String::new(),
+        line: 0,
+        column: 0,
+        message: format!("cannot merge the config layers: {e}"),
+        hint: None,
+    })?;
+    let as_table: toml::Table = merged.clone().try_deserialize().map_err(|e| FileError {
+        file: layers[0].path.clone(),
+        key: String::new(),
+        line: 0,
+        column: 0,
+        message: format!("cannot merge the config layers: {e}"),
+        hint: None,
+    })?;
+    // the typed schema from the merged table, with the key path of any error
+    let text = toml::to_string(&as_table).unwrap_or_default();
+    let de = toml::de::Deserializer::parse(&text).map_err(|e| FileError {
+        file: layers[0].path.clone(),
+        key: String::new(),
+        line: 0,
+        column: 0,
+        message: e.to_string(),
+        hint: None,
+    })?;
+    let cfg: DaemonConfig = serde_path_to_error::deserialize(de).map_err(|e| {
+        let key = e.path().to_string();
+        let key = if key == "." { String::new() } else { key };
+        let inner = e.into_inner();
+        let message = inner.message().trim().to_string();
+        let mut err = locate(layers, &key, message.clone());
+        if err.line == 0 {
+            // the merged text's span, mapped back by key when possible
+            if let Some(s) = inner.span() {
+                let (l, _) = line_col(&text, s.start);
+                let _ = l;
+            }
+        }
+        err.hint = hint_for(&message, &key);
+        err
+    })?;
+    Ok((cfg, as_table))
+}
+
+fn hint_for(message: &str, key: &str) -> Option<String> {
+    if message.starts_with("unknown field") {
+        Some("keys carry their unit (`_hz`, `_ms`, `_pct`, `_rad_s`, `_kg_s`); check the spelling against config/antisurge.toml".into())
+    } else if message.starts_with("missing field") {
+        Some(format!(
+            "add the key under [{key}]; config/antisurge.toml shows every key"
+        ))
+    } else if message.starts_with("invalid type") {
+        Some("numbers without quotes, text in quotes, lists in [ ]".into())
+    } else if message.starts_with("unknown variant") {
+        Some("use one of the listed names".into())
+    } else {
+        None
+    }
+}
+
+/// Flatten a table into `dotted.key → value` strings (for reload diffs).
+pub fn flatten(table: &toml::Table) -> BTreeMap<String, String> {
+    fn walk(prefix: &str, v: &toml::Value, out: &mut BTreeMap<String, String>) {
+        match v {
+            toml::Value::Table(t) => {
+                for (k, v) in t {
+                    let p = if prefix.is_empty() {
+                        k.clone()
+                    } else {
+                        format!("{prefix}.{k}")
+                    };
+                    walk(&p, v, out);
+                }
+            }
+            other => {
+                out.insert(prefix.to_string(), other.to_string());
+            }
+        }
+    }
+    let mut out = BTreeMap::new();
+    walk("", &toml::Value::Table(table.clone()), &mut out);
+    out
+}
+
+/// Deep-merge `over` into `base`.
+fn deep_merge(base: &mut toml::Table, over: &toml::Table) {
+    for (k, v) in over {
+        match (base.get_mut(k), v) {
+            (Some(toml::Value::Table(b)), toml::Value::Table(o)) => deep_merge(b, o),
+            _ => {
+                base.insert(k.clone(), v.clone());
+            }
+        }
+    }
+}
+
+/// The plant file's controller settings with the `[controller]` overrides applied.
+fn controller_settings(
+    layers: &[Layer],
+    base: &ControllerConfig,
+    over: &toml::Table,
+) -> Result<ControllerConfig, FileError> {
+    if over.is_empty() {
+        return Ok(base.clone());
+    }
+    let mut table = toml::Table::try_from(base).map_err(|e| FileError {
+        file: layers[0].path.clone(),
+        key: "controller".into(),
+        line: 0,
+        column: 0,
+        message: format!("cannot represent the plant's controller settings: {e}"),
+        hint: None,
+    })?;
+    deep_merge(&mut table, over);
+    let text = toml::to_string(&table).unwrap_or_default();
+    let de = toml::de::Deserializer::parse(&text).map_err(|e| FileError {
+        file: layers[0].path.clone(),
+        key: "controller".into(),
+        line: 0,
+        column: 0,
+        message: e.to_string(),
+        hint: None,
+    })?;
+    serde_path_to_error::deserialize(de).map_err(|e| {
+        let key = format!("controller.{}", e.path());
+        let message = e.into_inner().message().trim().to_string();
+        let mut err = locate(layers, &key, message.clone());
+        err.hint = hint_for(&message, &key);
+        err
+    })
+}
+
+/// Load, resolve and check a configuration with the process environment.
+pub fn load(main: &Path) -> Result<Loaded, Vec<Problem>> {
+    let vars: Vec<(String, String)> = std::env::vars().collect();
+    load_with_env(main, &vars)
+}
+
+fn err(e: FileError) -> Vec<Problem> {
+    vec![Problem {
+        error: e,
+        warning: false,
+    }]
+}
+
+/// Load with an explicit environment (tests).
+pub fn load_with_env(main: &Path, vars: &[(String, String)]) -> Result<Loaded, Vec<Problem>> {
+    let layers = read_layers(main, vars).map_err(err)?;
+    let (config, merged) = merge(&layers).map_err(err)?;
+    let at = |key: &str, msg: String| locate(&layers, key, msg);
+
+    let plant_path = resolve(main, &config.plant.file);
+    let plant = PlantDescription::load(&plant_path).map_err(|e| {
+        if e.line == 0 && e.key.is_empty() {
+            err(at(
+                "plant.file",
+                format!(
+                    "cannot load the plant file {}: {}",
+                    plant_path.display(),
+                    e.message
+                ),
+            ))
+        } else {
+            err(e)
+        }
+    })?;
+    let model = ControlModel::from_plant(&plant);
+    let controller =
+        controller_settings(&layers, &model.controller, &config.controller).map_err(err)?;
+    let law: LawId = config
+        .control
+        .law
+        .parse()
+        .map_err(|e: crate::control::law::UnknownLaw| {
+            err(at("control.law", e.to_string()).with_hint("e.g. law = \"recycle-pi\""))
+        })?;
+
+    let signal_map = match (&config.bus.transport, &config.bus.signal_map) {
+        (Transport::InProcess, None) => SignalMap::default(),
+        (_, Some(p)) => {
+            let path = resolve(main, p);
+            let (m, _text): (SignalMap, String) =
+                crate::config::toml_file::load(&path).map_err(err)?;
+            m
+        }
+        (Transport::Field, None) => {
+            return Err(err(at(
+                "bus.signal_map",
+                "transport = \"field\" needs a signal map".into(),
+            )
+            .with_hint("signal_map = \"signals.toml\"")))
+        }
+    };
+
+    // input limits: plant-derived defaults, overridden per sensor
+    let mut core = CoreSettings::defaults_for(&model);
+    for (id, s) in &config.inputs {
+        core.supervisor.limits[id.index()] = Some(InputLimits {
+            min: s.min,
+            max: s.max,
+            timeout_s: s.timeout_ms * 1e-3,
+        });
+    }
+    core.failsafe_recycle_opening = config.control.failsafe_recycle_opening_pct * 0.01;
+
+    let mut config = config;
+    config.event_log.path = output_path(&config.event_log.path);
+    config.status.stats_file = config.status.stats_file.as_deref().map(output_path);
+    let mut loaded = Loaded {
+        config,
+        main_path: main.to_path_buf(),
+        flat: flatten(&merged),
+        layers,
+        plant,
+        model,
+        controller,
+        core,
+        law,
+        signal_map,
+        warnings: Vec::new(),
+    };
+    let problems = check(&loaded);
+    let (warnings, errors): (Vec<_>, Vec<_>) = problems.into_iter().partition(|p| p.warning);
+    if !errors.is_empty() {
+        let mut all = errors;
+        all.extend(warnings);
+        return Err(all);
+    }
+    loaded.warnings = warnings;
+    Ok(loaded)
+}
+
+/// The keys that cannot change while the daemon runs (a reload reports them).
+pub const RESTART_KEYS: &[&str] = &["plant", "cycle", "bus", "event_log", "simulation", "status"];
+
+/// Is `key` (dotted) applied live on reload?
+pub fn is_live_key(key: &str) -> bool {
+    !RESTART_KEYS
+        .iter()
+        .any(|r| key == *r || key.starts_with(&format!("{r}.")))
+}
+
+/// The cross-field rules. Returns errors and warnings, located.
+pub fn check(l: &Loaded) -> Vec<Problem> {
+    let mut out = Vec::new();
+    let layers = &l.layers;
+    let c = &l.config;
+    let mut error = |key: &str, msg: String, hint: &str| {
+        let mut e = locate(layers, key, msg);
+        if !hint.is_empty() {
+            e.hint = Some(hint.to_string());
+        }
+        out.push(Problem {
+            error: e,
+            warning: false,
+        });
+    };
+
+    // cycle
+    if !(c.cycle.rate_hz.is_finite() && c.cycle.rate_hz > 0.0 && c.cycle.rate_hz <= 10_000.0) {
+        error(
+            "cycle.rate_hz",
+            format!("{} Hz is outside 0 < rate_hz ≤ 10000", c.cycle.rate_hz),
+            "1000 on CAN, 50–100 on Modbus",
+        );
+    }
+    if let Some(p) = c.cycle.priority {
+        if !(1..=99).contains(&p) {
+            error(
+                "cycle.priority",
+                format!("{p} is not a SCHED_FIFO priority (1–99)"),
+                "80 is the usual choice; leave it out for normal scheduling",
+            );
+        }
+    }
+    // control
+    let f = c.control.failsafe_recycle_opening_pct;
+    if !(f.is_finite() && (0.0..=100.0).contains(&f)) {
+        error(
+            "control.failsafe_recycle_opening_pct",
+            format!("{f} is outside 0–100 %"),
+            "100 (fully open) is the usual safe state",
+        );
+    }
+    if let Some(w) = c.control.speed_setpoint_rad_s {
+        let nominal = l.model.drive.nominal_speed_rad_s;
+        if !(w.is_finite() && w > 0.0 && w <= 1.2 * nominal) {
+            error(
+                "control.speed_setpoint_rad_s",
+                format!("{w} rad/s is outside (0, 120 % of the nominal {nominal:.1} rad/s]"),
+                "leave it out to run at the plant's nominal speed",
+            );
+        }
+    }
+    if let Some(m) = c.control.flow_setpoint_kg_s {
+        if !(m.is_finite() && m > 0.0) {
+            error(
+                "control.flow_setpoint_kg_s",
+                format!("{m} kg/s must be a positive mass flow"),
+                "",
+            );
+        }
+    }
+    // the law on this machine with these gains (applicability, eq. 8, eq. 17, SCL vs surge line)
+    match Law::new(l.law, &l.controller, &l.model) {
+        Ok(_) => {}
+        Err(LawError::NotApplicable { law, plant, kind }) => error(
+            "control.law",
+            format!(
+                "law `{law}` cannot run on plant `{plant}` (model {kind:?}): it needs the actuators {}",
+                actuator_list(law)
+            ),
+            "pick a law whose actuator the machine has (README: the surge laws)",
+        ),
+        Err(LawError::Setting { law, key, message }) => error(
+            &format!("controller.{key}"),
+            format!("law `{law}`: {message}"),
+            "the seeds' gain conditions are explained in README.md (the surge laws)",
+        ),
+    }
+    if let Some(min) = l.model.observer_min_gain() {
+        let c2 = l.controller.observer.c2_pa_s_kg;
+        if c2.is_finite() && c2 <= min {
+            error(
+                "controller.observer.c2_pa_s_kg",
+                format!(
+                    "observer gain c2 = {c2:.4e} is below the bound of seed 000 eq. 17 ({min:.4e}): the flow estimate would not converge"
+                ),
+                "raise c2 above the bound (about 2× is a good start)",
+            );
+        }
+    }
+    // inputs
+    for (id, s) in &c.inputs {
+        let key = format!("inputs.{}", id.name());
+        if !(s.min.is_finite() && s.max.is_finite() && s.min < s.max) {
+            error(
+                &format!("{key}.max"),
+                format!(
+                    "range [{}, {}] {} is empty or not finite",
+                    s.min,
+                    s.max,
+                    id.unit()
+                ),
+                "min < max, in the sensor's SI unit",
+            );
+        }
+        let period_ms = 1e3 / c.cycle.rate_hz.max(1e-9);
+        if !(s.timeout_ms.is_finite() && s.timeout_ms > period_ms) {
+            error(
+                &format!("{key}.timeout_ms"),
+                format!(
+                    "{} ms must be longer than one control period ({period_ms:.2} ms)",
+                    s.timeout_ms
+                ),
+                "a few sensor periods, e.g. 50",
+            );
+        }
+    }
+    // bus
+    if c.bus.transport == Transport::Field {
+        let map = &l.signal_map;
+        for p in map.check() {
+            error(&format!("bus.signal_map ({})", p.key), p.message, "");
+        }
+        let needed = l.law.actuators();
+        for a in needed.iter() {
+            if !map.actuators.contains_key(&a) {
+                error(
+                    "bus.signal_map",
+                    format!(
+                        "law `{}` drives `{}` but the signal map does not bind it",
+                        l.law,
+                        a.name()
+                    ),
+                    &format!("add [actuators.{}] to the signal map", a.name()),
+                );
+            }
+        }
+        for s in [
+            SensorId::PSuction,
+            SensorId::PDischarge,
+            SensorId::ShaftSpeed,
+        ] {
+            if !map.sensors.contains_key(&s) {
+                error(
+                    "bus.signal_map",
+                    format!("the essential sensor `{}` is not bound", s.name()),
+                    &format!("add [sensors.{}] to the signal map", s.name()),
+                );
+            }
+        }
+        if !map.can_bindings().is_empty() {
+            match &c.bus.can {
+                None => error(
+                    "bus.can",
+                    "the signal map binds CAN signals but [bus.can] is missing".into(),
+                    "interface = \"can0\" and dbc = \"skid.dbc\"",
+                ),
+                Some(can) => {
+                    if let Err(e) = can.validate() {
+                        error("bus.can", e.to_string(), "");
+                    }
+                }
+            }
+        }
+        if !(map.modbus_sensors().is_empty() && map.modbus_actuators().is_empty()) {
+            match &c.bus.modbus {
+                None => error(
+                    "bus.modbus",
+                    "the signal map binds Modbus registers but [bus.modbus] is missing".into(),
+                    "see config/antisurge.toml for a [bus.modbus] example",
+                ),
+                Some(m) => {
+                    if let Err(e) = m.validate() {
+                        error("bus.modbus", e.to_string(), "");
+                    }
+                }
+            }
+        }
+    }
+    if let Err(e) = c.event_log.validate() {
+        error("event_log", e.to_string(), "");
+    }
+    if !(c.simulation.heartbeat_timeout_ms.is_finite() && c.simulation.heartbeat_timeout_ms > 0.0) {
+        error(
+            "simulation.heartbeat_timeout_ms",
+            format!("{} ms must be positive", c.simulation.heartbeat_timeout_ms),
+            "",
+        );
+    }
+
+    // warnings: legal but risky
+    if let crate::control::surge_control_line::ControlLineForm::Margin { margin_pct, .. } =
+        l.controller.recycle_pi.control_line
+    {
+        if matches!(l.law, LawId::RecyclePi) && margin_pct < 5.0 {
+            out.push(Problem {
+                error: locate(
+                    layers,
+                    "controller.recycle_pi.control_line.margin_pct",
+                    format!(
+                        "surge control line margin {margin_pct} % is under 5 %: little room for measurement error"
+                    ),
+                ),
+                warning: true,
+            });
+        }
+    }
+    if c.control.failsafe_recycle_opening_pct < 50.0 && l.model.recycle.is_some() {
+        out.push(Problem {
+            error: locate(
+                layers,
+                "control.failsafe_recycle_opening_pct",
+                format!(
+                    "fail-safe recycle opening {} % is under 50 %: a fail-safe at low flow may not keep the machine out of surge",
+                    c.control.failsafe_recycle_opening_pct
+                ),
+            ),
+            warning: true,
+        });
+    }
+    out
+}
+
+fn actuator_list(law: LawId) -> String {
+    law.actuators()
+        .iter()
+        .map(ActuatorId::name)
+        .collect::<Vec<_>>()
+        .join(" + ")
+}

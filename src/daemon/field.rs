@@ -1,0 +1,159 @@
+//! The field-bus tasks of both nodes, started from the signal map: a CAN task when the map
+//! binds CAN signals, a Modbus task when it binds registers. The tasks never decide
+//! fail-safe: when a link is down nothing is published and the control thread's freshness
+//! checks take the machine to its safe state.
+
+use super::config::Loaded;
+use crate::events::event::Event;
+use crate::events::EventSender;
+use crate::io::can::bus::{
+    run_controller as can_controller, run_plant as can_plant, BusCodec, BusHandles,
+    ControllerBoards, PlantBoards,
+};
+use crate::io::modbus::{
+    run_controller as modbus_controller, run_plant_server, LinkMonitor, Pacing,
+};
+use crate::runtime::handoff::{
+    CommandBoard, HeartbeatBoard, OutputBoard, SensorBoard, SnapshotBoard, Wakeup,
+};
+use anyhow::{anyhow, Context, Result};
+use std::sync::Arc;
+use tokio::sync::watch;
+use tokio::task::JoinSet;
+
+async fn until_true(mut rx: watch::Receiver<bool>) {
+    let _ = rx.wait_for(|s| *s).await;
+}
+
+fn can_codec(l: &Loaded) -> Result<(crate::io::can::bus::CanBusConfig, BusCodec)> {
+    let mut can = l
+        .config
+        .bus
+        .can
+        .clone()
+        .ok_or_else(|| anyhow!("the signal map binds CAN signals but [bus.can] is missing"))?;
+    can.dbc = super::config::resolve(&l.main_path, &can.dbc);
+    let codec = BusCodec::load(&can.dbc, &l.signal_map.can_bindings())
+        .with_context(|| format!("loading {}", can.dbc.display()))?;
+    Ok((can, codec))
+}
+
+fn bus_event_hook(events: EventSender, interface: String) -> crate::io::can::bus::StateHook {
+    Arc::new(move |s| {
+        if let Some(state) = s.to_event() {
+            let _ = events.send(Event::BusState {
+                interface: interface.clone(),
+                state,
+            });
+        }
+    })
+}
+
+/// Start the controller's bus tasks.
+pub fn spawn_controller_links(
+    l: &Loaded,
+    tasks: &mut JoinSet<()>,
+    sensors: Arc<SensorBoard>,
+    outputs: Arc<OutputBoard>,
+    wake: Arc<Wakeup>,
+    shutdown: watch::Receiver<bool>,
+    events: EventSender,
+) -> Result<()> {
+    let map = &l.signal_map;
+    if map.uses_can() {
+        let (can, codec) = can_codec(l)?;
+        let (handles, _state) = BusHandles::new(shutdown.clone());
+        let handles = handles.with_hook(bus_event_hook(events.clone(), can.interface.clone()));
+        let boards = ControllerBoards {
+            sensors: Arc::clone(&sensors),
+            outputs: Arc::clone(&outputs),
+            wake: Arc::clone(&wake),
+        };
+        tracing::info!(target: "can", "controller on {} ({})", can.interface, can.dbc.display());
+        tasks.spawn(async move {
+            if let Err(e) = can_controller(can, codec, boards, handles).await {
+                tracing::error!(target: "can", "CAN task stopped: {e}");
+            }
+        });
+    }
+    if map.uses_modbus() {
+        let cfg = l.config.bus.modbus.clone().ok_or_else(|| {
+            anyhow!("the signal map binds Modbus registers but [bus.modbus] is missing")
+        })?;
+        let map = map.clone();
+        let monitor = Arc::new(LinkMonitor::new());
+        tracing::info!(target: "modbus", "controller polling at {} Hz", cfg.poll_rate_hz);
+        let sd = shutdown.clone();
+        tasks.spawn(async move {
+            if let Err(e) = modbus_controller(
+                &cfg,
+                &map,
+                sensors,
+                outputs,
+                Pacing::Interval,
+                monitor,
+                until_true(sd),
+            )
+            .await
+            {
+                tracing::error!(target: "modbus", "Modbus task stopped: {e}");
+            }
+        });
+    }
+    Ok(())
+}
+
+/// The plant node's boards.
+#[derive(Clone)]
+pub struct PlantLinks {
+    /// Received setpoints.
+    pub commands: Arc<CommandBoard>,
+    /// Received heartbeat.
+    pub heartbeat: Arc<HeartbeatBoard>,
+    /// Snapshot to send.
+    pub snapshots: Arc<SnapshotBoard>,
+    /// Wakes the CAN sender.
+    pub wake: Arc<Wakeup>,
+}
+
+/// Start the plant's bus tasks (CAN node and/or Modbus TCP server).
+pub fn spawn_plant_links(
+    l: &Loaded,
+    tasks: &mut JoinSet<()>,
+    b: &PlantLinks,
+    shutdown: watch::Receiver<bool>,
+) -> Result<()> {
+    let map = &l.signal_map;
+    if map.uses_can() {
+        let (can, codec) = can_codec(l)?;
+        let (handles, _state) = BusHandles::new(shutdown.clone());
+        let boards = PlantBoards {
+            commands: Arc::clone(&b.commands),
+            heartbeat: Arc::clone(&b.heartbeat),
+            snapshots: Arc::clone(&b.snapshots),
+            wake: Arc::clone(&b.wake),
+        };
+        tracing::info!(target: "can", "plant node on {}", can.interface);
+        tasks.spawn(async move {
+            if let Err(e) = can_plant(can, codec, boards, handles).await {
+                tracing::error!(target: "can", "CAN task stopped: {e}");
+            }
+        });
+    }
+    if let Some(server) = l.config.simulation.modbus_server.clone() {
+        let map = map.clone();
+        let (s, c, h) = (
+            Arc::clone(&b.snapshots),
+            Arc::clone(&b.commands),
+            Arc::clone(&b.heartbeat),
+        );
+        let sd = shutdown.clone();
+        tracing::info!(target: "modbus", "plant Modbus TCP server on {}", server.listen);
+        tasks.spawn(async move {
+            if let Err(e) = run_plant_server(&server, &map, s, c, h, until_true(sd)).await {
+                tracing::error!(target: "modbus", "Modbus server stopped: {e}");
+            }
+        });
+    }
+    Ok(())
+}

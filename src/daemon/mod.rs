@@ -1,0 +1,17 @@
+//! The daemon: `antisurge run` (the controller service) and `antisurge plant` (the simulated
+//! skid as a bus node).
+//!
+//! - [`config`]: the one schema, layered loading, located errors, cross-field checks.
+//! - [`control_node`]: the control thread's cycle (pure core + boards + event ring).
+//! - [`plant_node`]: the plant's real-time step with field-device fail-safe.
+//! - [`field`]: the CAN and Modbus tasks of both nodes.
+//! - [`service`], [`plant_service`]: wiring, signals, reload, shutdown.
+
+pub mod config;
+pub mod control_node;
+pub mod field;
+pub mod notify;
+pub mod plant_node;
+pub mod plant_service;
+pub mod reload_watch;
+pub mod service;

@@ -1,0 +1,251 @@
+//! The simulated skid in real time: the body of the plant node's thread
+//! (`antisurge plant`, and the in-process plant of `antisurge run`).
+//!
+//! Each step applies the setpoints last received from the controller, advances the plant by
+//! one scenario period and publishes the field readings. Like real field devices, it watches
+//! the controller's heartbeat: when none arrived for `heartbeat_timeout_ms`, the valve
+//! positioner fails open (recycle valve 100 %), the drive falls back to its own speed
+//! governor at the last speed setpoint, the thrust bearing centres (clearance change 0) and
+//! the close-coupled valve goes neutral. The scenario clock starts with the first heartbeat,
+//! so a HIL run and an in-process `antisurge sim` of the same scenario start alike.
+
+use crate::control::speed_loop::SpeedLoop;
+use crate::plant::file::PlantDescription;
+use crate::runtime::handoff::{
+    monotonic_ns, CommandBoard, HeartbeatBoard, OutputBoard, SensorBoard, SnapshotBoard, Wakeup,
+};
+use crate::signals::{ActuatorCommands, ActuatorId, SensorId};
+use crate::sim::{ControllerView, PlantRun, SimError, SimResult};
+use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
+use std::sync::Arc;
+
+/// Where the plant takes the controller's setpoints and heartbeat from.
+#[derive(Clone)]
+pub enum CommandSource {
+    /// From bus tasks (CAN or Modbus server).
+    Bus {
+        /// Received setpoints.
+        commands: Arc<CommandBoard>,
+        /// Received heartbeat.
+        heartbeat: Arc<HeartbeatBoard>,
+    },
+    /// Straight from the in-process control thread.
+    InProcess(Arc<OutputBoard>),
+}
+
+/// Where the plant publishes its readings.
+#[derive(Clone)]
+pub enum SensorSink {
+    /// To bus tasks: a snapshot plus a wakeup.
+    Bus {
+        /// Latest snapshot.
+        snapshots: Arc<SnapshotBoard>,
+        /// Wakes the sending task.
+        wake: Arc<Wakeup>,
+    },
+    /// Straight into the in-process control thread's sensor board.
+    InProcess(Arc<SensorBoard>),
+}
+
+/// Plant status, lock-free, for the runtime and tests.
+#[derive(Debug, Default)]
+pub struct PlantStatus {
+    /// Scenario steps done.
+    pub steps: AtomicU64,
+    /// The field devices are in their own fail-safe (controller heartbeat lost).
+    pub field_failsafe: AtomicBool,
+    /// How often the field fail-safe was entered.
+    pub failsafe_entries: AtomicU64,
+    /// Heartbeat age at the last fail-safe entry, µs.
+    pub failsafe_entry_age_us: AtomicU64,
+    /// The scenario has ended.
+    pub finished: AtomicBool,
+}
+
+/// The plant node.
+pub struct PlantNode<'a> {
+    run: PlantRun<'a>,
+    src: CommandSource,
+    sink: SensorSink,
+    hb_timeout_ns: u64,
+    governor: SpeedLoop,
+    nominal_speed_rad_s: f64,
+    last: ActuatorCommands,
+    started: bool,
+    k: usize,
+    hold_after_end: bool,
+    status: Arc<PlantStatus>,
+}
+
+impl<'a> PlantNode<'a> {
+    /// A node for `run`, wired to `src`/`sink`.
+    pub fn new(
+        desc: &'a PlantDescription,
+        run: PlantRun<'a>,
+        src: CommandSource,
+        sink: SensorSink,
+        heartbeat_timeout_ms: f64,
+        hold_after_end: bool,
+        status: Arc<PlantStatus>,
+    ) -> Self {
+        let d = desc.file.drive;
+        let t0 = run.plant().truth().load_torque_nm;
+        PlantNode {
+            run,
+            src,
+            sink,
+            hb_timeout_ns: (heartbeat_timeout_ms * 1e6) as u64,
+            governor: SpeedLoop::new(
+                d.speed_kp_nm_s_rad,
+                d.speed_ki_nm_rad,
+                (d.min_torque_nm, d.rated_torque_nm),
+                t0,
+            ),
+            nominal_speed_rad_s: d.nominal_speed_rad_s,
+            last: ActuatorCommands::default(),
+            started: false,
+            k: 0,
+            hold_after_end,
+            status,
+        }
+    }
+
+    /// The plant side of the run.
+    pub fn run(&self) -> &PlantRun<'a> {
+        &self.run
+    }
+
+    /// Setpoints and the heartbeat's arrival time (0: never).
+    fn received(&self) -> (ActuatorCommands, u64) {
+        match &self.src {
+            CommandSource::Bus {
+                commands,
+                heartbeat,
+            } => {
+                let mut c = ActuatorCommands::default();
+                for id in ActuatorId::ALL {
+                    c.set(id, commands.get(id).0);
+                }
+                (c, heartbeat.latest().map_or(0, |h| h.t_ns))
+            }
+            CommandSource::InProcess(outputs) => match outputs.latest() {
+                Some(o) => (o.commands, o.t_ns),
+                None => (ActuatorCommands::default(), 0),
+            },
+        }
+    }
+
+    fn publish(&self, now_ns: u64, raw: &crate::control::measurements::RawSensors) {
+        match &self.sink {
+            SensorSink::Bus { snapshots, wake } => {
+                snapshots.publish(&raw.values, self.k as u64, now_ns);
+                wake.signal();
+            }
+            SensorSink::InProcess(board) => {
+                for id in SensorId::ALL {
+                    // a stale (frozen) transmitter stops updating: its arrival time stays old
+                    if raw.age_s[id.index()] == 0.0 {
+                        board.publish(id, raw.values.get(id), now_ns);
+                    }
+                }
+            }
+        }
+    }
+
+    /// One step at `now_ns`. Returns false when the scenario is over (and not held).
+    pub fn step(&mut self, now_ns: u64) -> bool {
+        let dt = self.run.dt_s();
+        let (received, hb_ns) = self.received();
+        let alive = hb_ns > 0 && now_ns.saturating_sub(hb_ns) <= self.hb_timeout_ns;
+        if !self.started {
+            // before the controller's first heartbeat: publish the initial steady state
+            let (_, raw) = self.run.sense(0.0);
+            self.publish(now_ns, &raw);
+            if !alive {
+                return true;
+            }
+            self.started = true;
+        }
+        let n = self.run.n_steps();
+        let at_end = self.k >= n;
+        let t = self.k.min(n) as f64 * dt;
+        let (st, raw) = self.run.sense(t);
+        self.publish(now_ns, &raw);
+
+        let omega = self.run.plant().truth().omega_rad_s;
+        let was_failsafe = self.status.field_failsafe.load(Ordering::Relaxed);
+        let mut cmd = received;
+        if alive {
+            if was_failsafe {
+                self.status.field_failsafe.store(false, Ordering::Relaxed);
+            }
+            let torque = cmd.get(ActuatorId::DriveTorque);
+            if torque.is_finite() {
+                // keep the drive's own governor tracking, for a bumpless take-over
+                self.governor
+                    .track(torque, self.nominal_speed_rad_s * st.speed_setpoint, omega);
+            }
+        } else {
+            if !was_failsafe {
+                self.status.field_failsafe.store(true, Ordering::Relaxed);
+                self.status.failsafe_entries.fetch_add(1, Ordering::Relaxed);
+                let age_us = now_ns.saturating_sub(hb_ns) / 1000;
+                self.status
+                    .failsafe_entry_age_us
+                    .store(age_us, Ordering::Relaxed);
+            }
+            cmd = self.field_failsafe(omega, st.speed_setpoint, dt);
+        }
+        self.last = cmd;
+        if at_end {
+            self.status.finished.store(true, Ordering::Relaxed);
+            if !self.hold_after_end {
+                return false;
+            }
+            self.run.advance(&st, &cmd, dt);
+            return true;
+        }
+        self.run
+            .record(self.k, t, dt, &raw, &cmd, &ControllerView::UNKNOWN);
+        self.run.advance(&st, &cmd, dt);
+        self.k += 1;
+        self.status.steps.store(self.k as u64, Ordering::Relaxed);
+        true
+    }
+
+    /// The field devices' own safe state (no controller).
+    fn field_failsafe(&mut self, omega: f64, speed_fraction: f64, dt: f64) -> ActuatorCommands {
+        let mut c = ActuatorCommands::default();
+        c.set(ActuatorId::RecycleValve, 1.0);
+        c.set(ActuatorId::TipClearance, 0.0);
+        c.set(ActuatorId::CloseCoupledValve, 0.0);
+        let torque =
+            self.governor
+                .update(self.nominal_speed_rad_s * speed_fraction, omega, 0.0, dt);
+        c.set(ActuatorId::DriveTorque, torque);
+        c
+    }
+
+    /// Last setpoints applied.
+    pub fn last_commands(&self) -> ActuatorCommands {
+        self.last
+    }
+
+    /// Result so far.
+    pub fn result(&self, law: &str) -> SimResult {
+        self.run.finish(law)
+    }
+}
+
+/// Build the plant side for a scenario.
+pub fn plant_run<'a>(
+    desc: &'a PlantDescription,
+    scenario: &'a crate::scenario::Scenario,
+) -> Result<PlantRun<'a>, SimError> {
+    PlantRun::new(desc, scenario)
+}
+
+/// Monotonic now (re-export for callers of [`PlantNode::step`]).
+pub fn now_ns() -> u64 {
+    monotonic_ns()
+}

@@ -1,0 +1,428 @@
+//! `antisurge run`: the controller service. Wires the control thread, the bus tasks (or the
+//! in-process plant), the event log, hot reload, systemd notification and shutdown.
+//!
+//! Threads and tasks:
+//! - the control thread (fixed deadline, [`ControlNode`]), the only place setpoints are made;
+//! - the CAN task and/or the Modbus task (tokio), or the in-process plant thread;
+//! - the event-log writer thread;
+//! - tokio tasks for signals (SIGTERM/SIGINT stop, SIGHUP reload), the config-directory
+//!   watcher, systemd READY/WATCHDOG from the control thread's [`Health`], and the status log.
+
+use super::config::{self, Loaded, Transport};
+use super::control_node::{ControlNode, ControlUpdate, ControlWiring, Health};
+use super::plant_node::{CommandSource, PlantNode, PlantStatus, SensorSink};
+use crate::control::core::{ControlCore, Mode};
+use crate::control::measurements::OperatorInputs;
+use crate::events::event::Event;
+use crate::events::{EventLog, EventSender};
+use crate::runtime::handoff::{monotonic_ns, OutputBoard, SensorBoard, Wakeup};
+use crate::runtime::rt_loop::{run_periodic, setup_current_thread, CycleStats, RtSettings};
+use crate::scenario::Scenario;
+use anyhow::{anyhow, Context, Result};
+use std::path::{Path, PathBuf};
+use std::sync::atomic::{AtomicBool, Ordering};
+use std::sync::Arc;
+use std::time::Duration;
+
+/// Options of `antisurge run` beyond the config file.
+#[derive(Debug, Clone, Default)]
+pub struct RunOptions {
+    /// Main config file.
+    pub config: PathBuf,
+    /// Stop after this long (tests, benchmarks); None: until SIGTERM/SIGINT.
+    pub duration_s: Option<f64>,
+    /// In-process transport: write the plant's trace and summary here at exit.
+    pub out_dir: Option<PathBuf>,
+}
+
+/// Resolve a scenario name (`throttle-closure`) or file against the config directory.
+pub fn scenario_path(main: &Path, name: &str) -> PathBuf {
+    let p = Path::new(name);
+    if p.extension().is_some_and(|e| e == "toml") {
+        config::resolve(main, p)
+    } else {
+        config::resolve(
+            main,
+            &Path::new("scenarios").join(format!("{}.toml", name.replace('-', "_"))),
+        )
+    }
+}
+
+/// Operator inputs from the config.
+pub fn operator_inputs(l: &Loaded) -> OperatorInputs {
+    OperatorInputs {
+        speed_setpoint_rad_s: l
+            .config
+            .control
+            .speed_setpoint_rad_s
+            .unwrap_or(l.model.drive.nominal_speed_rad_s),
+        throttle_demand: f64::NAN,
+        flow_setpoint_kg_s: l.config.control.flow_setpoint_kg_s.unwrap_or(f64::NAN),
+        recycle_manual: f64::NAN,
+    }
+}
+
+/// The live part of a loaded config, for the control thread.
+pub fn update_of(l: &Loaded) -> ControlUpdate {
+    ControlUpdate {
+        config: l.controller.clone(),
+        settings: l.core,
+        law: l.law,
+        auto: l.config.control.mode == config::StartMode::Auto,
+        op: operator_inputs(l),
+    }
+}
+
+/// Format config problems for the terminal and the log.
+pub fn format_problems(problems: &[config::Problem]) -> String {
+    problems
+        .iter()
+        .map(|p| p.to_string())
+        .collect::<Vec<_>>()
+        .join("\n")
+}
+
+/// Spawn the control thread. Returns its join handle; it stops (after publishing the safe
+/// state) when `stop` is set.
+fn spawn_control(
+    mut node: ControlNode,
+    rt: RtSettings,
+    stop: Arc<AtomicBool>,
+    stats: Arc<CycleStats>,
+) -> Result<std::thread::JoinHandle<()>> {
+    std::thread::Builder::new()
+        .name("antisurge-ctl".into())
+        .spawn(move || {
+            let granted = setup_current_thread(&rt);
+            tracing::info!(target: "rt", "control thread at {} Hz: {granted}", rt.rate_hz);
+            let mut last = 0;
+            run_periodic(rt.period_ns(), &stop, &stats, |tick| {
+                node.cycle(tick);
+                last = tick.cycle;
+                true
+            });
+            let safe = node.shutdown(last + 1);
+            tracing::info!(target: "rt", "control thread stopped; safe state commanded: {safe:?}");
+        })
+        .context("cannot start the control thread")
+}
+
+/// Everything the in-process plant thread needs.
+struct InProcessPlant {
+    handle: std::thread::JoinHandle<Result<Option<PathBuf>>>,
+    status: Arc<PlantStatus>,
+}
+
+fn spawn_in_process_plant(
+    l: &Loaded,
+    sensors: Arc<SensorBoard>,
+    outputs: Arc<OutputBoard>,
+    stop: Arc<AtomicBool>,
+    out_dir: Option<PathBuf>,
+    hold: bool,
+) -> Result<InProcessPlant> {
+    let desc = l.plant.clone();
+    let scenario_file = scenario_path(&l.main_path, &l.config.simulation.scenario);
+    let scenario = Scenario::load(&scenario_file)
+        .map_err(|e| anyhow!("{e}"))
+        .context("loading the simulation scenario")?;
+    let hb_ms = l.config.simulation.heartbeat_timeout_ms;
+    let law = l.law.name().to_string();
+    let status = Arc::new(PlantStatus::default());
+    let st = Arc::clone(&status);
+    let handle = std::thread::Builder::new()
+        .name("antisurge-plant".into())
+        .spawn(move || -> Result<Option<PathBuf>> {
+            let run = PlantRun::new(&desc, &scenario).map_err(|e| anyhow!("{e}"))?;
+            let mut node = PlantNode::new(
+                &desc,
+                run,
+                CommandSource::InProcess(outputs),
+                SensorSink::InProcess(sensors),
+                hb_ms,
+                hold,
+                st,
+            );
+            let period = (scenario.file.control_period_s * 1e9).round() as u64;
+            let stats = CycleStats::default();
+            run_periodic(period, &stop, &stats, |_| node.step(monotonic_ns()));
+            if let Some(dir) = out_dir {
+                let result = node.result(&law);
+                crate::sim::output::write_data(&dir, &result, &desc.map)
+                    .map_err(|e| anyhow!("{e}"))?;
+                return Ok(Some(dir));
+            }
+            Ok(None)
+        })
+        .context("cannot start the in-process plant")?;
+    Ok(InProcessPlant { handle, status })
+}
+
+use crate::sim::PlantRun;
+
+/// Initial torque of the speed loop: the machine's load torque at its initial operating
+/// point, from the controller's own model (a bumpless start on a running machine).
+fn initial_torque_nm(l: &Loaded) -> f64 {
+    let init = l.plant.file.initial;
+    let inputs = crate::plant::PlantInputs {
+        throttle_process: init.throttle,
+        recycle_manual: init.recycle_valve,
+        feed: init.feed,
+        ..Default::default()
+    };
+    crate::plant::SimPlant::new(&l.plant, &inputs)
+        .map(|p| p.truth().load_torque_nm)
+        .unwrap_or(0.0)
+}
+
+/// Apply a reloaded configuration: validate, diff, hand the live part to the control
+/// thread, log. Returns the new loaded config when it was accepted.
+fn reload(
+    current: &Loaded,
+    updates: &mut rtrb::Producer<ControlUpdate>,
+    events: &EventSender,
+) -> Option<Loaded> {
+    let file = current.main_path.display().to_string();
+    match config::load(&current.main_path) {
+        Err(problems) => {
+            let first = problems.iter().find(|p| !p.warning).or(problems.first());
+            tracing::error!(target: "config", "reload rejected, the running configuration stays:\n{}", format_problems(&problems));
+            if let Some(p) = first {
+                let _ = events.send(Event::ConfigRejected {
+                    file: p.error.file.display().to_string(),
+                    key: (!p.error.key.is_empty()).then(|| p.error.key.clone()),
+                    line: (p.error.line > 0).then_some(p.error.line as u32),
+                    message: p.error.message.clone(),
+                });
+            }
+            None
+        }
+        Ok(new) => {
+            let mut diff = Vec::new();
+            let mut restart = Vec::new();
+            let keys: std::collections::BTreeSet<&String> =
+                current.flat.keys().chain(new.flat.keys()).collect();
+            for k in keys {
+                let (a, b) = (current.flat.get(k), new.flat.get(k));
+                if a != b {
+                    if config::is_live_key(k) {
+                        diff.push(crate::events::event::ConfigChange {
+                            key: k.clone(),
+                            old: a.cloned(),
+                            new: b.cloned(),
+                        });
+                    } else {
+                        restart.push(k.clone());
+                    }
+                }
+            }
+            // the plant file's own [controller] may have changed too
+            let controller_changed = new.controller != current.controller;
+            if diff.is_empty() && !controller_changed && restart.is_empty() {
+                tracing::info!(target: "config", "reload: nothing changed");
+                return None;
+            }
+            for w in &new.warnings {
+                tracing::warn!(target: "config", "{w}");
+            }
+            if !restart.is_empty() {
+                tracing::warn!(target: "config", "these keys need a restart to take effect: {}", restart.join(", "));
+                let _ = events.send(Event::RestartRequired {
+                    keys: restart.clone(),
+                });
+            }
+            if !diff.is_empty() || controller_changed {
+                if updates.push(update_of(&new)).is_err() {
+                    tracing::error!(target: "config", "reload: the control thread has not taken the previous update yet; try again");
+                    return None;
+                }
+                tracing::info!(target: "config", "reload applied: {} key(s) changed", diff.len());
+                let _ = events.send(Event::ConfigApplied { file, diff });
+            }
+            Some(new)
+        }
+    }
+}
+
+/// Run the service until SIGTERM/SIGINT (or `duration_s`).
+pub fn run(opts: &RunOptions) -> Result<()> {
+    let loaded = config::load(&opts.config).map_err(|p| {
+        anyhow!(
+            "the configuration is invalid; nothing was started:\n{}",
+            format_problems(&p)
+        )
+    })?;
+    for w in &loaded.warnings {
+        tracing::warn!(target: "config", "{w}");
+    }
+    let rt = tokio::runtime::Builder::new_multi_thread()
+        .worker_threads(2)
+        .enable_all()
+        .thread_name("antisurge-io")
+        .build()
+        .context("cannot start the I/O runtime")?;
+    rt.block_on(serve(loaded, opts.clone()))
+}
+
+async fn serve(loaded: Loaded, opts: RunOptions) -> Result<()> {
+    let cfg = loaded.config.clone();
+    if let Some(dir) = cfg.event_log.path.parent() {
+        let _ = std::fs::create_dir_all(dir);
+    }
+    let log = EventLog::start(cfg.event_log.clone())
+        .map_err(|e| anyhow!("{e}"))
+        .with_context(|| format!("cannot open the event log {}", cfg.event_log.path.display()))?;
+    let events = log.sender();
+    let _ = events.send(Event::started(&loaded.main_path, loaded.law));
+
+    let sensors = Arc::new(SensorBoard::default());
+    let outputs = Arc::new(OutputBoard::default());
+    let wake = Arc::new(Wakeup::new().context("cannot create the wakeup eventfd")?);
+    let stats = Arc::new(CycleStats::default());
+    let health = Arc::new(Health::default());
+    let (mut updates_tx, updates_rx) = rtrb::RingBuffer::<ControlUpdate>::new(4);
+    let stop = Arc::new(AtomicBool::new(false));
+
+    let core = ControlCore::new(
+        loaded.model.clone(),
+        loaded.controller.clone(),
+        loaded.core,
+        loaded.law,
+        initial_torque_nm(&loaded),
+    )
+    .map_err(|e| anyhow!("{e}"))?;
+    let mut core = core;
+    core.request_auto(cfg.control.mode == config::StartMode::Auto);
+    let node = ControlNode::new(
+        core,
+        operator_inputs(&loaded),
+        ControlWiring {
+            sensors: Arc::clone(&sensors),
+            outputs: Arc::clone(&outputs),
+            wake: Arc::clone(&wake),
+            updates: updates_rx,
+            events: Some(log.rt_sender().map_err(|e| anyhow!("{e}"))?),
+            health: Arc::clone(&health),
+            stats: Arc::clone(&stats),
+        },
+        cfg.cycle.period_ns(),
+    );
+    let control = spawn_control(node, cfg.cycle, Arc::clone(&stop), Arc::clone(&stats))?;
+
+    let (shutdown_tx, shutdown_rx) = tokio::sync::watch::channel(false);
+    let mut tasks = tokio::task::JoinSet::new();
+    let mut plant = None;
+    let plant_stop = Arc::new(AtomicBool::new(false));
+    match cfg.bus.transport {
+        Transport::InProcess => {
+            let hold = opts.out_dir.is_none() || opts.duration_s.is_none();
+            plant = Some(spawn_in_process_plant(
+                &loaded,
+                Arc::clone(&sensors),
+                Arc::clone(&outputs),
+                Arc::clone(&plant_stop),
+                opts.out_dir.clone(),
+                hold || cfg.simulation.hold_after_end,
+            )?);
+            tracing::info!(target: "antisurge", "in-process plant `{}` running scenario `{}`", loaded.plant.name(), cfg.simulation.scenario);
+        }
+        Transport::Field => {
+            super::field::spawn_controller_links(
+                &loaded,
+                &mut tasks,
+                Arc::clone(&sensors),
+                Arc::clone(&outputs),
+                Arc::clone(&wake),
+                shutdown_rx.clone(),
+                events.clone(),
+            )?;
+        }
+    }
+
+    // signals, reload, watchdog, status
+    let mut sigterm = tokio::signal::unix::signal(tokio::signal::unix::SignalKind::terminate())?;
+    let mut sigint = tokio::signal::unix::signal(tokio::signal::unix::SignalKind::interrupt())?;
+    let mut sighup = tokio::signal::unix::signal(tokio::signal::unix::SignalKind::hangup())?;
+    let (watch_tx, mut watch_rx) = tokio::sync::mpsc::channel::<()>(16);
+    let _watcher = super::reload_watch::watch_config_dir(&loaded.main_path, watch_tx)
+        .map_err(|e| tracing::warn!(target: "config", "not watching the config directory ({e}); SIGHUP still reloads"))
+        .ok();
+    let mut current = loaded;
+    let mut ticker = tokio::time::interval(Duration::from_millis(100));
+    let mut notifier = super::notify::Notifier::new();
+    let started = std::time::Instant::now();
+    let mut last_status = std::time::Instant::now();
+    let reason: String = loop {
+        tokio::select! {
+            _ = sigterm.recv() => break "SIGTERM".into(),
+            _ = sigint.recv() => break "SIGINT".into(),
+            _ = sighup.recv() => {
+                tracing::info!(target: "config", "SIGHUP: reloading {}", current.main_path.display());
+                if let Some(n) = reload(&current, &mut updates_tx, &events) { current = n; }
+            }
+            Some(()) = watch_rx.recv() => {
+                // debounce: editors write a temporary file and rename it
+                tokio::time::sleep(Duration::from_millis(300)).await;
+                while watch_rx.try_recv().is_ok() {}
+                tracing::info!(target: "config", "config directory changed: reloading");
+                if let Some(n) = reload(&current, &mut updates_tx, &events) { current = n; }
+            }
+            _ = ticker.tick() => {
+                notifier.tick(&health);
+                if let Some(d) = opts.duration_s {
+                    if started.elapsed().as_secs_f64() >= d { break "duration elapsed".into(); }
+                }
+                let every = current.config.status.log_interval_s;
+                if every > 0.0 && last_status.elapsed().as_secs_f64() >= every {
+                    last_status = std::time::Instant::now();
+                    let r = stats.report();
+                    tracing::info!(target: "status", "mode {} · {} cycles · jitter p99 {:.0} µs · compute p99 {:.1} µs · overruns {} · surges {}",
+                        health.mode().name(), r.cycles, r.wake_jitter.p99_us, r.compute.p99_us, r.overruns, health.surges.load(Ordering::Relaxed));
+                }
+                if let Some(p) = &plant {
+                    if p.status.finished.load(Ordering::Relaxed) && opts.duration_s.is_none() && opts.out_dir.is_some() {
+                        break "scenario finished".into();
+                    }
+                }
+            }
+        }
+    };
+    tracing::info!(target: "antisurge", "{reason}: commanding the safe state and stopping");
+    notifier.stopping();
+    stop.store(true, Ordering::Relaxed);
+    let _ = tokio::task::spawn_blocking(move || control.join()).await;
+    // let the bus tasks send the safe state and a few heartbeats with the shutdown mode
+    tokio::time::sleep(Duration::from_millis(100)).await;
+    let _ = shutdown_tx.send(true);
+    while tasks.join_next().await.is_some() {}
+    plant_stop.store(true, Ordering::Relaxed);
+    if let Some(p) = plant {
+        match p.handle.join() {
+            Ok(Ok(Some(dir))) => {
+                tracing::info!(target: "antisurge", "plant trace and summary in {}", dir.display())
+            }
+            Ok(Err(e)) => tracing::error!(target: "antisurge", "in-process plant: {e:#}"),
+            _ => {}
+        }
+    }
+    let report = stats.report();
+    if let Some(path) = &current.config.status.stats_file {
+        let json = serde_json::json!({
+            "cycles": report.cycles,
+            "overruns": report.overruns,
+            "wake_jitter_us": report.wake_jitter,
+            "compute_us": report.compute,
+            "input_age_us": report.input_age,
+            "rate_hz": current.config.cycle.rate_hz,
+            "max_rss_kib": super::notify::max_rss_kib(),
+        });
+        if let Err(e) = std::fs::write(&path, serde_json::to_string_pretty(&json)? + "\n") {
+            tracing::warn!(target: "antisurge", "cannot write {}: {e}", path.display());
+        }
+    }
+    let _ = events.send(Event::Stopped { reason });
+    drop(events);
+    log.shutdown().map_err(|e| anyhow!("{e}"))?;
+    let _ = Mode::Init;
+    Ok(())
+}
