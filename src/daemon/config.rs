@@ -15,17 +15,19 @@
 //! limits). [`check`] runs the cross-field rules; `antisurge check-config`, start-up and hot
 //! reload all call the same two functions.
 
-use crate::config::toml_file::{line_col, locate_key};
+use crate::config::toml_file::locate_key;
 use crate::config::FileError;
 use crate::control::config::ControllerConfig;
 use crate::control::core::CoreSettings;
+use crate::control::drive_torque::check_eq8;
 use crate::control::law::{Law, LawError, LawId};
 use crate::control::model::ControlModel;
 use crate::control::supervisor::InputLimits;
 use crate::events::EventLogConfig;
-use crate::io::can::bus::CanBusConfig;
+use crate::io::can::bus::{BusCodec, CanBusConfig, CanBusError};
+use crate::io::can::{BindingError, SignalTarget};
 use crate::io::modbus::{ModbusLinkConfig, ModbusServerConfig};
-use crate::io::signal_map::SignalMap;
+use crate::io::signal_map::{Binding, SignalMap};
 use crate::plant::file::PlantDescription;
 use crate::runtime::rt_loop::RtSettings;
 use crate::signals::{ActuatorId, SensorId};
@@ -312,7 +314,8 @@ fn read_layer(path: &Path) -> Result<Layer, FileError> {
         message: format!("cannot read: {e}"),
         hint: Some("check the path and that the antisurge user may read it".into()),
     })?;
-    let table: toml::Table = crate::config::toml_file::parse(&text, path)?;
+    let table: toml::Table =
+        crate::config::toml_file::parse(&text, path).map_err(|e| with_line_key(e, &text))?;
     Ok(Layer {
         path: path.to_path_buf(),
         text,
@@ -399,6 +402,171 @@ fn table_has(table: &toml::Table, dotted: &str) -> bool {
         }
     }
     true
+}
+
+/// The value at exactly the dotted key (no parent fallback, `[i]` indices ignored).
+fn table_get<'a>(table: &'a toml::Table, dotted: &str) -> Option<&'a toml::Value> {
+    let mut parts = dotted
+        .split('.')
+        .filter(|s| !s.is_empty())
+        .map(|p| p.split('[').next().unwrap_or(p))
+        .peekable();
+    let mut cur = table;
+    while let Some(p) = parts.next() {
+        let v = cur.get(p)?;
+        if parts.peek().is_none() {
+            return Some(v);
+        }
+        cur = v.as_table()?;
+    }
+    None
+}
+
+/// Does any layer set exactly `dotted`?
+fn layers_set(layers: &[Layer], dotted: &str) -> bool {
+    layers.iter().any(|l| table_get(&l.table, dotted).is_some())
+}
+
+/// The dotted key written on `line` (1-based) of a TOML text: the table header above it plus
+/// the key left of `=` (the header itself on a header line). The TOML parser reports syntax
+/// errors by position only; this names the key the operator was writing.
+pub fn key_at_line(text: &str, line: usize) -> String {
+    fn clean(k: &str) -> String {
+        k.split('.')
+            .map(|p| p.trim().trim_matches(|c| c == '"' || c == '\''))
+            .filter(|p| !p.is_empty())
+            .collect::<Vec<_>>()
+            .join(".")
+    }
+    fn header(l: &str) -> Option<String> {
+        let l = l.split('#').next().unwrap_or(l).trim();
+        if l.starts_with('[') {
+            Some(clean(l.trim_start_matches('[').trim_end_matches(']')))
+        } else {
+            None
+        }
+    }
+    let mut table = String::new();
+    for (i, raw) in text.lines().enumerate() {
+        let l = raw.trim();
+        if i + 1 == line {
+            if let Some(h) = header(l) {
+                return h;
+            }
+            if let Some((k, _)) = l.split_once('=') {
+                let k = clean(k);
+                if !k.is_empty() && !k.contains(char::is_whitespace) {
+                    return if table.is_empty() {
+                        k
+                    } else {
+                        format!("{table}.{k}")
+                    };
+                }
+            }
+            return table;
+        }
+        if let Some(h) = header(l) {
+            table = h;
+        }
+    }
+    String::new()
+}
+
+/// A positioned error without a key (a TOML syntax error) gets the key written on its line.
+fn with_line_key(mut e: FileError, text: &str) -> FileError {
+    if e.key.is_empty() && e.line > 0 {
+        e.key = key_at_line(text, e.line);
+    }
+    e
+}
+
+/// [`with_line_key`] for an error in a file not read here (plant file, signal map).
+fn with_file_line_key(e: FileError) -> FileError {
+    if e.key.is_empty() && e.line > 0 {
+        if let Ok(text) = std::fs::read_to_string(&e.file) {
+            return with_line_key(e, &text);
+        }
+    }
+    e
+}
+
+/// The key a serde message is about, below the path where serde raised it: `unknown field
+/// `x``, `missing field `x`` and an unknown map key (`[inputs.p_sucton]`) are raised at the
+/// enclosing table, the `[event_log]` range checks at `event_log`.
+fn refine_key(layers: &[Layer], key: &str, message: &str) -> String {
+    let join = |leaf: &str| {
+        if key.is_empty() {
+            leaf.to_string()
+        } else {
+            format!("{key}.{leaf}")
+        }
+    };
+    let quoted = |prefix: &str| {
+        message
+            .strip_prefix(prefix)
+            .and_then(|r| r.strip_prefix('`'))
+            .and_then(|r| r.split('`').next())
+            .map(str::to_string)
+    };
+    if let Some(f) = quoted("unknown field ").or_else(|| quoted("missing field ")) {
+        if key.rsplit('.').next() != Some(f.as_str()) {
+            return join(&f);
+        }
+    }
+    if let Some(v) = quoted("unknown variant ") {
+        // an unknown name used as a table key (a sensor name), not as a value
+        if layers
+            .iter()
+            .any(|l| table_get(&l.table, &join(&v)).is_some_and(toml::Value::is_table))
+        {
+            return join(&v);
+        }
+    }
+    if key == "event_log" {
+        if let Some(f) = event_log_key(message) {
+            return format!("event_log.{f}");
+        }
+    }
+    key.to_string()
+}
+
+/// The `[event_log]` key an event-log configuration message is about.
+fn event_log_key(message: &str) -> Option<&'static str> {
+    let m = message
+        .strip_prefix("event log configuration: ")
+        .unwrap_or(message);
+    [
+        "fsync_interval_ms",
+        "fsync",
+        "max_bytes",
+        "keep_files",
+        "rt_queue_capacity",
+        "poll_interval_ms",
+        "path",
+    ]
+    .into_iter()
+    .find(|k| m.starts_with(k))
+}
+
+/// The `[bus.modbus]` key a Modbus link or client validation message is about.
+fn modbus_key(message: &str) -> String {
+    const KEYS: [(&str, &str); 8] = [
+        ("backoff_max_ms", "client.backoff_max_ms"),
+        ("timeout_ms", "client.timeout_ms"),
+        ("baud", "client.transport.baud"),
+        ("stop_bits", "client.transport.stop_bits"),
+        ("data_bits", "client.transport.data_bits"),
+        ("poll_rate_hz", "poll_rate_hz"),
+        ("max_output_age_ms", "max_output_age_ms"),
+        ("heartbeat_register", "heartbeat_register"),
+    ];
+    KEYS.iter()
+        .filter_map(|(word, key)| message.find(word).map(|i| (i, *key)))
+        .min_by_key(|(i, _)| *i)
+        .map_or_else(
+            || "bus.modbus".to_string(),
+            |(_, k)| format!("bus.modbus.{k}"),
+        )
 }
 
 /// An error about `key`, located in the last layer that sets it (or its nearest parent).
@@ -540,14 +708,10 @@ pub fn merge(layers: &[Layer]) -> Result<(DaemonConfig, toml::Table), FileError>
         let key = if key == "." { String::new() } else { key };
         let inner = e.into_inner();
         let message = inner.message().trim().to_string();
+        // the merged text's span means nothing to the operator: the key is located again in
+        // the last layer that sets it
+        let key = refine_key(layers, &key, &message);
         let mut err = locate(layers, &key, message.clone());
-        if err.line == 0 {
-            // the merged text's span, mapped back by key when possible
-            if let Some(s) = inner.span() {
-                let (l, _) = line_col(&text, s.start);
-                let _ = l;
-            }
-        }
         err.hint = hint_for(&message, &key);
         err
     })?;
@@ -636,6 +800,7 @@ fn controller_settings(
     serde_path_to_error::deserialize(de).map_err(|e| {
         let key = format!("controller.{}", e.path());
         let message = e.into_inner().message().trim().to_string();
+        let key = refine_key(layers, &key, &message);
         let mut err = locate(layers, &key, message.clone());
         err.hint = hint_for(&message, &key);
         err
@@ -673,7 +838,7 @@ pub fn load_with_env(main: &Path, vars: &[(String, String)]) -> Result<Loaded, V
                 ),
             ))
         } else {
-            err(e)
+            err(with_file_line_key(e))
         }
     })?;
     let model = ControlModel::from_plant(&plant);
@@ -692,7 +857,20 @@ pub fn load_with_env(main: &Path, vars: &[(String, String)]) -> Result<Loaded, V
         (_, Some(p)) => {
             let path = resolve(main, p);
             let (m, _text): (SignalMap, String) =
-                crate::config::toml_file::load(&path).map_err(err)?;
+                crate::config::toml_file::load(&path).map_err(|e| {
+                    if e.line == 0 && e.key.is_empty() {
+                        err(at(
+                            "bus.signal_map",
+                            format!(
+                                "cannot load the signal map {}: {}",
+                                path.display(),
+                                e.message
+                            ),
+                        ))
+                    } else {
+                        err(with_file_line_key(e))
+                    }
+                })?;
             m
         }
         (Transport::Field, None) => {
@@ -752,13 +930,149 @@ pub fn is_live_key(key: &str) -> bool {
         .any(|r| key == *r || key.starts_with(&format!("{r}.")))
 }
 
+/// Where a key of the rules below is reported: `controller.*` keys that no config layer sets
+/// come from the plant file's `[controller]` table and are located there; everything else in
+/// the last config layer that sets it.
+fn locate_for(l: &Loaded, key: &str, message: String) -> FileError {
+    if key.starts_with("controller.") && !layers_set(&l.layers, key) {
+        let path = resolve(&l.main_path, &l.config.plant.file);
+        if let Ok(text) = std::fs::read_to_string(&path) {
+            let set = toml::from_str::<toml::Table>(&text)
+                .ok()
+                .is_some_and(|t| table_get(&t, key).is_some());
+            if set {
+                return FileError::at_key(&path, &text, key, message);
+            }
+        }
+    }
+    locate(&l.layers, key, message)
+}
+
+/// An error about a key of the signal map file, located in that file.
+fn map_error(l: &Loaded, key: &str, message: String) -> FileError {
+    match &l.config.bus.signal_map {
+        Some(p) => {
+            let path = resolve(&l.main_path, p);
+            let text = std::fs::read_to_string(&path).unwrap_or_default();
+            FileError::at_key(&path, &text, key, message)
+        }
+        None => locate(&l.layers, "bus.signal_map", message),
+    }
+}
+
+/// The signal-map key of a CAN binding target.
+fn target_key(t: SignalTarget) -> String {
+    match t {
+        SignalTarget::Sensor(s) => format!("sensors.{}.can", s.name()),
+        SignalTarget::Actuator(a) => format!("actuators.{}.can", a.name()),
+    }
+}
+
+/// The signal map's own rules (whatever the transport: the plant node reads the same file):
+/// Modbus registers valid and not overlapping, actuators in holding registers, no DBC signal
+/// bound twice, the Modbus heartbeat block clear of the signals.
+fn check_map(l: &Loaded) -> Vec<Problem> {
+    let map = &l.signal_map;
+    let mut out = Vec::new();
+    let push = |out: &mut Vec<Problem>, e: FileError, hint: Option<&str>| {
+        out.push(Problem {
+            error: FileError {
+                hint: hint.map(str::to_string),
+                ..e
+            },
+            warning: false,
+        })
+    };
+    for p in map.check() {
+        push(&mut out, map_error(l, &p.key, p.message), None);
+    }
+    let mut seen: Vec<(String, &str, &str)> = Vec::new();
+    let can = map
+        .sensors
+        .iter()
+        .map(|(id, b)| (format!("sensors.{}.can", id.name()), b))
+        .chain(
+            map.actuators
+                .iter()
+                .map(|(id, b)| (format!("actuators.{}.can", id.name()), b)),
+        );
+    for (key, b) in can {
+        let Binding::Can { message, signal } = b else {
+            continue;
+        };
+        if let Some((first, _, _)) = seen
+            .iter()
+            .find(|(_, m, s)| *m == message.as_str() && *s == signal.as_str())
+        {
+            push(
+                &mut out,
+                map_error(
+                    l,
+                    &key,
+                    format!("CAN signal {message}.{signal} is already bound to `{first}`"),
+                ),
+                Some("each DBC signal carries one sensor or actuator"),
+            );
+        } else {
+            seen.push((key, message, signal));
+        }
+    }
+    if out.is_empty() {
+        if let Some(hb) = l
+            .config
+            .bus
+            .modbus
+            .as_ref()
+            .and_then(|m| m.heartbeat_register)
+        {
+            if let Err(e) = crate::io::modbus::link::check_map(map, Some(&hb)) {
+                push(
+                    &mut out,
+                    locate(&l.layers, "bus.modbus.heartbeat_register", e.to_string()),
+                    Some("move the heartbeat block to free holding registers"),
+                );
+            }
+        }
+    }
+    out
+}
+
+/// The CAN bindings against the DBC file (field transport only: the in-process plant needs
+/// no DBC).
+fn check_dbc(l: &Loaded, can: &CanBusConfig) -> Option<FileError> {
+    let dbc = resolve(&l.main_path, &can.dbc);
+    match BusCodec::load(&dbc, &l.signal_map.can_bindings()) {
+        Ok(_) => None,
+        Err(CanBusError::Binding(b)) => {
+            let target = match &b {
+                BindingError::UnknownMessage { target, .. }
+                | BindingError::UnknownSignal { target, .. }
+                | BindingError::ProtectionSignal { target, .. }
+                | BindingError::DuplicateTarget { target, .. } => Some(*target),
+                BindingError::SignalBoundTwice { second, .. } => Some(*second),
+                _ => None,
+            };
+            let message = format!("{b} (DBC {})", dbc.display());
+            Some(match target {
+                Some(t) => map_error(l, &target_key(t), message),
+                None => locate(&l.layers, "bus.can.dbc", message),
+            })
+        }
+        Err(e) => Some(locate(
+            &l.layers,
+            "bus.can.dbc",
+            format!("cannot use the DBC file {}: {e}", dbc.display()),
+        )),
+    }
+}
+
 /// The cross-field rules. Returns errors and warnings, located.
 pub fn check(l: &Loaded) -> Vec<Problem> {
     let mut out = Vec::new();
     let layers = &l.layers;
     let c = &l.config;
     let mut error = |key: &str, msg: String, hint: &str| {
-        let mut e = locate(layers, key, msg);
+        let mut e = locate_for(l, key, msg);
         if !hint.is_empty() {
             e.hint = Some(hint.to_string());
         }
@@ -814,25 +1128,41 @@ pub fn check(l: &Loaded) -> Vec<Problem> {
         }
     }
     // the law on this machine with these gains (applicability, eq. 8, eq. 17, SCL vs surge line)
-    match Law::new(l.law, &l.controller, &l.model) {
-        Ok(_) => {}
-        Err(LawError::NotApplicable { law, plant, kind }) => error(
-            "control.law",
+    let law_error = |e: LawError| {
+        match e {
+        LawError::NotApplicable { law, plant, kind } => (
+            "control.law".to_string(),
             format!(
                 "law `{law}` cannot run on plant `{plant}` (model {kind:?}): it needs the actuators {}",
                 actuator_list(law)
             ),
             "pick a law whose actuator the machine has (README: the surge laws)",
         ),
-        Err(LawError::Setting { law, key, message }) => error(
-            &format!("controller.{key}"),
+        LawError::Setting { law, key, message } => (
+            format!("controller.{key}"),
             format!("law `{law}`: {message}"),
             "the seeds' gain conditions are explained in README.md (the surge laws)",
         ),
     }
+    };
+    match Law::new(l.law, &l.controller, &l.model) {
+        Ok(_) => {
+            // eq. 8 depends on the operating region, so the law's constructor leaves it to here
+            if l.law == LawId::DriveTorque {
+                if let Err(e) = check_eq8(&l.controller.drive_torque, &l.model) {
+                    let (key, msg, hint) = law_error(e);
+                    error(&key, msg, hint);
+                }
+            }
+        }
+        Err(e) => {
+            let (key, msg, hint) = law_error(e);
+            error(&key, msg, hint);
+        }
+    }
     if let Some(min) = l.model.observer_min_gain() {
         let c2 = l.controller.observer.c2_pa_s_kg;
-        if c2.is_finite() && c2 <= min {
+        if !(c2.is_finite() && c2 > min) {
             error(
                 "controller.observer.c2_pa_s_kg",
                 format!(
@@ -849,7 +1179,7 @@ pub fn check(l: &Loaded) -> Vec<Problem> {
             error(
                 &format!("{key}.max"),
                 format!(
-                    "range [{}, {}] {} is empty or not finite",
+                    "range [{}, {}] {} is empty or not finite (min must be below max)",
                     s.min,
                     s.max,
                     id.unit()
@@ -869,12 +1199,29 @@ pub fn check(l: &Loaded) -> Vec<Problem> {
             );
         }
     }
-    // bus
+    // bus: the settings that are present are checked whatever the transport
+    if let Some(can) = &c.bus.can {
+        if let Err(e) = can.validate() {
+            let key = match &e {
+                CanBusError::Config { key, .. } => format!("bus.can.{key}"),
+                _ => "bus.can".to_string(),
+            };
+            error(&key, e.to_string(), "");
+        }
+    }
+    if let Some(m) = &c.bus.modbus {
+        if let Err(e) = m.validate() {
+            let msg = e.to_string();
+            error(&modbus_key(&msg), msg, "");
+        }
+    }
+    let mut map_problems = if c.bus.signal_map.is_some() {
+        check_map(l)
+    } else {
+        Vec::new()
+    };
     if c.bus.transport == Transport::Field {
         let map = &l.signal_map;
-        for p in map.check() {
-            error(&format!("bus.signal_map ({})", p.key), p.message, "");
-        }
         let needed = l.law.actuators();
         for a in needed.iter() {
             if !map.actuators.contains_key(&a) {
@@ -910,29 +1257,32 @@ pub fn check(l: &Loaded) -> Vec<Problem> {
                     "interface = \"can0\" and dbc = \"skid.dbc\"",
                 ),
                 Some(can) => {
-                    if let Err(e) = can.validate() {
-                        error("bus.can", e.to_string(), "");
+                    if can.validate().is_ok() && map_problems.is_empty() {
+                        if let Some(e) = check_dbc(l, can) {
+                            map_problems.push(Problem {
+                                error: e,
+                                warning: false,
+                            });
+                        }
                     }
                 }
             }
         }
-        if !(map.modbus_sensors().is_empty() && map.modbus_actuators().is_empty()) {
-            match &c.bus.modbus {
-                None => error(
-                    "bus.modbus",
-                    "the signal map binds Modbus registers but [bus.modbus] is missing".into(),
-                    "see config/antisurge.toml for a [bus.modbus] example",
-                ),
-                Some(m) => {
-                    if let Err(e) = m.validate() {
-                        error("bus.modbus", e.to_string(), "");
-                    }
-                }
-            }
+        if !(map.modbus_sensors().is_empty() && map.modbus_actuators().is_empty())
+            && c.bus.modbus.is_none()
+        {
+            error(
+                "bus.modbus",
+                "the signal map binds Modbus registers but [bus.modbus] is missing".into(),
+                "see config/antisurge.toml for a [bus.modbus] example",
+            );
         }
     }
     if let Err(e) = c.event_log.validate() {
-        error("event_log", e.to_string(), "");
+        let msg = e.to_string();
+        let key =
+            event_log_key(&msg).map_or_else(|| "event_log".into(), |k| format!("event_log.{k}"));
+        error(&key, msg, "");
     }
     if !(c.simulation.heartbeat_timeout_ms.is_finite() && c.simulation.heartbeat_timeout_ms > 0.0) {
         error(
@@ -941,6 +1291,17 @@ pub fn check(l: &Loaded) -> Vec<Problem> {
             "",
         );
     }
+    if !(c.status.log_interval_s.is_finite() && c.status.log_interval_s >= 0.0) {
+        error(
+            "status.log_interval_s",
+            format!(
+                "{} s must be ≥ 0 (0: no status line)",
+                c.status.log_interval_s
+            ),
+            "",
+        );
+    }
+    out.extend(map_problems);
 
     // warnings: legal but risky
     if let crate::control::surge_control_line::ControlLineForm::Margin { margin_pct, .. } =
@@ -948,9 +1309,9 @@ pub fn check(l: &Loaded) -> Vec<Problem> {
     {
         if matches!(l.law, LawId::RecyclePi) && margin_pct < 5.0 {
             out.push(Problem {
-                error: locate(
-                    layers,
-                    "controller.recycle_pi.control_line.margin_pct",
+                error: locate_for(
+                    l,
+                    "controller.recycle_pi.control_line.margin.margin_pct",
                     format!(
                         "surge control line margin {margin_pct} % is under 5 %: little room for measurement error"
                     ),

@@ -43,7 +43,7 @@ pub fn run(opts: &PlantOptions) -> Result<()> {
         .clone()
         .unwrap_or_else(|| l.config.simulation.scenario.clone());
     let scenario =
-        Scenario::load(&scenario_path(&l.main_path, &scenario_name)).map_err(|e| anyhow!("{e}"))?;
+        Scenario::load(&scenario_path(&l, &scenario_name)).map_err(|e| anyhow!("{e}"))?;
     let out_dir = opts
         .out_dir
         .clone()

@@ -35,16 +35,24 @@ pub struct RunOptions {
     pub out_dir: Option<PathBuf>,
 }
 
-/// Resolve a scenario name (`throttle-closure`) or file against the config directory.
-pub fn scenario_path(main: &Path, name: &str) -> PathBuf {
+/// Resolve a scenario name (`throttle-closure`) or file: a file is relative to the config
+/// file; a name is looked up in `scenarios/` beside the config file, then beside the plant
+/// file's directory (`config/plants/../scenarios`).
+pub fn scenario_path(l: &Loaded, name: &str) -> PathBuf {
+    let main = &l.main_path;
     let p = Path::new(name);
     if p.extension().is_some_and(|e| e == "toml") {
-        config::resolve(main, p)
-    } else {
-        config::resolve(
-            main,
-            &Path::new("scenarios").join(format!("{}.toml", name.replace('-', "_"))),
-        )
+        return config::resolve(main, p);
+    }
+    let file = Path::new("scenarios").join(format!("{}.toml", name.replace('-', "_")));
+    let beside_config = config::resolve(main, &file);
+    if beside_config.is_file() {
+        return beside_config;
+    }
+    let plant_dir = l.plant.path.parent().and_then(Path::parent);
+    match plant_dir {
+        Some(d) if d.join(&file).is_file() => d.join(&file),
+        _ => beside_config,
     }
 }
 
@@ -122,7 +130,7 @@ fn spawn_in_process_plant(
     hold: bool,
 ) -> Result<InProcessPlant> {
     let desc = l.plant.clone();
-    let scenario_file = scenario_path(&l.main_path, &l.config.simulation.scenario);
+    let scenario_file = scenario_path(l, &l.config.simulation.scenario);
     let scenario = Scenario::load(&scenario_file)
         .map_err(|e| anyhow!("{e}"))
         .context("loading the simulation scenario")?;
@@ -416,7 +424,7 @@ async fn serve(loaded: Loaded, opts: RunOptions) -> Result<()> {
             "rate_hz": current.config.cycle.rate_hz,
             "max_rss_kib": super::notify::max_rss_kib(),
         });
-        if let Err(e) = std::fs::write(&path, serde_json::to_string_pretty(&json)? + "\n") {
+        if let Err(e) = std::fs::write(path, serde_json::to_string_pretty(&json)? + "\n") {
             tracing::warn!(target: "antisurge", "cannot write {}: {e}", path.display());
         }
     }

@@ -53,3 +53,4 @@ pub fn simulate(plant: &PlantDescription, scenario: &Scenario, law: LawId) -> Si
     )
     .unwrap_or_else(|e| panic!("{e}"))
 }
+pub mod daemon;

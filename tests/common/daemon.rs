@@ -1,0 +1,116 @@
+//! Helpers for the end-to-end daemon tests: config files in a temporary directory, the
+//! `antisurge` binary as child processes, summaries and traces read back.
+
+use super::root;
+use std::path::{Path, PathBuf};
+use std::process::{Child, Command, Stdio};
+use std::time::{Duration, Instant};
+
+/// A free TCP port on 127.0.0.1 (bound, then released).
+pub fn free_port() -> u16 {
+    std::net::TcpListener::bind("127.0.0.1:0")
+        .expect("bind")
+        .local_addr()
+        .expect("addr")
+        .port()
+}
+
+/// Absolute path of a shipped config file.
+pub fn shipped(rel: &str) -> String {
+    root().join("config").join(rel).display().to_string()
+}
+
+/// Start `antisurge <args>` with its output in `dir/<name>.log`.
+pub fn spawn(dir: &Path, name: &str, args: &[&str]) -> Child {
+    let log = std::fs::File::create(dir.join(format!("{name}.log"))).expect("log file");
+    Command::new(env!("CARGO_BIN_EXE_antisurge"))
+        .args(args)
+        .env("ANTISURGE_LOG", "info")
+        .env_remove("LOGS_DIRECTORY")
+        .stdout(Stdio::from(log.try_clone().expect("clone")))
+        .stderr(Stdio::from(log))
+        .spawn()
+        .expect("spawn antisurge")
+}
+
+/// Wait for a child to exit, at most `limit`; kills it and panics on timeout.
+pub fn wait(
+    child: &mut Child,
+    limit: Duration,
+    what: &str,
+    dir: &Path,
+) -> std::process::ExitStatus {
+    let t0 = Instant::now();
+    loop {
+        if let Some(s) = child.try_wait().expect("try_wait") {
+            return s;
+        }
+        if t0.elapsed() > limit {
+            let _ = child.kill();
+            panic!(
+                "{what} did not finish within {limit:?}; logs:\n{}",
+                logs(dir)
+            );
+        }
+        std::thread::sleep(Duration::from_millis(50));
+    }
+}
+
+/// Send a signal to a child.
+pub fn signal(child: &Child, sig: i32) {
+    // SAFETY: kill(2) on our own child's pid.
+    unsafe {
+        libc::kill(child.id() as i32, sig);
+    }
+}
+
+/// All `*.log` files of `dir`, for failure messages.
+pub fn logs(dir: &Path) -> String {
+    let mut out = String::new();
+    if let Ok(rd) = std::fs::read_dir(dir) {
+        for e in rd.flatten() {
+            let p = e.path();
+            if p.extension().is_some_and(|x| x == "log") {
+                out += &format!(
+                    "--- {}\n{}\n",
+                    p.display(),
+                    std::fs::read_to_string(&p).unwrap_or_default()
+                );
+            }
+        }
+    }
+    out
+}
+
+/// A parsed summary.json.
+pub fn summary(dir: &Path) -> serde_json::Value {
+    let p = dir.join("summary.json");
+    let text = std::fs::read_to_string(&p).unwrap_or_else(|e| panic!("{}: {e}", p.display()));
+    serde_json::from_str(&text).expect("summary json")
+}
+
+/// One column of a trace.csv with its time column.
+pub fn column(dir: &Path, name: &str) -> Vec<(f64, f64)> {
+    let mut r = csv::Reader::from_path(dir.join("trace.csv")).expect("trace.csv");
+    let headers = r.headers().expect("headers").clone();
+    let i = headers
+        .iter()
+        .position(|h| h == name)
+        .unwrap_or_else(|| panic!("no column {name}"));
+    r.records()
+        .map(|rec| {
+            let rec = rec.expect("row");
+            (
+                rec[0].parse().unwrap_or(f64::NAN),
+                rec[i].parse().unwrap_or(f64::NAN),
+            )
+        })
+        .collect()
+}
+
+/// Write `text` to `path` the way editors do: a temporary file renamed over the target.
+pub fn write_atomically(path: &Path, text: &str) {
+    let tmp: PathBuf = path.with_extension("toml.tmp~");
+    std::fs::write(&tmp, text).expect("write tmp");
+    std::fs::rename(&tmp, path).expect("rename");
+}
