@@ -481,19 +481,77 @@ fn with_line_key(mut e: FileError, text: &str) -> FileError {
 }
 
 /// [`with_line_key`] for an error in a file not read here (plant file, signal map).
-fn with_file_line_key(e: FileError) -> FileError {
-    if e.key.is_empty() && e.line > 0 {
-        if let Ok(text) = std::fs::read_to_string(&e.file) {
-            return with_line_key(e, &text);
+fn with_file_line_key(mut e: FileError) -> FileError {
+    if let Ok(text) = std::fs::read_to_string(&e.file) {
+        if e.key.contains('?') {
+            if let Ok(table) = toml::from_str::<toml::Table>(&text) {
+                e.key = name_map_keys(&[&table], &e.key, &e.message);
+            }
         }
+        return with_line_key(e, &text);
     }
     e
+}
+
+/// serde_path_to_error writes `?` for a map key that is not a string (a sensor name in
+/// `[inputs.<sensor>]`, `[sensors.<sensor>]`): put back the name written in the file, the one
+/// the message is about.
+fn name_map_keys(tables: &[&toml::Table], key: &str, message: &str) -> String {
+    let Some(i) = key.split('.').position(|p| p == "?") else {
+        return key.to_string();
+    };
+    let parts: Vec<&str> = key.split('.').collect();
+    let prefix = parts[..i].join(".");
+    let rest = &parts[i + 1..];
+    let join = |cand: &str, rest: &[&str]| {
+        let mut v: Vec<&str> = parts[..i].to_vec();
+        v.push(cand);
+        v.extend_from_slice(rest);
+        v.join(".")
+    };
+    if rest.is_empty() {
+        // `unknown variant `p_sucton``: the map key itself is wrong
+        if let Some(v) = message
+            .strip_prefix("unknown variant `")
+            .and_then(|r| r.split('`').next())
+        {
+            return join(v, rest);
+        }
+    }
+    let missing = message.starts_with("missing field");
+    for t in tables.iter().rev() {
+        let Some(toml::Value::Table(map)) = table_get(t, &prefix) else {
+            continue;
+        };
+        for cand in map.keys() {
+            let full = join(cand, rest);
+            let found = if missing {
+                let parent = join(cand, &rest[..rest.len().saturating_sub(1)]);
+                table_get(t, &parent).is_some_and(toml::Value::is_table)
+                    && table_get(t, &full).is_none()
+            } else {
+                table_get(t, &full).is_some()
+            };
+            if found {
+                return name_map_keys(tables, &full, message);
+            }
+        }
+    }
+    key.to_string()
 }
 
 /// The key a serde message is about, below the path where serde raised it: `unknown field
 /// `x``, `missing field `x`` and an unknown map key (`[inputs.p_sucton]`) are raised at the
 /// enclosing table, the `[event_log]` range checks at `event_log`.
 fn refine_key(layers: &[Layer], key: &str, message: &str) -> String {
+    name_map_keys(
+        &layers.iter().map(|l| &l.table).collect::<Vec<_>>(),
+        &refine_key_inner(layers, key, message),
+        message,
+    )
+}
+
+fn refine_key_inner(layers: &[Layer], key: &str, message: &str) -> String {
     let join = |leaf: &str| {
         if key.is_empty() {
             leaf.to_string()
@@ -758,11 +816,17 @@ pub fn flatten(table: &toml::Table) -> BTreeMap<String, String> {
     out
 }
 
-/// Deep-merge `over` into `base`.
+/// Deep-merge `over` into `base` (a fully serialized settings table). A one-key table of
+/// `base` whose key `over` does not repeat is an enum variant (`control_line = { sqrt = … }`)
+/// and is replaced by the other variant, not merged with it.
 fn deep_merge(base: &mut toml::Table, over: &toml::Table) {
     for (k, v) in over {
         match (base.get_mut(k), v) {
-            (Some(toml::Value::Table(b)), toml::Value::Table(o)) => deep_merge(b, o),
+            (Some(toml::Value::Table(b)), toml::Value::Table(o))
+                if !(b.len() == 1 && b.keys().all(|bk| !o.contains_key(bk))) =>
+            {
+                deep_merge(b, o)
+            }
             _ => {
                 base.insert(k.clone(), v.clone());
             }

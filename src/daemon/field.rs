@@ -49,6 +49,25 @@ fn bus_event_hook(events: EventSender, interface: String) -> crate::io::can::bus
     })
 }
 
+/// Counters of the controller's links, for the statistics written at exit.
+#[derive(Debug, Clone, Default)]
+pub struct LinkCounters {
+    /// CAN frame counters (unknown ids, wrong DLC, bad CRC, bus-off, reconnects, …).
+    pub can: Option<Arc<crate::io::can::bus::CanCounters>>,
+    /// Modbus link monitor.
+    pub modbus: Option<Arc<LinkMonitor>>,
+}
+
+impl LinkCounters {
+    /// JSON view.
+    pub fn to_json(&self) -> serde_json::Value {
+        serde_json::json!({
+            "can": self.can.as_ref().map(|c| serde_json::to_value(c.snapshot()).unwrap_or_default()),
+            "modbus": self.modbus.as_ref().map(|m| serde_json::to_value(m.counters().snapshot()).unwrap_or_default()),
+        })
+    }
+}
+
 /// Start the controller's bus tasks.
 pub fn spawn_controller_links(
     l: &Loaded,
@@ -58,11 +77,13 @@ pub fn spawn_controller_links(
     wake: Arc<Wakeup>,
     shutdown: watch::Receiver<bool>,
     events: EventSender,
-) -> Result<()> {
+) -> Result<LinkCounters> {
+    let mut counters = LinkCounters::default();
     let map = &l.signal_map;
     if map.uses_can() {
         let (can, codec) = can_codec(l)?;
         let (handles, _state) = BusHandles::new(shutdown.clone());
+        counters.can = Some(Arc::clone(&handles.counters));
         let handles = handles.with_hook(bus_event_hook(events.clone(), can.interface.clone()));
         let boards = ControllerBoards {
             sensors: Arc::clone(&sensors),
@@ -82,6 +103,7 @@ pub fn spawn_controller_links(
         })?;
         let map = map.clone();
         let monitor = Arc::new(LinkMonitor::new());
+        counters.modbus = Some(Arc::clone(&monitor));
         tracing::info!(target: "modbus", "controller polling at {} Hz", cfg.poll_rate_hz);
         let sd = shutdown.clone();
         tasks.spawn(async move {
@@ -100,7 +122,7 @@ pub fn spawn_controller_links(
             }
         });
     }
-    Ok(())
+    Ok(counters)
 }
 
 /// The plant node's boards.

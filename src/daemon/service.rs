@@ -320,6 +320,7 @@ async fn serve(loaded: Loaded, opts: RunOptions) -> Result<()> {
     let (shutdown_tx, shutdown_rx) = tokio::sync::watch::channel(false);
     let mut tasks = tokio::task::JoinSet::new();
     let mut plant = None;
+    let mut link_counters = super::field::LinkCounters::default();
     let plant_stop = Arc::new(AtomicBool::new(false));
     match cfg.bus.transport {
         Transport::InProcess => {
@@ -335,7 +336,7 @@ async fn serve(loaded: Loaded, opts: RunOptions) -> Result<()> {
             tracing::info!(target: "antisurge", "in-process plant `{}` running scenario `{}`", loaded.plant.name(), cfg.simulation.scenario);
         }
         Transport::Field => {
-            super::field::spawn_controller_links(
+            link_counters = super::field::spawn_controller_links(
                 &loaded,
                 &mut tasks,
                 Arc::clone(&sensors),
@@ -423,6 +424,9 @@ async fn serve(loaded: Loaded, opts: RunOptions) -> Result<()> {
             "input_age_us": report.input_age,
             "rate_hz": current.config.cycle.rate_hz,
             "max_rss_kib": super::notify::max_rss_kib(),
+            "links": link_counters.to_json(),
+            "surges": health.surges.load(Ordering::Relaxed),
+            "updates_applied": health.updates_applied.load(Ordering::Relaxed),
         });
         if let Err(e) = std::fs::write(path, serde_json::to_string_pretty(&json)? + "\n") {
             tracing::warn!(target: "antisurge", "cannot write {}: {e}", path.display());

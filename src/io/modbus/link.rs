@@ -458,7 +458,7 @@ macro_rules! counters {
         }
 
         $(#[$plain_meta])*
-        #[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+        #[derive(Debug, Clone, Copy, PartialEq, Eq, Default, serde::Serialize)]
         pub struct $plain {
             $( $(#[doc = $doc])* pub $field: u64, )*
         }

@@ -1,0 +1,13 @@
+#!/usr/bin/env bash
+# HIL suite entry point (CI runs this): builds the release binary if needed, makes sure the VM
+# harness is set up when the host kernel lacks vcan, and runs hil/suite/inside.sh where vcan0
+# is up (natively if the host kernel has vcan, else in the qemu VM).
+#
+#   hil/suite.sh [CASE...]
+set -euo pipefail
+cd "$(dirname "$0")/.."
+[[ -x target/release/antisurge ]] || cargo build --release
+if ! ip link show vcan0 >/dev/null 2>&1 && ! { [[ $(id -u) == 0 ]] && modprobe -q vcan 2>/dev/null; }; then
+    hil/vm/setup.sh
+fi
+exec hil/run.sh --timeout 900 --mem 2048 -- hil/suite/inside.sh "$@"

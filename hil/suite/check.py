@@ -1,0 +1,134 @@
+#!/usr/bin/env python3
+"""Check one HIL case: the plant node's summary.json and trace.csv, the controller's event log
+and statistics, against an in-process `antisurge sim` of the same plant, scenario and law.
+
+Usage: check.py CASE DIR BIN. Prints the figures and exits 1 on a failed check.
+
+Tolerances (stated here, printed with every run):
+- no surge cycle and no flow reversal in any case;
+- trajectory match with the in-process simulation (cases without a fault): the minimum
+  compressor flow within 2 % and the RMS difference of the compressor flow over the run within
+  2 % of its mean. The HIL plant's clock starts at the controller's first heartbeat; CAN
+  quantises the signals (1 Pa, 0.05 rad/s, 0.5 Pa Δp) and adds up to one 1-ms period of delay.
+- output bump: between consecutive 5-ms trace rows the recycle-valve command moves less than
+  1 % of its stroke and the torque command less than 1 % of the drive rating.
+"""
+import csv
+import json
+import math
+import subprocess
+import sys
+from pathlib import Path
+
+case, d, binary = sys.argv[1], Path(sys.argv[2]), sys.argv[3]
+fails = []
+
+
+def check(ok, what):
+    print(("  ok   " if ok else "  FAIL ") + what)
+    if not ok:
+        fails.append(what)
+
+
+def trace(path):
+    with open(path) as f:
+        rows = list(csv.DictReader(f))
+    return [{k: float(v) if v not in ("", "NaN", "nan") else math.nan for k, v in r.items()} for r in rows]
+
+
+def events(path):
+    out = []
+    if path.exists():
+        for line in path.read_text().splitlines():
+            try:
+                out.append(json.loads(line))
+            except json.JSONDecodeError:
+                pass
+    return out
+
+
+s = json.loads((d / "plant" / "summary.json").read_text())
+tr = trace(d / "plant" / "trace.csv")
+ev = events(d / "events.jsonl")
+stats_path = d / "controller_stats.json"
+stats = json.loads(stats_path.read_text()) if stats_path.exists() else {}
+print(f"case {case}: plant {s['plant']}, scenario {s['scenario']}, law {s['law']}, "
+      f"{s['duration_s']:.1f} s, surge cycles {s['surge_cycles']}, min flow {s['min_flow_kg_s']:.3f} kg/s, "
+      f"field fail-safe entries {s.get('field_failsafe_entries')}")
+if stats:
+    w = stats["wake_jitter_us"]
+    c = stats["compute_us"]
+    print(f"  controller: {stats['cycles']} cycles at {stats['rate_hz']} Hz, wake-up jitter p50 {w['p50_us']:.0f} / "
+          f"p99 {w['p99_us']:.0f} / max {w['max_us']:.0f} us, compute p99 {c['p99_us']:.1f} us, "
+          f"overruns {stats['overruns']}, max RSS {stats['max_rss_kib'] / 1024:.1f} MiB")
+
+check(s["surge_cycles"] == 0 and not s["flow_reversal"], "no surge cycle, no flow reversal")
+
+# the in-process reference
+ref_dir = d / "sim"
+subprocess.run([binary, "sim", "--plant", s["plant"], "--scenario", s["scenario"], "--law", s["law"],
+                "--out", str(ref_dir), "--no-plots", "--json"], check=True, stdout=subprocess.DEVNULL)
+ref = json.loads((ref_dir / "summary.json").read_text())
+rtr = trace(ref_dir / "trace.csv")
+
+
+def interp(rows, t, key):
+    # rows are on a 5-ms grid starting at 0
+    if t <= rows[0]["t_s"]:
+        return rows[0][key]
+    dt = rows[1]["t_s"] - rows[0]["t_s"]
+    i = min(int((t - rows[0]["t_s"]) / dt), len(rows) - 2)
+    a, b = rows[i], rows[i + 1]
+    f = (t - a["t_s"]) / (b["t_s"] - a["t_s"])
+    return a[key] + f * (b[key] - a[key])
+
+
+if case in ("recycle_pi", "drive_torque", "malformed"):
+    check(s.get("field_failsafe_entries") == 0, "field devices never lost the controller")
+    dmin = abs(s["min_flow_kg_s"] - ref["min_flow_kg_s"]) / abs(ref["min_flow_kg_s"])
+    check(dmin <= 0.02, f"min flow {s['min_flow_kg_s']:.3f} vs in-process {ref['min_flow_kg_s']:.3f} kg/s: {100 * dmin:.2f} % (≤ 2 %)")
+    t_end = min(tr[-1]["t_s"], rtr[-1]["t_s"])
+    diffs = [(r["m_kg_s"] - interp(rtr, r["t_s"], "m_kg_s")) for r in tr if r["t_s"] <= t_end]
+    rms = math.sqrt(sum(x * x for x in diffs) / len(diffs))
+    mean = sum(abs(r["m_kg_s"]) for r in rtr) / len(rtr)
+    worst = max(abs(x) for x in diffs)
+    check(rms <= 0.02 * mean, f"flow RMS difference {rms:.4f} kg/s = {100 * rms / mean:.2f} % of mean {mean:.3f} (≤ 2 %); largest {worst:.4f} kg/s")
+
+if case == "kill9":
+    check(s.get("field_failsafe_entries") == 1, "field fail-safe entered once after kill -9")
+    check(tr[-1]["recycle_valve_position"] > 0.95, f"recycle valve failed open: ends at {tr[-1]['recycle_valve_position']:.3f}")
+    cmd = [(r["t_s"], r["cmd_recycle_valve"]) for r in tr]
+    t_fs = next(t for t, v in cmd if t > 1.0 and v >= 0.999)
+    t_last = max(t for t, v in cmd if t < t_fs and v < 0.999)
+    check(t_fs - t_last <= 0.100 + 0.010 + 0.005 + 0.002,
+          f"fail-safe command {1000 * (t_fs - t_last):.0f} ms after the last controller command (timeout 100 ms + heartbeat period 10 ms + trace 5 ms)")
+
+if case in ("link_bounce", "malformed", "recycle_pi", "drive_torque"):
+    t_stop = tr[-1]["t_s"] - 0.3
+    rating = 3000.0 if s["plant"].startswith("kvang") else 1000.0
+    worst_v = max((abs(b["cmd_recycle_valve"] - a["cmd_recycle_valve"]), b["t_s"]) for a, b in zip(tr, tr[1:])
+                  if a["t_s"] > 0.5 and b["t_s"] < t_stop and not math.isnan(a["cmd_recycle_valve"]) and not math.isnan(b["cmd_recycle_valve"]))  if not math.isnan(tr[10]["cmd_recycle_valve"]) else (0.0, 0.0)
+    worst_t = max((abs(b["cmd_drive_torque_nm"] - a["cmd_drive_torque_nm"]), b["t_s"]) for a, b in zip(tr, tr[1:])
+                  if a["t_s"] > 0.5 and b["t_s"] < t_stop)
+    check(worst_v[0] < 0.01, f"largest recycle-valve command step {100 * worst_v[0]:.3f} % at t = {worst_v[1]:.3f} s (< 1 %)")
+    check(worst_t[0] < 0.01 * rating, f"largest torque command step {worst_t[0]:.1f} N·m at t = {worst_t[1]:.3f} s (< 1 % of {rating:.0f})")
+
+if case == "link_bounce":
+    modes = [(e["ts"], e["to"]) for e in ev if e.get("event") == "mode_changed"]
+    fs = [i for i, (_, m) in enumerate(modes) if m == "fail_safe" and i > 1]
+    check(bool(fs), f"controller entered fail-safe when the link went down (mode changes: {[m for _, m in modes]})")
+    check(bool(fs) and any(m == "auto" for _, m in modes[fs[0]:]), "controller resumed auto when the link came back")
+    bus = [e for e in ev if e.get("event") == "bus_state"]
+    check(len(bus) >= 2, f"bus state changes logged: {[e.get('state') for e in bus]}")
+
+if case == "malformed":
+    can = (stats.get("links") or {}).get("can") or {}
+    for k in ("unknown_id", "wrong_dlc", "bad_crc"):
+        check(can.get(k, 0) >= 300, f"{k} counted: {can.get(k)} (sent 300)")
+    modes = [e["to"] for e in ev if e.get("event") == "mode_changed"]
+    check(modes.count("fail_safe") <= 1, f"no fail-safe caused by the burst (mode changes: {modes})")
+
+if fails:
+    print(f"case {case}: FAILED ({len(fails)} check(s))")
+    sys.exit(1)
+print(f"case {case}: passed")
