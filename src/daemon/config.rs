@@ -780,9 +780,13 @@ fn hint_for(message: &str, key: &str) -> Option<String> {
     if message.starts_with("unknown field") {
         Some("keys carry their unit (`_hz`, `_ms`, `_pct`, `_rad_s`, `_kg_s`); check the spelling against config/antisurge.toml".into())
     } else if message.starts_with("missing field") {
-        Some(format!(
-            "add the key under [{key}]; config/antisurge.toml shows every key"
-        ))
+        // `key` names the missing key itself (see `refine_key`)
+        Some(match key.rsplit_once('.') {
+            Some((table, leaf)) => {
+                format!("add `{leaf} = …` under [{table}]; config/antisurge.toml shows every key")
+            }
+            None => format!("add a [{key}] section; config/antisurge.toml shows every key"),
+        })
     } else if message.starts_with("invalid type") {
         Some("numbers without quotes, text in quotes, lists in [ ]".into())
     } else if message.starts_with("unknown variant") {
@@ -1125,7 +1129,7 @@ fn check_dbc(l: &Loaded, can: &CanBusConfig) -> Option<FileError> {
         Err(e) => Some(locate(
             &l.layers,
             "bus.can.dbc",
-            format!("cannot use the DBC file {}: {e}", dbc.display()),
+            format!("cannot use the DBC file: {e}"),
         )),
     }
 }
@@ -1371,7 +1375,11 @@ pub fn check(l: &Loaded) -> Vec<Problem> {
     if let crate::control::surge_control_line::ControlLineForm::Margin { margin_pct, .. } =
         l.controller.recycle_pi.control_line
     {
-        if matches!(l.law, LawId::RecyclePi) && margin_pct < 5.0 {
+        // (a line left of the trip line is already an error about the same key)
+        let refused = out
+            .iter()
+            .any(|p| p.error.key == "controller.recycle_pi.control_line");
+        if matches!(l.law, LawId::RecyclePi) && margin_pct < 5.0 && !refused {
             out.push(Problem {
                 error: locate_for(
                     l,
