@@ -393,7 +393,8 @@ mod tests {
         });
         let elapsed = super::super::handoff::monotonic_ns() - start;
         assert_eq!(n, 50);
-        assert_eq!(stats.overruns.load(Ordering::Relaxed), 1);
+        // the forced 7-ms cycle overruns; a loaded machine may add another late wake-up
+        assert!(stats.overruns.load(Ordering::Relaxed) >= 1);
         assert!(stats.skipped.load(Ordering::Relaxed) >= 3);
         // 50 cycles + ~3 skipped at 2 ms: ~106 ms, generous bounds for a loaded machine
         assert!(elapsed > 90_000_000 && elapsed < 400_000_000, "{elapsed}");
