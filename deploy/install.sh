@@ -316,7 +316,13 @@ if [[ -f $CONFIG_SRC/antisurge.toml ]]; then
 else
     note "warning: $CONFIG_SRC/antisurge.toml not found: main configuration not installed"
 fi
-for f in signals.toml skid.dbc; do
+# the signal maps (signals.toml, signals_modbus.toml, …) and the DBC
+shipped_files=(skid.dbc)
+for m in "$CONFIG_SRC"/signals*.toml; do
+    [[ -f $m ]] && shipped_files+=("$(basename "$m")")
+done
+[[ -f $CONFIG_SRC/signals.toml ]] || shipped_files+=(signals.toml)
+for f in "${shipped_files[@]}"; do
     if [[ -f $CONFIG_SRC/$f ]]; then
         put_shipped_config "$CONFIG_SRC/$f" "$CONF_DIR/$f"
     else
