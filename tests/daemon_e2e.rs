@@ -5,7 +5,8 @@
 mod common;
 
 use common::daemon::*;
-use std::path::Path;
+use std::path::{Path, PathBuf};
+use std::process::Child;
 use std::time::Duration;
 
 fn modbus_config(dir: &Path, port: u16, scenario: &str) -> std::path::PathBuf {
@@ -71,24 +72,29 @@ log_interval_s = 5.0
     path
 }
 
+/// Start `antisurge plant` (Modbus server) and, half a second later, `antisurge run`.
+fn start_pair(dir: &Path, scenario: &str) -> (Child, Child, PathBuf) {
+    let cfg = modbus_config(dir, free_port(), scenario);
+    let cfg_s = cfg.display().to_string();
+    let out = dir.join("plant");
+    let out_s = out.display().to_string();
+    let plant = spawn(
+        dir,
+        "plant",
+        &["plant", "--config", &cfg_s, "--out", &out_s],
+    );
+    std::thread::sleep(Duration::from_millis(500));
+    let ctl = spawn(dir, "run", &["run", "--config", &cfg_s]);
+    (plant, ctl, out)
+}
+
 /// Modbus TCP end to end: recycle-pi at a 50 Hz cycle keeps the recycle plant out of surge
 /// through the throttle closure.
 #[test]
 fn modbus_tcp_recycle_pi_at_50_hz_stays_out_of_surge() {
     let tmp = tempfile::tempdir().expect("tmp");
     let dir = tmp.path();
-    let port = free_port();
-    let cfg = modbus_config(dir, port, "throttle-closure");
-    let cfg_s = cfg.display().to_string();
-    let out = dir.join("plant");
-    let out_s = out.display().to_string();
-    let mut plant = spawn(
-        dir,
-        "plant",
-        &["plant", "--config", &cfg_s, "--out", &out_s],
-    );
-    std::thread::sleep(Duration::from_millis(500));
-    let mut ctl = spawn(dir, "run", &["run", "--config", &cfg_s]);
+    let (mut plant, mut ctl, out) = start_pair(dir, "throttle-closure");
     let st = wait(&mut plant, Duration::from_secs(60), "plant", dir);
     assert!(st.success(), "plant failed:\n{}", logs(dir));
     signal(&ctl, libc::SIGTERM);
@@ -118,18 +124,7 @@ fn modbus_tcp_recycle_pi_at_50_hz_stays_out_of_surge() {
 fn kill_9_of_the_controller_leaves_the_plant_safe() {
     let tmp = tempfile::tempdir().expect("tmp");
     let dir = tmp.path();
-    let port = free_port();
-    let cfg = modbus_config(dir, port, "throttle-closure");
-    let cfg_s = cfg.display().to_string();
-    let out = dir.join("plant");
-    let out_s = out.display().to_string();
-    let mut plant = spawn(
-        dir,
-        "plant",
-        &["plant", "--config", &cfg_s, "--out", &out_s],
-    );
-    std::thread::sleep(Duration::from_millis(500));
-    let mut ctl = spawn(dir, "run", &["run", "--config", &cfg_s]);
+    let (mut plant, mut ctl, out) = start_pair(dir, "throttle-closure");
     // the closure runs from t = 5 s to 7 s of scenario time: kill in the middle of it
     std::thread::sleep(Duration::from_millis(6500));
     signal(&ctl, libc::SIGKILL);

@@ -12,10 +12,10 @@
 use crate::control::speed_loop::SpeedLoop;
 use crate::plant::file::PlantDescription;
 use crate::runtime::handoff::{
-    monotonic_ns, CommandBoard, HeartbeatBoard, OutputBoard, SensorBoard, SnapshotBoard, Wakeup,
+    CommandBoard, HeartbeatBoard, OutputBoard, SensorBoard, SnapshotBoard, Wakeup,
 };
 use crate::signals::{ActuatorCommands, ActuatorId, SensorId};
-use crate::sim::{ControllerView, PlantRun, SimError, SimResult};
+use crate::sim::{ControllerView, PlantRun, SimResult};
 use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
 use std::sync::Arc;
 
@@ -138,7 +138,15 @@ impl<'a> PlantNode<'a> {
     fn publish(&self, now_ns: u64, raw: &crate::control::measurements::RawSensors) {
         match &self.sink {
             SensorSink::Bus { snapshots, wake } => {
-                snapshots.publish(&raw.values, self.k as u64, now_ns);
+                // a stale (frozen) transmitter sends no valid value: NaN is not encoded, so
+                // the controller's freshness check sees the input age
+                let mut values = raw.values;
+                for id in SensorId::ALL {
+                    if raw.age_s[id.index()] > 0.0 {
+                        values.set(id, f64::NAN);
+                    }
+                }
+                snapshots.publish(&values, self.k as u64, now_ns);
                 wake.signal();
             }
             SensorSink::InProcess(board) => {
@@ -235,17 +243,4 @@ impl<'a> PlantNode<'a> {
     pub fn result(&self, law: &str) -> SimResult {
         self.run.finish(law)
     }
-}
-
-/// Build the plant side for a scenario.
-pub fn plant_run<'a>(
-    desc: &'a PlantDescription,
-    scenario: &'a crate::scenario::Scenario,
-) -> Result<PlantRun<'a>, SimError> {
-    PlantRun::new(desc, scenario)
-}
-
-/// Monotonic now (re-export for callers of [`PlantNode::step`]).
-pub fn now_ns() -> u64 {
-    monotonic_ns()
 }

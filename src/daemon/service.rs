@@ -11,7 +11,7 @@
 use super::config::{self, Loaded, Transport};
 use super::control_node::{ControlNode, ControlUpdate, ControlWiring, Health};
 use super::plant_node::{CommandSource, PlantNode, PlantStatus, SensorSink};
-use crate::control::core::{ControlCore, Mode};
+use crate::control::core::ControlCore;
 use crate::control::measurements::OperatorInputs;
 use crate::events::event::Event;
 use crate::events::{EventLog, EventSender};
@@ -435,6 +435,5 @@ async fn serve(loaded: Loaded, opts: RunOptions) -> Result<()> {
     let _ = events.send(Event::Stopped { reason });
     drop(events);
     log.shutdown().map_err(|e| anyhow!("{e}"))?;
-    let _ = Mode::Init;
     Ok(())
 }
