@@ -51,6 +51,7 @@ fn populated() -> DaemonConfig {
             speed_setpoint_rad_s: Some(1000.0),
             flow_setpoint_kg_s: Some(12.0),
             failsafe_recycle_opening_pct: 100.0,
+            startup_grace_ms: 1000.0,
         },
         cycle: RtSettings {
             rate_hz: 1000.0,

@@ -745,3 +745,220 @@ fn law_cycle_does_not_allocate() {
         );
     }
 }
+
+/// Kvangardsnes under recycle-pi: the operator holds the recycle valve at 60 % in manual from
+/// 1 s, hands back to auto at 3 s (the law then closes the valve at its closing rate, far right
+/// of the control line), and the throttle closes 60 → 20 % from 5 s. `at_switch(core)` is
+/// called once, at the first cycle at or after `t_switch_s` (1-ms trace rows).
+fn rate_limited_closure_with_switch(
+    t_switch_s: f64,
+    mut at_switch: impl FnMut(&mut antisurge::control::core::ControlCore),
+) -> SimResult {
+    let p = common::plant(KV);
+    let sc = common::scenario_text(
+        "name='retune'\ndescription='valve closing at its rate limit during a throttle closure'\n\
+         duration_s=10\ntrace_period_s=0.001\n[initial]\nthrottle=0.6\n\
+         [[event]]\nat_s=1\nmode='manual'\n\
+         [[event]]\nat_s=1.5\nstep={signal='recycle_manual', to=0.6}\n\
+         [[event]]\nat_s=3\nmode='auto'\n\
+         [[event]]\nat_s=5\nramp={signal='throttle', to=0.2, over_s=2}\n",
+    );
+    let mut done = false;
+    antisurge::sim::run_with(
+        &p,
+        &sc,
+        antisurge::sim::SimOptions {
+            law: LawId::RecyclePi,
+            ..Default::default()
+        },
+        &mut |_| {},
+        &mut |t, core| {
+            if !done && t >= t_switch_s - 1e-9 {
+                done = true;
+                at_switch(core);
+            }
+        },
+    )
+    .expect("sim")
+}
+
+/// Largest change of the valve command over `lag` rows, for rows ending in [t0, t1].
+fn max_step_over(r: &SimResult, lag: usize, t0: f64, t1: f64) -> (f64, f64) {
+    let rows = &r.trace;
+    let mut worst = (0.0f64, f64::NAN);
+    for k in lag..rows.len() {
+        let (a, b) = (&rows[k - lag], &rows[k]);
+        if b.t_s >= t0 && b.t_s <= t1 {
+            let d = (b.cmd_recycle_valve - a.cmd_recycle_valve).abs();
+            if d > worst.0 {
+                worst = (d, b.t_s);
+            }
+        }
+    }
+    worst
+}
+
+#[test]
+fn hot_retune_while_the_valve_closes_at_its_rate_limit_is_bumpless() {
+    // the daemon's hot-reload case: K_p 10 → 16 while the trip-opened valve closes at its
+    // closing rate and the PI demand lies below it
+    let base = rate_limited_closure_with_switch(f64::INFINITY, |_| {});
+    let rate = common::plant(KV)
+        .file
+        .controller
+        .recycle_pi
+        .closing_rate_per_s;
+    // a moment during the throttle closure where the valve has closed at exactly the rate
+    // limit for the last 20 ms
+    let rows = &base.trace;
+    let k_sw = (20..rows.len())
+        .find(|&k| {
+            rows[k].t_s > 5.5
+                && rows[k].t_s < 7.0
+                && ((rows[k - 20].cmd_recycle_valve - rows[k].cmd_recycle_valve) / 0.020 - rate)
+                    .abs()
+                    < 0.01 * rate
+        })
+        .expect("the valve closes at its rate limit during the closure");
+    let t_sw = rows[k_sw].t_s;
+    let retune = |core: &mut antisurge::control::core::ControlCore| {
+        let mut cfg = core.config().clone();
+        cfg.recycle_pi.kp_per_map_flow = 16.0;
+        core.apply_config(cfg).expect("apply");
+    };
+    let r = rate_limited_closure_with_switch(t_sw, retune);
+    // at the switch the valve goes on closing at its rate: no step in the switching cycle
+    let (at_switch, _) = max_step_over(&r, 1, t_sw - 0.0005, t_sw + 0.0015);
+    assert!(
+        at_switch <= 1.01 * rate * 0.001,
+        "step {at_switch} at the switch (t = {t_sw:.3} s)"
+    );
+    // and no 5-ms output step over 1 % afterwards (the daemon test's measure)
+    let (worst, t_worst) = max_step_over(&r, 5, t_sw, t_sw + 1.0);
+    assert!(worst < 0.01, "5-ms step {worst} at t = {t_worst:.3} s");
+    assert_no_surge("retuned", &r);
+
+    // what the fix is for: a fresh bumpless start of the retuned law at the same instant
+    // (integrator set so that its demand equals the closing valve) re-opens the valve
+    let restart = |core: &mut antisurge::control::core::ControlCore| {
+        retune(core);
+        core.select_law(LawId::None).expect("none");
+        core.select_law(LawId::RecyclePi).expect("recycle-pi");
+    };
+    let fresh = rate_limited_closure_with_switch(t_sw, restart);
+    let (fresh_worst, _) = max_step_over(&fresh, 5, t_sw, t_sw + 1.0);
+    eprintln!(
+        "t_sw {t_sw:.3} s: 5-ms step after retune {worst:.4}, after a fresh start {fresh_worst:.4}"
+    );
+    assert!(
+        fresh_worst > 2.0 * worst,
+        "a fresh start bumps no more ({fresh_worst}) than the take-over ({worst})"
+    );
+}
+
+#[test]
+fn hot_reload_during_observer_fallback_stays_in_auto() {
+    // the flow transmitter fails at 4 s; reloads at 6 s (a law gain) and at 7 s (the observer
+    // gain) must not throw the observer away, or the law would lose its flow and the core go
+    // fail-safe
+    let p = common::plant(KV);
+    let sc = common::scenario("flow_transmitter_failure");
+    let c2 = p.file.controller.observer.c2_pa_s_kg;
+    let r = antisurge::sim::run_with(
+        &p,
+        &sc,
+        antisurge::sim::SimOptions {
+            law: LawId::RecyclePi,
+            ..Default::default()
+        },
+        &mut |_| {},
+        &mut |t, core| {
+            let mut cfg = core.config().clone();
+            if (t - 6.0).abs() < 1e-9 {
+                cfg.recycle_pi.ki_per_map_flow_s *= 1.01;
+                core.apply_config(cfg).expect("apply");
+            } else if (t - 7.0).abs() < 1e-9 {
+                cfg.observer.c2_pa_s_kg = 1.5 * c2;
+                core.apply_config(cfg).expect("apply");
+            }
+        },
+    )
+    .expect("sim");
+    for row in r.trace.iter().filter(|row| row.t_s >= 4.1) {
+        assert_eq!(row.mode, 2.0, "not in auto at {}", row.t_s);
+        assert!(row.est_m_kg_s.is_finite(), "no estimate at {}", row.t_s);
+        assert_eq!(row.used_m_kg_s, row.est_m_kg_s, "at {}", row.t_s);
+    }
+    // with its own settings unchanged, the observer goes on exactly as without the reload
+    let base = common::simulate(&p, &sc, LawId::RecyclePi);
+    let at = |res: &SimResult, t: f64| {
+        res.trace
+            .iter()
+            .find(|row| row.t_s >= t - 1e-9)
+            .expect("row")
+            .est_m_kg_s
+    };
+    let (with, without) = (at(&r, 6.0), at(&base, 6.0));
+    assert!(
+        (with - without).abs() < 1e-9 * without.abs(),
+        "estimate at the reload {with} kg/s, without it {without} kg/s"
+    );
+    assert_no_surge("reload in fallback", &r);
+}
+
+#[test]
+fn retune_keeps_safety_on_shifts_and_counters() {
+    let desc = common::plant(KV);
+    let model = ControlModel::from_plant(&desc);
+    let mut law = law_of(&desc);
+    let op = OperatorInputs {
+        speed_setpoint_rad_s: 1000.0,
+        throttle_demand: 0.6,
+        flow_setpoint_kg_s: f64::NAN,
+        recycle_manual: 0.2,
+    };
+    let r = 2.2;
+    let m = measurements(law.control_line().flow_at_ratio(r), r);
+    let inputs = LawInputs {
+        m: &m,
+        op: &op,
+        model: &model,
+    };
+    let mut cur = antisurge::signals::ActuatorCommands::default();
+    cur.set(ActuatorId::RecycleValve, 0.2);
+    law.start(&inputs, &cur);
+    law.surge_detected();
+    law.surge_detected();
+    let u_old = law
+        .update(&inputs, 1e-3)
+        .commands
+        .get(ActuatorId::RecycleValve);
+    let shift = law.control_line().shift;
+    assert!(shift > 0.0);
+
+    let mut cfg = model.controller.recycle_pi.clone();
+    cfg.kp_per_map_flow *= 2.0;
+    let mut retuned = RecyclePi::new(&cfg, &model).expect("law");
+    assert!(retuned.take_over_from(&law));
+    assert_eq!(retuned.control_line().shift, shift);
+    assert_eq!(retuned.safety_on_count(), 2);
+    // same z: the next output continues from the last one (only the integral moves it)
+    let u_new = retuned
+        .update(&inputs, 1e-3)
+        .commands
+        .get(ActuatorId::RecycleValve);
+    let u_same = law
+        .update(&inputs, 1e-3)
+        .commands
+        .get(ActuatorId::RecycleValve);
+    assert!((u_new - u_same).abs() < 1e-12, "{u_new} vs {u_same}");
+    assert!((u_new - u_old).abs() < 2e-3, "{u_new} vs {u_old}");
+
+    // a changed control line changes z: the state is not taken over (a fresh bumpless start
+    // follows), but the safety-on shift is
+    let mut moved = cfg.clone();
+    moved.control_line = ControlLineForm::Sqrt { c0: 0.62 };
+    let mut other = RecyclePi::new(&moved, &model).expect("law");
+    assert!(!other.take_over_from(&law));
+    assert_eq!(other.control_line().shift, shift);
+}

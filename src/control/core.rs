@@ -15,7 +15,8 @@ use crate::surge::{Detection, SurgeDetector};
 /// Controller mode.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
 pub enum Mode {
-    /// Starting: no valid inputs yet.
+    /// Starting: no valid inputs yet. Nothing is commanded (the field devices hold), for at
+    /// most the start-up grace; then fail-safe.
     Init,
     /// Manual: recycle valve from the manual station, speed loop only.
     Manual,
@@ -53,6 +54,11 @@ pub struct CoreSettings {
     pub failsafe_recycle_opening: f64,
     /// Input limits.
     pub supervisor: Supervisor,
+    /// At start, how long to wait for healthy inputs before commanding the fail-safe state,
+    /// s. Meanwhile nothing is commanded, so a controller (re)start on a running machine
+    /// does not move its actuators, and the first law cycle takes over from the measured
+    /// positions.
+    pub startup_grace_s: f64,
 }
 
 impl CoreSettings {
@@ -87,6 +93,7 @@ impl CoreSettings {
         CoreSettings {
             failsafe_recycle_opening: if model.recycle.is_some() { 1.0 } else { 0.0 },
             supervisor: Supervisor { limits },
+            startup_grace_s: 1.0,
         }
     }
 }
@@ -161,6 +168,8 @@ pub struct ControlCore {
     last_manual_input: f64,
     last: ActuatorCommands,
     last_t_s: f64,
+    /// Time of the first cycle, s (NaN before it).
+    first_t_s: f64,
     law_started: bool,
 }
 
@@ -198,6 +207,7 @@ impl ControlCore {
             last_manual_input: f64::NAN,
             last: ActuatorCommands::default(),
             last_t_s: f64::NAN,
+            first_t_s: f64::NAN,
             law_started: false,
             model,
             config,
@@ -242,18 +252,29 @@ impl ControlCore {
         Ok(())
     }
 
-    /// Apply new controller settings (hot reload): the active law is rebuilt and starts
-    /// bumplessly from the current outputs.
+    /// Apply new controller settings (hot reload) at this cycle boundary. The active law is
+    /// rebuilt with the new settings and takes over the running law's state where it can
+    /// (recycle-pi: integrator re-based, trip and safety-on kept); otherwise it starts
+    /// bumplessly from the current outputs. The observer keeps its estimate (a running
+    /// flow-transmitter fallback goes on), and the surge detector and derivative filters
+    /// keep their history unless their own settings changed.
     pub fn apply_config(&mut self, config: ControllerConfig) -> Result<(), LawError> {
-        let law = Law::new(self.law.id(), &config, &self.model)?;
-        self.observer = self
-            .model
-            .observer_plant()
-            .map(|p| MassFlowObserver::new(&config.observer, p));
-        self.detector = SurgeDetector::new(config.detector);
+        let mut law = Law::new(self.law.id(), &config, &self.model)?;
+        let carried = self.law_started && law.take_over_from(&self.law);
+        self.observer = self.model.observer_plant().map(|p| match &self.observer {
+            Some(running) => running.retuned(&config.observer, p),
+            None => MassFlowObserver::new(&config.observer, p),
+        });
+        if config.detector != self.config.detector {
+            self.detector = SurgeDetector::new(config.detector);
+        }
+        if config.derivative_filter_hz != self.config.derivative_filter_hz {
+            self.d_suction = Differentiator::new(config.derivative_filter_hz);
+            self.d_discharge = Differentiator::new(config.derivative_filter_hz);
+        }
         self.law = law;
         self.config = config;
-        self.law_started = false;
+        self.law_started = carried;
         Ok(())
     }
 
@@ -366,6 +387,21 @@ impl ControlCore {
         }
     }
 
+    /// Still starting, inputs not yet healthy: command nothing.
+    fn init_hold(&mut self, meas: Measurements, validity: Validity) -> CycleOutput {
+        self.last = ActuatorCommands::default();
+        CycleOutput {
+            commands: self.last,
+            measurements: meas,
+            mode: Mode::Init,
+            law: self.law.id(),
+            validity,
+            law_diagnostic: f64::NAN,
+            surge: Detection::None,
+            law_event: None,
+        }
+    }
+
     fn failsafe(&mut self, meas: Measurements, validity: Validity) -> CycleOutput {
         // recycle valve to its safe opening, thrust to centre, CCV neutral, torque held
         self.mode = Mode::FailSafe;
@@ -414,7 +450,13 @@ impl ControlCore {
             && validity.ok(SensorId::PDischarge)
             && validity.ok(SensorId::ShaftSpeed);
         let law_needs_flow = self.law.id() != LawId::None && self.auto_requested;
+        if self.first_t_s.is_nan() {
+            self.first_t_s = t_s;
+        }
         if !essentials_ok || (law_needs_flow && !meas.m_kg_s.is_finite()) {
+            if self.mode == Mode::Init && t_s - self.first_t_s < self.settings.startup_grace_s {
+                return self.init_hold(meas, validity);
+            }
             return self.failsafe(meas, validity);
         }
         let from_failsafe = matches!(self.mode, Mode::FailSafe | Mode::Init);
@@ -502,5 +544,96 @@ impl ControlCore {
             surge,
             law_event,
         }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::plant::file::PlantDescription;
+    use crate::scenario::Scenario;
+    use crate::sim::PlantRun;
+    use std::path::Path;
+
+    fn kvangardsnes() -> PlantDescription {
+        let p = Path::new(env!("CARGO_MANIFEST_DIR"))
+            .join("config/plants/kvangardsnes2009_recycle.toml");
+        PlantDescription::load(&p).expect("plant")
+    }
+
+    fn hold() -> Scenario {
+        let p = Path::new(env!("CARGO_MANIFEST_DIR")).join("config/scenarios/hold.toml");
+        Scenario::load(&p).expect("scenario")
+    }
+
+    fn core_for(desc: &PlantDescription, grace_s: f64) -> ControlCore {
+        let model = ControlModel::from_plant(desc);
+        let mut settings = CoreSettings::defaults_for(&model);
+        settings.startup_grace_s = grace_s;
+        let config = model.controller.clone();
+        ControlCore::new(model, config, settings, LawId::RecyclePi, 0.0).expect("core")
+    }
+
+    fn op(core: &ControlCore) -> OperatorInputs {
+        OperatorInputs {
+            speed_setpoint_rad_s: core.model().drive.nominal_speed_rad_s,
+            throttle_demand: f64::NAN,
+            flow_setpoint_kg_s: f64::NAN,
+            recycle_manual: f64::NAN,
+        }
+    }
+
+    #[test]
+    fn no_inputs_at_start_commands_nothing_then_fail_safe_after_the_grace() {
+        let desc = kvangardsnes();
+        let mut core = core_for(&desc, 0.5);
+        let op = op(&core);
+        for k in 0..500 {
+            let out = core.cycle(k as f64 * 1e-3, &RawSensors::missing(), &op);
+            assert_eq!(out.mode, Mode::Init, "cycle {k}");
+            for id in ActuatorId::ALL {
+                assert!(out.commands.get(id).is_nan(), "{id:?} commanded in init");
+            }
+        }
+        let out = core.cycle(0.5, &RawSensors::missing(), &op);
+        assert_eq!(out.mode, Mode::FailSafe);
+        assert_eq!(out.commands.get(ActuatorId::RecycleValve), 1.0);
+    }
+
+    #[test]
+    fn first_healthy_cycle_takes_over_from_the_measured_valve_position() {
+        // a controller (re)start on a running machine, inputs arriving after 30 ms: the law
+        // starts from where the valve is, not from the fail-safe opening
+        let desc = kvangardsnes();
+        let sc = hold();
+        let mut run = PlantRun::new(&desc, &sc).expect("run");
+        let mut core = core_for(&desc, 1.0);
+        let op = op(&core);
+        let (_, raw) = run.sense(0.0);
+        let measured = raw.values.get(SensorId::RecycleValvePosition);
+        assert!(measured.is_finite() && measured < 0.5, "{measured}");
+        for k in 0..30 {
+            let out = core.cycle(k as f64 * 1e-3, &RawSensors::missing(), &op);
+            assert_eq!(out.mode, Mode::Init);
+        }
+        let out = core.cycle(0.030, &raw, &op);
+        assert_eq!(out.mode, Mode::Auto);
+        let u = out.commands.get(ActuatorId::RecycleValve);
+        assert!(
+            (u - measured).abs() < 0.005,
+            "first command {u}, valve at {measured}"
+        );
+
+        // with no grace, the same start goes fail-safe first and the law starts from 100 %
+        let mut eager = core_for(&desc, 0.0);
+        assert_eq!(
+            eager.cycle(0.0, &RawSensors::missing(), &op).mode,
+            Mode::FailSafe
+        );
+        let u = eager
+            .cycle(0.001, &raw, &op)
+            .commands
+            .get(ActuatorId::RecycleValve);
+        assert!(u > 0.99, "{u}");
     }
 }

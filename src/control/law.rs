@@ -305,6 +305,17 @@ impl Law {
         }
     }
 
+    /// Hot reload of the running law with new settings: carry `running`'s dynamic state
+    /// into this freshly built law so that only the settings change. Returns true when the
+    /// state was carried over fully; false when this law has no such transfer (or the
+    /// change needs one), and the caller starts it bumplessly from the applied outputs.
+    pub fn take_over_from(&mut self, running: &Law) -> bool {
+        match (self, running) {
+            (Law::RecyclePi(new), Law::RecyclePi(old)) => new.take_over_from(old),
+            _ => false,
+        }
+    }
+
     /// Bumpless start from the outputs applied now.
     pub fn start(&mut self, inputs: &LawInputs<'_>, current: &ActuatorCommands) {
         if let Some(l) = self.inner() {

@@ -96,6 +96,11 @@ impl LowPass {
         self.y
     }
 
+    /// The same filter state with another cut-off (hot reload: no jump in the output).
+    pub fn with_cutoff(&self, cutoff_hz: f64) -> Self {
+        LowPass { cutoff_hz, ..*self }
+    }
+
     /// Restart from `x`.
     pub fn reset(&mut self, x: f64) {
         self.y = x;
@@ -128,6 +133,22 @@ impl MassFlowObserver {
             p_filter: LowPass::new(cfg.pressure_filter_hz),
             p_in_filter: LowPass::new(cfg.pressure_filter_hz),
         }
+    }
+
+    /// This observer with new settings (hot reload), carrying the current estimate over: the
+    /// filtered pressures keep their values and z is re-based on the new K_z, so m̂ does not
+    /// jump and a running flow-transmitter fallback is not interrupted.
+    pub fn retuned(&self, cfg: &ObserverConfig, plant: ObserverPlant) -> Self {
+        let mut next = MassFlowObserver::new(cfg, plant);
+        if self.started {
+            let p = self.p_filter.y;
+            let m_hat = self.estimate(p);
+            next.p_filter = self.p_filter.with_cutoff(cfg.pressure_filter_hz);
+            next.p_in_filter = self.p_in_filter.with_cutoff(cfg.pressure_filter_hz);
+            next.z = m_hat - next.k_z * p;
+            next.started = m_hat.is_finite();
+        }
+        next
     }
 
     /// K_z = (V/a²)(A/L) c2, s: the gain from measured pressure to the estimate.
@@ -261,6 +282,44 @@ mod tests {
             let m = o.update(1e5, 2e5, 8.0, 1e-3, |_| 2.0);
             assert!(m.is_finite() && m.abs() < 100.0, "{m}");
         }
+    }
+
+    #[test]
+    fn retuning_keeps_the_estimate() {
+        let mut o = obs();
+        o.reset(7.5, 2.2e5, 1.0e5);
+        for _ in 0..50 {
+            o.update(1.0e5, 2.2e5, 7.0, 1e-3, |_| 2.2);
+        }
+        let before = o.estimate(2.2e5);
+        let cfg = ObserverConfig {
+            c2_pa_s_kg: 3.0 * ObserverConfig::default().c2_pa_s_kg,
+            ..ObserverConfig::default()
+        };
+        let r = o.retuned(
+            &cfg,
+            ObserverPlant {
+                area_over_length_m: o.area_over_length(),
+                volume_over_sonic2: 1.5 / (340.0 * 340.0),
+            },
+        );
+        assert!(r.started());
+        assert!((r.k_z() - 3.0 * o.k_z()).abs() < 1e-12 * r.k_z());
+        assert!(
+            (r.estimate(2.2e5) - before).abs() < 1e-9,
+            "{} vs {before}",
+            r.estimate(2.2e5)
+        );
+        // a cold observer stays cold
+        assert!(!obs()
+            .retuned(
+                &cfg,
+                ObserverPlant {
+                    area_over_length_m: 0.015,
+                    volume_over_sonic2: 1e-5
+                }
+            )
+            .started());
     }
 
     #[test]

@@ -400,6 +400,45 @@ impl RecyclePi {
         self.trip_left_s > 0.0
     }
 
+    /// Hot reload: take over the running instance's state, with this instance's gains.
+    ///
+    /// The trip hold, the approach filters, the trip and safety-on counters and the control
+    /// line's safety-on shift always carry over (an edited gain must not move the line back
+    /// left after a surge, nor cancel a trip). When z means the same thing in both (same
+    /// control variable, control line and z filter), the PI integrator is re-based so that
+    /// the unclamped demand at the last z is unchanged: a bumpless parameter change that
+    /// also keeps a closing-rate-limited valve on its way. Returns false when z changed
+    /// meaning; the caller then starts the law bumplessly from the applied opening.
+    pub fn take_over_from(&mut self, old: &RecyclePi) -> bool {
+        if !old.started {
+            return false;
+        }
+        self.scl.shift = old.scl.shift.min(0.01 * self.cfg.safety_on_max_pct);
+        self.shifts = old.shifts;
+        self.trips = old.trips;
+        let same_z = self.cfg.control_variable == old.cfg.control_variable
+            && self.cfg.control_line == old.cfg.control_line
+            && self.cfg.z_filter_hz == old.cfg.z_filter_hz;
+        if !same_z || !old.u_last.is_finite() {
+            return false;
+        }
+        self.z_f = old.z_f;
+        self.integ = if old.z_f.is_finite() {
+            old.integ + (old.kp_z - self.kp_z) * old.z_f
+        } else {
+            old.integ
+        };
+        self.u_last = old.u_last;
+        self.margin_f1 = old.margin_f1;
+        self.margin_f2 = old.margin_f2;
+        self.margin_f2_last = old.margin_f2_last;
+        self.trip_left_s = old.trip_left_s;
+        self.trip_level = old.trip_level;
+        self.shift_pending = old.shift_pending;
+        self.started = true;
+        true
+    }
+
     /// The control variable at an operating point (flow in map units, pressure ratio).
     #[inline]
     pub fn z_at(&self, flow_map: f64, pressure_ratio: f64) -> f64 {

@@ -76,10 +76,19 @@ pub struct ControlSection {
     /// Recycle-valve opening in fail-safe, percent (100: fully open, the usual safe state).
     #[serde(default = "d_failsafe_pct")]
     pub failsafe_recycle_opening_pct: f64,
+    /// At start, how long to wait for healthy inputs before commanding the fail-safe state,
+    /// ms. Meanwhile nothing is commanded: a controller restart on a running machine does not
+    /// move its actuators, and the law takes over from the measured positions.
+    #[serde(default = "d_startup_grace_ms")]
+    pub startup_grace_ms: f64,
 }
 
 fn d_failsafe_pct() -> f64 {
     100.0
+}
+
+fn d_startup_grace_ms() -> f64 {
+    1000.0
 }
 
 /// One `[inputs.<sensor>]` table: plausibility range in the sensor's SI unit and freshness.
@@ -960,6 +969,7 @@ pub fn load_with_env(main: &Path, vars: &[(String, String)]) -> Result<Loaded, V
         });
     }
     core.failsafe_recycle_opening = config.control.failsafe_recycle_opening_pct * 0.01;
+    core.startup_grace_s = config.control.startup_grace_ms * 1e-3;
 
     let mut config = config;
     config.event_log.path = output_path(&config.event_log.path);
@@ -1174,6 +1184,14 @@ pub fn check(l: &Loaded) -> Vec<Problem> {
             "control.failsafe_recycle_opening_pct",
             format!("{f} is outside 0–100 %"),
             "100 (fully open) is the usual safe state",
+        );
+    }
+    let g = c.control.startup_grace_ms;
+    if !(g.is_finite() && (0.0..=60_000.0).contains(&g)) {
+        error(
+            "control.startup_grace_ms",
+            format!("{g} is outside 0–60000 ms"),
+            "1000 gives the buses time to deliver the first readings; 0 goes fail-safe at once",
         );
     }
     if let Some(w) = c.control.speed_setpoint_rad_s {

@@ -7,5 +7,5 @@ pub mod summary;
 pub mod table;
 pub mod trace;
 
-pub use runner::{run, ControllerView, PlantRun, SimError, SimOptions, SimResult};
+pub use runner::{run, run_with, ControllerView, PlantRun, SimError, SimOptions, SimResult};
 pub use summary::Summary;

@@ -409,6 +409,19 @@ pub fn run(
     options: SimOptions,
     progress: &mut dyn FnMut(f64),
 ) -> Result<SimResult, SimError> {
+    run_with(desc, scenario, options, progress, &mut |_, _| {})
+}
+
+/// [`run`], calling `before_cycle(t_s, core)` before every control cycle: what an operator or
+/// the daemon does to a running controller (hot reload, law switch) can be replayed at an
+/// exact time.
+pub fn run_with(
+    desc: &PlantDescription,
+    scenario: &Scenario,
+    options: SimOptions,
+    progress: &mut dyn FnMut(f64),
+    before_cycle: &mut dyn FnMut(f64, &mut ControlCore),
+) -> Result<SimResult, SimError> {
     let mut pr = PlantRun::new(desc, scenario)?;
     let model = ControlModel::from_plant(desc);
     let settings = CoreSettings::defaults_for(&model);
@@ -444,6 +457,7 @@ pub fn run(
             flow_setpoint_kg_s: st.flow_setpoint_kg_s,
             recycle_manual: st.recycle_manual,
         };
+        before_cycle(t, &mut core);
         let out = core.cycle(t, &raw, &op);
         if let Some(e) = out.law_event {
             pr.count_law_event(e);
