@@ -210,7 +210,14 @@ fn check_cantools_frames(db: &CanDatabase, codec: Option<&CanCodec>, out: &Value
                     .find(|b| b.target == *target)
                     .expect("bound");
                 let py = json_f64(&f["phys"][b.signal.as_str()]);
-                assert_eq!(*value, py, "{context}: {target} via codec");
+                let raw = json_int(&f["raw"][b.signal.as_str()]);
+                let sig = msg.signal(&b.signal).expect("bound signal");
+                if raw == sig.layout().raw_not_available() {
+                    // "not available" (cantools shows the plain scaled raw value)
+                    assert!(value.is_nan(), "{context}: {target} via codec: {value}");
+                } else {
+                    assert_eq!(*value, py, "{context}: {target} via codec");
+                }
             }
             if let Some(counter) = msg.alive_counter() {
                 assert_eq!(
@@ -357,12 +364,17 @@ fn codec_frames(db: &CanDatabase) -> Vec<Sent> {
                 }
                 let (_, s) = bound_signal(db, t);
                 let lsb = s.factor().abs();
+                // the signal map reserves one raw value for "not available" (NaN)
+                let l = s.layout();
+                let phys = |raw: i128| raw as f64 * s.factor() + s.offset();
+                let (a, b) = (phys(l.raw_value_min()), phys(l.raw_value_max()));
+                let (vmin, vmax) = (a.min(b), a.max(b));
                 let (want, tol) = if v.is_nan() {
                     assert!(f.report.not_a_number.contains(t));
-                    (s.offset(), 0.0) // raw 0
-                } else if v < s.physical_min() || v > s.physical_max() {
+                    (phys(l.raw_not_available()), 0.0)
+                } else if v < vmin || v > vmax {
                     assert!(f.report.clamped.contains(t), "{t} = {v} not clamped");
-                    (v.clamp(s.physical_min(), s.physical_max()), 1e-9 * lsb)
+                    (v.clamp(vmin, vmax), 1e-9 * lsb)
                 } else {
                     (v, lsb / 2.0 * (1.0 + 1e-9))
                 };

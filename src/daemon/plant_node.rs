@@ -138,8 +138,8 @@ impl<'a> PlantNode<'a> {
     fn publish(&self, now_ns: u64, raw: &crate::control::measurements::RawSensors) {
         match &self.sink {
             SensorSink::Bus { snapshots, wake } => {
-                // a stale (frozen) transmitter sends no valid value: NaN is not encoded, so
-                // the controller's freshness check sees the input age
+                // a failed (frozen) transmitter sends no valid value: NaN goes out as "not
+                // available" on CAN, and the controller's supervisor rejects that input
                 let mut values = raw.values;
                 for id in SensorId::ALL {
                     if raw.age_s[id.index()] > 0.0 {

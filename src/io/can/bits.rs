@@ -187,6 +187,37 @@ impl SignalLayout {
         }
     }
 
+    /// The raw pattern that means "not available" (a NaN value: no reading, or an actuator
+    /// the controller does not drive): all bits set for an unsigned signal, the most negative
+    /// value for a signed one (the SAE J1939 convention; skid.dbc states it per signal).
+    /// A receiver decodes it as NaN, so a failed transmitter or an undriven actuator is never
+    /// mistaken for a value, not even for the zero of a fresh frame.
+    pub fn raw_not_available(&self) -> i128 {
+        if self.signed {
+            self.raw_min()
+        } else {
+            self.raw_max()
+        }
+    }
+
+    /// Smallest raw value that carries a number ([`Self::raw_not_available`] excluded).
+    pub fn raw_value_min(&self) -> i128 {
+        if self.signed {
+            self.raw_min() + 1
+        } else {
+            self.raw_min()
+        }
+    }
+
+    /// Largest raw value that carries a number ([`Self::raw_not_available`] excluded).
+    pub fn raw_value_max(&self) -> i128 {
+        if self.signed {
+            self.raw_max()
+        } else {
+            self.raw_max() - 1
+        }
+    }
+
     #[inline]
     fn word(&self, data: &[u8; MAX_PAYLOAD]) -> u64 {
         match self.byte_order {
@@ -229,7 +260,8 @@ pub enum EncodeStatus {
     InRange,
     /// The value was outside the raw range (or infinite) and was clamped to its limit.
     Clamped,
-    /// The value was NaN: nothing was written.
+    /// The value was NaN: nothing was written ([`pack_physical`]), or the "not available"
+    /// pattern ([`pack_value`]).
     NotANumber,
 }
 
@@ -265,7 +297,8 @@ pub fn physical_to_raw(
     })
 }
 
-/// Encode `physical` into `data` at `layout`. NaN leaves `data` unchanged.
+/// Encode `physical` into `data` at `layout` (plain DBC semantics). NaN leaves `data`
+/// unchanged.
 #[inline]
 pub fn pack_physical(
     data: &mut [u8; MAX_PAYLOAD],
@@ -283,7 +316,7 @@ pub fn pack_physical(
     }
 }
 
-/// Decode the physical value at `layout` from `data`.
+/// Decode the physical value at `layout` from `data` (plain DBC semantics).
 #[inline]
 pub fn unpack_physical(
     data: &[u8; MAX_PAYLOAD],
@@ -292,6 +325,50 @@ pub fn unpack_physical(
     offset: f64,
 ) -> f64 {
     raw_to_physical(layout.unpack(data), factor, offset)
+}
+
+/// Encode a value of a bound signal (the signal map's convention on top of the DBC): NaN
+/// writes the "not available" pattern ([`SignalLayout::raw_not_available`]), a number is
+/// clamped to the raw range that carries numbers, so it can never read as "not available".
+#[inline]
+pub fn pack_value(
+    data: &mut [u8; MAX_PAYLOAD],
+    layout: &SignalLayout,
+    factor: f64,
+    offset: f64,
+    value: f64,
+) -> EncodeStatus {
+    match physical_to_raw(value, factor, offset, layout) {
+        Some((raw, status)) => {
+            let kept = raw.clamp(layout.raw_value_min(), layout.raw_value_max());
+            layout.pack(data, kept);
+            if kept == raw {
+                status
+            } else {
+                EncodeStatus::Clamped
+            }
+        }
+        None => {
+            layout.pack(data, layout.raw_not_available());
+            EncodeStatus::NotANumber
+        }
+    }
+}
+
+/// Decode a value of a bound signal: NaN for the "not available" pattern.
+#[inline]
+pub fn unpack_value(
+    data: &[u8; MAX_PAYLOAD],
+    layout: &SignalLayout,
+    factor: f64,
+    offset: f64,
+) -> f64 {
+    let raw = layout.unpack(data);
+    if raw == layout.raw_not_available() {
+        f64::NAN
+    } else {
+        raw_to_physical(raw, factor, offset)
+    }
 }
 
 #[cfg(test)]
@@ -540,5 +617,50 @@ mod tests {
         );
         assert_eq!(data[0], 0x80);
         assert_eq!(unpack_physical(&data, &l, 1.0, 0.0), -128.0);
+    }
+
+    #[test]
+    fn values_reserve_the_not_available_pattern() {
+        // signed: the most negative raw value; values stop one above it
+        let l = layout(0, 8, Intel, true);
+        assert_eq!(l.raw_not_available(), -128);
+        let mut data = [0x5A; 8];
+        assert_eq!(
+            pack_value(&mut data, &l, 1.0, 0.0, f64::NAN),
+            EncodeStatus::NotANumber
+        );
+        assert_eq!(data[0], 0x80, "NaN is sent as not available");
+        assert_eq!(data[1..], [0x5A; 7], "other bits untouched");
+        assert!(unpack_value(&data, &l, 1.0, 0.0).is_nan());
+        assert_eq!(
+            unpack_physical(&data, &l, 1.0, 0.0),
+            -128.0,
+            "plain DBC view"
+        );
+        for v in [-128.0, -300.0, f64::NEG_INFINITY] {
+            assert_eq!(
+                pack_value(&mut data, &l, 1.0, 0.0, v),
+                EncodeStatus::Clamped
+            );
+            assert_eq!(unpack_value(&data, &l, 1.0, 0.0), -127.0);
+        }
+        assert_eq!(
+            pack_value(&mut data, &l, 1.0, 0.0, -127.0),
+            EncodeStatus::InRange
+        );
+        // unsigned: all ones; values stop one below
+        let b = layout(8, 4, Intel, false);
+        assert_eq!(b.raw_not_available(), 15);
+        assert_eq!(
+            pack_value(&mut data, &b, 1.0, 0.0, f64::NAN),
+            EncodeStatus::NotANumber
+        );
+        assert_eq!(data[1] & 0x0F, 0x0F);
+        assert!(unpack_value(&data, &b, 1.0, 0.0).is_nan());
+        assert_eq!(
+            pack_value(&mut data, &b, 1.0, 0.0, 15.0),
+            EncodeStatus::Clamped
+        );
+        assert_eq!(unpack_value(&data, &b, 1.0, 0.0), 14.0);
     }
 }

@@ -37,7 +37,7 @@ use std::fmt;
 
 use serde::{Deserialize, Serialize};
 
-use super::bits::{pack_physical, unpack_physical, EncodeStatus, SignalLayout, MAX_PAYLOAD};
+use super::bits::{pack_value, unpack_value, EncodeStatus, SignalLayout, MAX_PAYLOAD};
 use super::dbc::{CanDatabase, FrameId, SignalRole};
 use super::e2e::{AliveChecker, AliveCounter, AliveStatus, FrameError, FrameGuard};
 use crate::signals::{ActuatorCommands, ActuatorId, SensorId, SensorSnapshot};
@@ -382,7 +382,7 @@ impl Decoded {
 pub struct EncodeReport {
     /// Targets whose value was outside the signal's raw range and was clamped.
     pub clamped: TargetSet,
-    /// Targets whose value was NaN: their bits were left as they were.
+    /// Targets whose value was NaN: sent as "not available".
     pub not_a_number: TargetSet,
 }
 
@@ -577,14 +577,15 @@ impl CanCodec {
         for b in &m.bound {
             out.push(
                 b.target,
-                unpack_physical(&frame, &b.layout, b.factor, b.offset),
+                unpack_value(&frame, &b.layout, b.factor, b.offset),
             );
         }
         Ok(out)
     }
 
     /// Encode a message into a zeroed payload: every bound signal from `values`, then the
-    /// alive counter `alive` (modulo 2^bits) and the CRC. NaN values leave raw 0.
+    /// alive counter `alive` (modulo 2^bits) and the CRC. NaN values are sent as "not
+    /// available" (all ones, or the most negative raw value of a signed signal).
     #[inline]
     pub fn encode<V: SignalValues + ?Sized>(
         &self,
@@ -603,8 +604,7 @@ impl CanCodec {
         })
     }
 
-    /// Like [`CanCodec::encode`] but over an existing payload: NaN values keep the bits already
-    /// in `data` (pass the last frame sent to hold a setpoint that is "not commanded").
+    /// Like [`CanCodec::encode`] but over an existing payload (unbound bits keep theirs).
     #[inline]
     pub fn encode_into<V: SignalValues + ?Sized>(
         &self,
@@ -620,7 +620,7 @@ impl CanCodec {
         let mut report = EncodeReport::default();
         for b in &m.bound {
             let v = values.value(b.target);
-            match pack_physical(data, &b.layout, b.factor, b.offset, v) {
+            match pack_value(data, &b.layout, b.factor, b.offset, v) {
                 EncodeStatus::InRange => {}
                 EncodeStatus::Clamped => report.clamped.insert(b.target),
                 EncodeStatus::NotANumber => report.not_a_number.insert(b.target),
@@ -808,19 +808,31 @@ mod tests {
         assert_eq!(f.report.not_a_number.len(), 1);
         assert_eq!(&f.data[..2], &[0xFF, 0x7F], "clamped to raw 32767");
 
-        // encode_into keeps the previous bits of a NaN signal (hold last setpoint).
+        // a NaN (not driven) signal goes out as "not available" and decodes as NaN, not as
+        // the value it had before nor as zero; a value cannot produce that pattern
         let mut last = [0u8; 8];
         cmd.set(ActuatorId::TipClearance, 1e-4);
         c.encode_into(m, &cmd, 0, &mut last).expect("encode");
+        let tip = SignalTarget::Actuator(ActuatorId::TipClearance);
         let before = c.decode(FrameId::Standard(0xA1), &last).expect("decode");
+        assert!((before.get(tip).unwrap_or(f64::NAN) - 1e-4).abs() < 1e-12);
         cmd.set(ActuatorId::TipClearance, f64::NAN);
         cmd.set(ActuatorId::CloseCoupledValve, -0.25);
         let r = c.encode_into(m, &cmd, 1, &mut last).expect("encode");
         assert_eq!(r.not_a_number.len(), 1);
         let after = c.decode(FrameId::Standard(0xA1), &last).expect("decode");
-        let tip = SignalTarget::Actuator(ActuatorId::TipClearance);
-        assert_eq!(after.get(tip), before.get(tip));
-        assert!((after.get(tip).unwrap_or(f64::NAN) - 1e-4).abs() < 1e-12);
+        assert!(
+            after.get(tip).is_some_and(f64::is_nan),
+            "{:?}",
+            after.get(tip)
+        );
+        // TipClearanceCmd: Motorola signed 18 bits from bit 17: raw −2^17 = 0b10_0000…0
+        assert_eq!(&last[2..5], &[0b10, 0x00, 0x00], "{last:02x?}");
+        cmd.set(ActuatorId::TipClearance, -1.0); // far below the range: clamped, still a number
+        let r = c.encode_into(m, &cmd, 2, &mut last).expect("encode");
+        assert!(r.clamped.contains(tip));
+        let low = c.decode(FrameId::Standard(0xA1), &last).expect("decode");
+        assert!((low.get(tip).unwrap_or(f64::NAN) + 0.00131071).abs() < 1e-12);
         assert_eq!(
             after.get(SignalTarget::Actuator(ActuatorId::CloseCoupledValve)),
             Some(-0.25)

@@ -242,10 +242,10 @@ impl RxHandler {
             CanCounters::inc(&self.counters.foreign);
             return RxOutcome::Rejected(RxReject::Foreign);
         }
-        if frame.values().iter().any(|(_, v)| !v.is_finite()) {
-            CanCounters::inc(&self.counters.invalid_value);
-            return RxOutcome::Rejected(RxReject::InvalidValue);
-        }
+        // a NaN value is the sender's "not available" (a failed transmitter, an actuator not
+        // driven): published as NaN, so the controller's supervisor rejects that input at
+        // once while the frame's other signals stay fresh, and the plant's field device falls
+        // back to its own setpoint
         let status = self.checkers.check(&frame);
         if let Some(r) = alive_gate(&self.counters, status) {
             return r;

@@ -335,7 +335,7 @@ fn tx_from_output_board_round_trips_to_plant_command_board() {
 }
 
 #[test]
-fn nan_setpoint_keeps_last_bits_and_alive_counts_up() {
+fn nan_setpoint_is_sent_as_not_available_and_alive_counts_up() {
     let c = codec();
     let mut enc =
         FrameEncoder::new(&c.frames, &messages(&c, false), false, refresh()).expect("enc");
@@ -350,10 +350,15 @@ fn nan_setpoint_keeps_last_bits_and_alive_counts_up() {
     assert_eq!(d0[6] & 0x0F, 0);
     assert_eq!(d1[6] & 0x0F, 1, "alive counter +1 per frame");
     assert_eq!(p.rx.handle_data(id, &d0, 1), RxOutcome::Published);
-    assert_eq!(p.rx.handle_data(id, &d1, 2), RxOutcome::Published);
-    let (v, t) = p.commands.get(ActuatorId::RecycleValve);
+    let (v, _) = p.commands.get(ActuatorId::RecycleValve);
     assert!((v - 0.4242).abs() <= actuator_tol(ActuatorId::RecycleValve));
-    assert_eq!(t, 2, "held value is re-sent, so it stays fresh");
+    assert_eq!(p.rx.handle_data(id, &d1, 2), RxOutcome::Published);
+    // RecycleValveCmd (14 bits from bit 18) went out all ones, and arrives as "not driven"
+    let raw = (u32::from_le_bytes([d1[2], d1[3], d1[4], 0]) >> 2) & 0x3FFF;
+    assert_eq!(raw, 0x3FFF, "{d1:02x?}");
+    let (v, t) = p.commands.get(ActuatorId::RecycleValve);
+    assert!(v.is_nan(), "{v}");
+    assert_eq!(t, 2);
     assert_eq!(p.commands.get(ActuatorId::DriveTorque).0, 10.0);
 }
 
@@ -374,9 +379,10 @@ fn on_change_only_skips_unchanged_and_refreshes() {
     // The other message (Cmd2) did not change either.
     assert!(enc.encode(1, &cmd, 4 * ms).is_some(), "first frame of Cmd2");
     assert!(enc.encode(1, &cmd, 5 * ms).is_none());
-    // NaN (not driven) is "unchanged" too.
+    // a value becoming NaN (not driven) is a change; staying NaN is not
     cmd.set(ActuatorId::TipClearance, f64::NAN);
-    assert!(enc.encode(1, &cmd, 6 * ms).is_none());
+    assert!(enc.encode(1, &cmd, 6 * ms).is_some());
+    assert!(enc.encode(1, &cmd, 7 * ms).is_none());
     // Refresh after the period even if unchanged.
     let f = enc.encode(0, &cmd, 14 * ms).expect("refresh");
     assert_eq!(f.data()[6] & 0x0F, 2);
@@ -526,9 +532,9 @@ fn remote_fd_and_error_frames() {
 }
 
 #[test]
-fn every_decoded_value_is_published_and_finite() {
-    // Sweep raw bit patterns through the decoder: nothing panics, and a published frame
-    // never carries a non-finite value.
+fn every_decoded_value_is_published_and_never_infinite() {
+    // Sweep raw bit patterns through the decoder: nothing panics, every frame with a good CRC
+    // is published, and a value is a number or NaN ("not available"), never infinite.
     let c = codec();
     let mut ctl = controller(&c);
     let ids = [0x100u16, 0x101, 0x102];
@@ -539,13 +545,22 @@ fn every_decoded_value_is_published_and_finite() {
         x ^= x << 17;
         let id = FrameId::Standard(ids[(k % 3) as usize]);
         let mut d = x.to_le_bytes();
+        if k == 0 {
+            // PLANT_Pressures with PSuction (Motorola, bytes 0..2) all ones: not available
+            d[..3].copy_from_slice(&[0xFF; 3]);
+        }
         d[7] = frame_crc(id, &d, 7);
         ctl.rx.reset_alive();
         assert_eq!(ctl.rx.handle_data(id, &d, k + 1), RxOutcome::Published);
+        if k == 0 {
+            assert!(ctl.sensors.get(SensorId::PSuction).0.is_nan());
+        }
     }
     for s in SensorId::ALL {
-        assert!(ctl.sensors.get(s).0.is_finite(), "{}", s.name());
+        let v = ctl.sensors.get(s).0;
+        assert!(v.is_finite() || v.is_nan(), "{}: {v}", s.name());
     }
+    assert!(ctl.sensors.get(SensorId::PSuction).0.is_finite());
 }
 
 #[test]

@@ -16,7 +16,7 @@ struct TxMessage {
     index: MessageIndex,
     id: Id,
     dlc: usize,
-    /// Last payload sent (NaN values keep their bits from here).
+    /// Last payload sent (unbound bits keep theirs from here).
     last: [u8; MAX_PAYLOAD],
     /// Alive counter in `last`.
     last_alive: u8,
@@ -24,8 +24,8 @@ struct TxMessage {
     last_sent_ns: Option<u64>,
 }
 
-/// Encodes a fixed list of messages from signal values, holding the last payload of each so
-/// that NaN ("not driven") values keep their last bits.
+/// Encodes a fixed list of messages from signal values. A NaN value ("not driven", "no
+/// reading") goes out as the signal's "not available" pattern, never as a stale number.
 #[derive(Debug, Clone)]
 pub struct FrameEncoder {
     codec: CanCodec,
