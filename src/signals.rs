@@ -26,11 +26,14 @@ pub enum SensorId {
     ThrottlePosition,
     /// Axial rotor position relative to nominal = tip-clearance change, m (positive: larger clearance).
     ThrustPosition,
+    /// Torque the drive reports delivering (actual torque), N·m. After a fail-safe, when the
+    /// drive ran on its own speed governor, the controller takes over from it without a bump.
+    DriveTorque,
 }
 
 impl SensorId {
     /// Every sensor, in a fixed order (used for arrays indexed by sensor).
-    pub const ALL: [SensorId; 8] = [
+    pub const ALL: [SensorId; 9] = [
         SensorId::PSuction,
         SensorId::PDischarge,
         SensorId::ShaftSpeed,
@@ -39,6 +42,7 @@ impl SensorId {
         SensorId::RecycleValvePosition,
         SensorId::ThrottlePosition,
         SensorId::ThrustPosition,
+        SensorId::DriveTorque,
     ];
     /// Number of sensors.
     pub const COUNT: usize = Self::ALL.len();
@@ -59,6 +63,7 @@ impl SensorId {
             SensorId::RecycleValvePosition => "recycle_valve_position",
             SensorId::ThrottlePosition => "throttle_position",
             SensorId::ThrustPosition => "thrust_position",
+            SensorId::DriveTorque => "drive_torque",
         }
     }
 
@@ -70,6 +75,7 @@ impl SensorId {
             SensorId::TSuction => "K",
             SensorId::RecycleValvePosition | SensorId::ThrottlePosition => "fraction",
             SensorId::ThrustPosition => "m",
+            SensorId::DriveTorque => "N·m",
         }
     }
 

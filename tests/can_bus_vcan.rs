@@ -96,6 +96,7 @@ fn snapshot(k: f64) -> SensorSnapshot {
     s.set(SensorId::RecycleValvePosition, 0.3456 + k * 1e-4);
     s.set(SensorId::ThrottlePosition, 0.75);
     s.set(SensorId::ThrustPosition, 3.2e-5 - k * 1e-8);
+    s.set(SensorId::DriveTorque, 987.5 + k * 0.5);
     s
 }
 
@@ -117,6 +118,7 @@ fn sensor_tol(s: SensorId) -> f64 {
         SensorId::TSuction => 0.01,
         SensorId::RecycleValvePosition | SensorId::ThrottlePosition => 1e-4,
         SensorId::ThrustPosition => 1e-8,
+        SensorId::DriveTorque => 0.5,
     };
     step * 0.5 + 1e-9 * step
 }

@@ -312,6 +312,7 @@ fn value_sets(db: &CanDatabase) -> Vec<Vec<(SignalTarget, f64)>> {
         SignalTarget::Sensor(SensorId::RecycleValvePosition) => -0.05,
         SignalTarget::Sensor(SensorId::ThrottlePosition) => 0.7,
         SignalTarget::Sensor(SensorId::ThrustPosition) => -1.0e-3,
+        SignalTarget::Sensor(SensorId::DriveTorque) => 1_234.5,
         SignalTarget::Actuator(ActuatorId::DriveTorque) => -30_000.0,
         SignalTarget::Actuator(ActuatorId::RecycleValve) => 0.0001,
         SignalTarget::Actuator(ActuatorId::Throttle) => 1.0,
@@ -521,7 +522,7 @@ fn check_rust_frames(db: &CanDatabase, dbc: &Path, sent: &[Sent]) {
 fn rust_frames_decode_identically_in_cantools() {
     let db = CanDatabase::from_file(skid_path()).expect("skid.dbc");
     let mut sent = codec_frames(&db);
-    assert_eq!(sent.len(), 5 * value_sets(&db).len());
+    assert_eq!(sent.len(), 6 * value_sets(&db).len());
     sent.extend(heartbeat_frames(&db));
     check_rust_frames(&db, &skid_path(), &sent);
 

@@ -31,7 +31,7 @@ run_case() {
     case $action in
         kill9) (sleep 6.5; kill -9 "$ctl"; echo "killed controller at +6.5 s") >"$dir/action.log" 2>&1 & ;;
         link_bounce) (sleep 9; ip link set "$iface" down; echo "down"; sleep 0.5; ip link set "$iface" up; echo "up") >"$dir/action.log" 2>&1 & ;;
-        malformed) (sleep 8; python3 hil/suite/malformed.py "$iface" 300) >"$dir/action.log" 2>&1 & ;;
+        malformed) python3 hil/suite/malformed.py "$iface" 300 "$(date -d '+8 seconds' +%s.%N)" >"$dir/action.log" 2>&1 & ;;
     esac
     local rc=0
     wait "$plant" || rc=$?

@@ -90,6 +90,8 @@ impl CoreSettings {
         limits[SensorId::RecycleValvePosition.index()] = lim(-0.05, 1.05);
         limits[SensorId::ThrottlePosition.index()] = lim(-0.05, 1.05);
         limits[SensorId::ThrustPosition.index()] = lim(-5e-3, 5e-3);
+        let t_max = 1.5 * model.drive.rated_torque_nm.abs();
+        limits[SensorId::DriveTorque.index()] = lim(-t_max, t_max);
         CoreSettings {
             failsafe_recycle_opening: if model.recycle.is_some() { 1.0 } else { 0.0 },
             supervisor: Supervisor { limits },
@@ -466,10 +468,21 @@ impl ControlCore {
             Mode::Manual
         };
         if from_failsafe {
-            let held = self.last.get(ActuatorId::DriveTorque);
-            if held.is_finite() {
+            // take over from the torque the drive reports delivering (its own governor may
+            // have run meanwhile), else from the torque held in fail-safe
+            let actual = if validity.ok(SensorId::DriveTorque) {
+                raw.values.get(SensorId::DriveTorque)
+            } else {
+                f64::NAN
+            };
+            let from = if actual.is_finite() {
+                actual
+            } else {
+                self.last.get(ActuatorId::DriveTorque)
+            };
+            if from.is_finite() {
                 self.speed
-                    .track(held, op.speed_setpoint_rad_s, meas.omega_rad_s);
+                    .track(from, op.speed_setpoint_rad_s, meas.omega_rad_s);
             }
         }
         // the current outputs, with positions measured where the controller did not drive them
@@ -635,5 +648,49 @@ mod tests {
             .commands
             .get(ActuatorId::RecycleValve);
         assert!(u > 0.99, "{u}");
+    }
+
+    #[test]
+    fn resume_after_fail_safe_takes_over_from_the_reported_drive_torque() {
+        // the drive ran on its own governor during the fail-safe and now delivers 300 N·m
+        // more than the controller held: the speed loop restarts from what the drive reports
+        let desc = kvangardsnes();
+        let sc = hold();
+        let mut run = PlantRun::new(&desc, &sc).expect("run");
+        let mut core = core_for(&desc, 1.0);
+        let op = op(&core);
+        let (_, raw) = run.sense(0.0);
+        let held = core
+            .cycle(0.0, &raw, &op)
+            .commands
+            .get(ActuatorId::DriveTorque);
+        assert!(held.is_finite());
+        for k in 1..=100 {
+            let out = core.cycle(k as f64 * 1e-3, &RawSensors::missing(), &op);
+            assert_eq!(out.mode, Mode::FailSafe);
+            assert_eq!(out.commands.get(ActuatorId::DriveTorque), held);
+        }
+        let mut back = raw;
+        back.values.set(SensorId::DriveTorque, held + 300.0);
+        let out = core.cycle(0.101, &back, &op);
+        assert_eq!(out.mode, Mode::Auto);
+        let t = out.commands.get(ActuatorId::DriveTorque);
+        assert!(
+            (t - (held + 300.0)).abs() < 5.0,
+            "resumed at {t}, drive at {}",
+            held + 300.0
+        );
+
+        // without the drive's report, it resumes from the held torque
+        let mut core = core_for(&desc, 1.0);
+        core.cycle(0.0, &raw, &op);
+        core.cycle(0.001, &RawSensors::missing(), &op);
+        let mut blind = raw;
+        blind.values.set(SensorId::DriveTorque, f64::NAN);
+        let t = core
+            .cycle(0.002, &blind, &op)
+            .commands
+            .get(ActuatorId::DriveTorque);
+        assert!((t - held).abs() < 5.0, "resumed at {t}, held {held}");
     }
 }

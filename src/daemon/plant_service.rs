@@ -63,10 +63,7 @@ pub fn run(opts: &PlantOptions) -> Result<()> {
         snapshots: Arc::new(SnapshotBoard::default()),
         wake: Arc::new(Wakeup::new().context("eventfd")?),
     };
-    let rt = tokio::runtime::Builder::new_multi_thread()
-        .worker_threads(2)
-        .enable_all()
-        .build()?;
+    let rt = crate::runtime::rt_loop::io_runtime(&l.config.cycle, "antisurge-plant-io")?;
     let stop = Arc::new(AtomicBool::new(false));
     let status = Arc::new(PlantStatus::default());
     let (shutdown_tx, shutdown_rx) = tokio::sync::watch::channel(false);

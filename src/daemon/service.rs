@@ -263,11 +263,7 @@ pub fn run(opts: &RunOptions) -> Result<()> {
     for w in &loaded.warnings {
         tracing::warn!(target: "config", "{w}");
     }
-    let rt = tokio::runtime::Builder::new_multi_thread()
-        .worker_threads(2)
-        .enable_all()
-        .thread_name("antisurge-io")
-        .build()
+    let rt = crate::runtime::rt_loop::io_runtime(&loaded.config.cycle, "antisurge-io")
         .context("cannot start the I/O runtime")?;
     rt.block_on(serve(loaded, opts.clone()))
 }

@@ -266,6 +266,7 @@ pub(crate) fn sensor_snapshot(truth: &PlantTruth, orifice_dp_pa: f64) -> SensorS
     s.set(S::RecycleValvePosition, truth.recycle_valve_position);
     s.set(S::ThrottlePosition, truth.throttle_position);
     s.set(S::ThrustPosition, truth.tip_clearance_m);
+    s.set(S::DriveTorque, truth.drive_torque_nm);
     s
 }
 

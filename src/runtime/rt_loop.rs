@@ -51,6 +51,54 @@ impl RtSettings {
     pub fn period_ns(&self) -> u64 {
         (1e9 / self.rate_hz).round() as u64
     }
+
+    /// SCHED_FIFO priority of the bus I/O threads: they carry the loop's inputs and outputs,
+    /// so they must not starve behind ordinary processes, but they stay below the loop
+    /// (10 below `priority`, at least 1). `None` when the loop itself runs unprioritised.
+    pub fn io_priority(&self) -> Option<i32> {
+        self.priority.map(|p| (p - IO_PRIORITY_BELOW_LOOP).max(1))
+    }
+}
+
+/// How far the I/O threads' priority sits below the control loop's.
+pub const IO_PRIORITY_BELOW_LOOP: i32 = 10;
+
+/// Ask for SCHED_FIFO at `priority` for the calling thread.
+pub fn set_current_thread_fifo(priority: i32) -> Result<i32, String> {
+    let param = libc::sched_param {
+        sched_priority: priority,
+    };
+    // SAFETY: sched_setscheduler reads the param struct we pass for the calling thread (0).
+    let r = unsafe { libc::sched_setscheduler(0, libc::SCHED_FIFO, &param) };
+    if r == 0 {
+        Ok(priority)
+    } else {
+        Err(std::io::Error::last_os_error().to_string())
+    }
+}
+
+/// A tokio runtime for bus I/O whose threads run at the settings' I/O priority when the OS
+/// grants it (see [`RtSettings::io_priority`]); what was granted is logged once.
+pub fn io_runtime(s: &RtSettings, name: &str) -> std::io::Result<tokio::runtime::Runtime> {
+    let prio = s.io_priority();
+    let logged = std::sync::Arc::new(AtomicBool::new(false));
+    let label = name.to_string();
+    tokio::runtime::Builder::new_multi_thread()
+        .worker_threads(2)
+        .enable_all()
+        .thread_name(name)
+        .on_thread_start(move || {
+            if let Some(p) = prio {
+                let got = set_current_thread_fifo(p);
+                if !logged.swap(true, Ordering::Relaxed) {
+                    match got {
+                        Ok(p) => tracing::info!(target: "rt", "{label} threads: SCHED_FIFO priority {p}"),
+                        Err(e) => tracing::info!(target: "rt", "{label} threads: normal scheduling (SCHED_FIFO refused: {e})"),
+                    }
+                }
+            }
+        })
+        .build()
 }
 
 /// What the thread obtained from the OS (for the log: "says in the log what it got when not").
@@ -111,14 +159,7 @@ pub fn setup_current_thread(s: &RtSettings) -> RtGranted {
         });
     }
     if let Some(p) = s.priority {
-        let param = libc::sched_param { sched_priority: p };
-        // SAFETY: sched_setscheduler reads the param struct we pass for the calling thread (0).
-        let r = unsafe { libc::sched_setscheduler(0, libc::SCHED_FIFO, &param) };
-        g.scheduler = Some(if r == 0 {
-            Ok(p)
-        } else {
-            Err(std::io::Error::last_os_error().to_string())
-        });
+        g.scheduler = Some(set_current_thread_fifo(p));
     }
     g
 }

@@ -160,6 +160,7 @@ pub fn skid_bindings() -> Vec<SignalBinding> {
         ),
         SignalBinding::sensor(S::ThrottlePosition, "PLANT_Positions", "ThrottlePosition"),
         SignalBinding::sensor(S::ThrustPosition, "PLANT_Positions", "ThrustPosition"),
+        SignalBinding::sensor(S::DriveTorque, "PLANT_Drive", "DriveTorque"),
         SignalBinding::actuator(A::DriveTorque, "CTRL_ActuatorCmd1", "DriveTorqueCmd"),
         SignalBinding::actuator(A::RecycleValve, "CTRL_ActuatorCmd1", "RecycleValveCmd"),
         SignalBinding::actuator(A::Throttle, "CTRL_ActuatorCmd1", "ThrottleCmd"),
@@ -721,7 +722,7 @@ mod tests {
             .filter_map(|m| c.message_name(m))
             .collect();
         assert_eq!(sending, ["CTRL_ActuatorCmd1", "CTRL_ActuatorCmd2"]);
-        assert_eq!(c.sensor_messages().count(), 3);
+        assert_eq!(c.sensor_messages().count(), 4);
     }
 
     #[test]

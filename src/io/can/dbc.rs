@@ -812,7 +812,8 @@ mod tests {
                 "CTRL_ActuatorCmd2",
                 "PLANT_Pressures",
                 "PLANT_SpeedFlowTemp",
-                "PLANT_Positions"
+                "PLANT_Positions",
+                "PLANT_Drive",
             ]
         );
         for m in db.messages() {
@@ -874,6 +875,7 @@ mod tests {
             ("PLANT_Positions", "RecycleValvePosition", 1e-4, 0.0, 1.0),
             ("PLANT_Positions", "ThrottlePosition", 1e-4, 0.0, 1.0),
             ("PLANT_Positions", "ThrustPosition", 1e-8, -1e-3, 1e-3),
+            ("PLANT_Drive", "DriveTorque", 1.0, -30e3, 30e3),
             ("CTRL_ActuatorCmd1", "DriveTorqueCmd", 1.0, -30e3, 30e3),
             ("CTRL_ActuatorCmd1", "RecycleValveCmd", 1e-4, 0.0, 1.0),
             ("CTRL_ActuatorCmd1", "ThrottleCmd", 1e-4, 0.0, 1.0),

@@ -27,6 +27,7 @@ fn sensor_tol(s: SensorId) -> f64 {
         SensorId::TSuction => 0.01,
         SensorId::RecycleValvePosition | SensorId::ThrottlePosition => 1e-4,
         SensorId::ThrustPosition => 1e-8,
+        SensorId::DriveTorque => 0.5,
     };
     step * 0.5 + 1e-12
 }
@@ -50,6 +51,7 @@ fn snapshot() -> SensorSnapshot {
     s.set(SensorId::RecycleValvePosition, 0.34567);
     s.set(SensorId::ThrottlePosition, 0.75);
     s.set(SensorId::ThrustPosition, 3.2e-5);
+    s.set(SensorId::DriveTorque, 987.5);
     s
 }
 
@@ -157,14 +159,14 @@ fn controller_rx_publishes_sensors_within_resolution() {
             s.name(),
             snap.get(s)
         );
-        assert!((1_000..1_003).contains(&t), "{}: stamp {t}", s.name());
+        assert!((1_000..1_004).contains(&t), "{}: stamp {t}", s.name());
     }
     let n = ctl.counters.snapshot();
-    assert_eq!(n.rx_published, 3);
+    assert_eq!(n.rx_published, 4);
     assert_eq!(
         n,
         CanCountersSnapshot {
-            rx_published: 3,
+            rx_published: 4,
             ..Default::default()
         }
     );
