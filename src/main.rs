@@ -50,6 +50,8 @@ fn main() -> std::process::ExitCode {
                 config_dir: None,
                 no_plots: false,
                 json: false,
+                loop_delay_periods: 0,
+                loop_delay_jitter_periods: 0,
             };
             cli::sim::run(&args)
         }

@@ -527,6 +527,7 @@ fn safety_on_moves_the_line_one_step_per_surge_up_to_its_cap() {
         m: &m,
         op: &op,
         model: &model,
+        history: &antisurge::control::law::LoopHistory::EMPTY,
     };
     let mut cur = antisurge::signals::ActuatorCommands::default();
     cur.set(ActuatorId::RecycleValve, 0.2);
@@ -716,6 +717,7 @@ fn law_cycle_does_not_allocate() {
                 m: &ms[0],
                 op: &op,
                 model: &model,
+                history: &antisurge::control::law::LoopHistory::EMPTY,
             },
             &cur,
         );
@@ -731,6 +733,7 @@ fn law_cycle_does_not_allocate() {
                     m,
                     op: &op,
                     model: &model,
+                    history: &antisurge::control::law::LoopHistory::EMPTY,
                 },
                 1e-3,
             ));
@@ -923,6 +926,7 @@ fn retune_keeps_safety_on_shifts_and_counters() {
         m: &m,
         op: &op,
         model: &model,
+        history: &antisurge::control::law::LoopHistory::EMPTY,
     };
     let mut cur = antisurge::signals::ActuatorCommands::default();
     cur.set(ActuatorId::RecycleValve, 0.2);

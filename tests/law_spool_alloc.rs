@@ -102,6 +102,7 @@ fn spool_laws_do_not_allocate_per_cycle() {
                 m: &m,
                 op: &op,
                 model: &model,
+                history: &antisurge::control::law::LoopHistory::EMPTY,
             };
             if k % 1000 == 0 {
                 law.start(&inputs, &current);

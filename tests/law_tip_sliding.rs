@@ -528,6 +528,7 @@ fn the_cycle_is_allocation_free_and_deterministic() {
         m: &m0,
         op: &op,
         model: &model,
+        history: &antisurge::control::law::LoopHistory::EMPTY,
     };
     a.start(&inputs, &ActuatorCommands::default());
     b.start(&inputs, &ActuatorCommands::default());
@@ -539,6 +540,7 @@ fn the_cycle_is_allocation_free_and_deterministic() {
             m: &m,
             op: &op,
             model: &model,
+            history: &antisurge::control::law::LoopHistory::EMPTY,
         };
         let ua = a
             .update(&inputs, 1e-3)

@@ -156,9 +156,19 @@ kernel=$cache/vm/vmlinux
 [[ -f $kernel ]] || kernel=$cache/vm/vmlinuz
 
 # shellcheck disable=SC2054  # the commas are qemu's
+# Clock: by default guest time is host time (multi-threaded TCG). With ANTISURGE_HIL_ICOUNT
+# (e.g. "shift=2,sleep=off"), guest time is virtual and advances with the instructions the
+# guest executes (2^shift ns each): host scheduling hiccups no longer show in the guest as
+# late wake-ups, so real-time loops in the VM behave as on a dedicated machine (single-
+# threaded TCG: slower in wall time).
+if [[ -n ${ANTISURGE_HIL_ICOUNT:-} ]]; then
+    accel=(-accel tcg,thread=single -icount "$ANTISURGE_HIL_ICOUNT")
+else
+    accel=(-accel tcg,thread=multi)
+fi
 qemu=(
     qemu-system-x86_64
-    -accel tcg,thread=multi -machine pc -cpu max
+    "${accel[@]}" -machine pc -cpu max
     -smp "$cpus" -m "$mem"
     -nodefaults -no-user-config -display none -no-reboot
     -rtc base=utc

@@ -41,6 +41,13 @@ pub struct SimArgs {
     /// Print summary.json to stdout instead of the readable summary.
     #[arg(long)]
     pub json: bool,
+    /// Loop delay to simulate, control periods: a command acts this many periods after the
+    /// sample it was computed from (bus transfers, drive response). Default 0: ideal loop.
+    #[arg(long, default_value_t = 0)]
+    pub loop_delay_periods: usize,
+    /// Extra random loop delay of 0..=N periods per command (jitter).
+    #[arg(long, default_value_t = 0)]
+    pub loop_delay_jitter_periods: usize,
 }
 
 /// Run the command.
@@ -86,6 +93,8 @@ pub fn run(args: &SimArgs) -> Result<()> {
         &scenario,
         SimOptions {
             law,
+            loop_delay_periods: args.loop_delay_periods,
+            loop_delay_jitter_periods: args.loop_delay_jitter_periods,
             ..SimOptions::default()
         },
         &mut progress,

@@ -3,7 +3,7 @@
 //! daemon call [`ControlCore::cycle`] once per period.
 
 use super::config::{ControllerConfig, FlowSource};
-use super::law::{Law, LawError, LawEvent, LawId, LawInputs};
+use super::law::{Law, LawError, LawEvent, LawId, LawInputs, LoopHistory};
 use super::measurements::{Measurements, OperatorInputs, RawSensors};
 use super::model::ControlModel;
 use super::observer::{LowPass, MassFlowObserver};
@@ -11,6 +11,9 @@ use super::speed_loop::SpeedLoop;
 use super::supervisor::{InputLimits, Supervisor, Validity};
 use crate::signals::{ActuatorCommands, ActuatorId, SensorId};
 use crate::surge::{Detection, SurgeDetector};
+
+/// Arrival times closer than this are the same sample (clock rounding), s.
+const SAME_SAMPLE_S: f64 = 1e-6;
 
 /// Controller mode.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
@@ -172,6 +175,12 @@ pub struct ControlCore {
     last_t_s: f64,
     /// Time of the first cycle, s (NaN before it).
     first_t_s: f64,
+    /// Total drive torque commands of the last cycles (for delay-compensating laws).
+    history: LoopHistory,
+    /// Arrival time of the newest pressure/speed sample processed, s (NaN: none yet).
+    last_sample_s: f64,
+    /// Measurements of the last processed sample (repeated by a holding cycle).
+    last_meas: Measurements,
     law_started: bool,
 }
 
@@ -210,6 +219,9 @@ impl ControlCore {
             last: ActuatorCommands::default(),
             last_t_s: f64::NAN,
             first_t_s: f64::NAN,
+            history: LoopHistory::EMPTY,
+            last_sample_s: f64::NAN,
+            last_meas: Measurements::unavailable(f64::NAN),
             law_started: false,
             model,
             config,
@@ -392,6 +404,7 @@ impl ControlCore {
     /// Still starting, inputs not yet healthy: command nothing.
     fn init_hold(&mut self, meas: Measurements, validity: Validity) -> CycleOutput {
         self.last = ActuatorCommands::default();
+        self.history.push(f64::NAN);
         CycleOutput {
             commands: self.last,
             measurements: meas,
@@ -425,6 +438,7 @@ impl ControlCore {
             ActuatorId::DriveTorque,
             self.last.get(ActuatorId::DriveTorque),
         );
+        self.history.push(cmd.get(ActuatorId::DriveTorque));
         self.last = cmd;
         CycleOutput {
             commands: cmd,
@@ -440,17 +454,55 @@ impl ControlCore {
 
     /// Run one cycle at time `t_s`.
     pub fn cycle(&mut self, t_s: f64, raw: &RawSensors, op: &OperatorInputs) -> CycleOutput {
+        let validity = self.settings.supervisor.check(raw);
+        let essentials_ok = validity.ok(SensorId::PSuction)
+            && validity.ok(SensorId::PDischarge)
+            && validity.ok(SensorId::ShaftSpeed);
+        // A cycle without a new pressure/speed sample holds its outputs: observers, filters
+        // and integrators take each sample once. (Sender and controller run on their own
+        // clocks; without this a late sample would be processed twice, which a law on a fast
+        // unstable mode does not survive.) Freshness is still supervised: a sample that stops
+        // coming goes stale and the core fails safe as before.
+        let essentials = [
+            SensorId::PSuction,
+            SensorId::PDischarge,
+            SensorId::ShaftSpeed,
+        ];
+        let newest_sample_s = essentials
+            .iter()
+            .map(|s| t_s - raw.age_s[s.index()])
+            .filter(|a| a.is_finite())
+            .fold(f64::NEG_INFINITY, f64::max);
+        if essentials_ok
+            && matches!(self.mode, Mode::Auto | Mode::Manual)
+            && newest_sample_s <= self.last_sample_s + SAME_SAMPLE_S
+        {
+            self.history.push(self.last.get(ActuatorId::DriveTorque));
+            return CycleOutput {
+                commands: self.last,
+                measurements: self.last_meas,
+                mode: self.mode,
+                law: self.law.id(),
+                validity,
+                law_diagnostic: f64::NAN,
+                surge: Detection::None,
+                law_event: None,
+            };
+        }
+        self.last_sample_s = newest_sample_s;
         let dt = if self.last_t_s.is_finite() {
             (t_s - self.last_t_s).max(0.0)
         } else {
             0.0
         };
         self.last_t_s = t_s;
-        let validity = self.settings.supervisor.check(raw);
         let meas = self.measurements(t_s, dt, raw, &validity);
-        let essentials_ok = validity.ok(SensorId::PSuction)
-            && validity.ok(SensorId::PDischarge)
-            && validity.ok(SensorId::ShaftSpeed);
+        self.last_meas = meas;
+        let age = essentials
+            .iter()
+            .map(|s| raw.age_s[s.index()])
+            .fold(0.0f64, f64::max);
+        self.history.sample_age_s = if age.is_finite() { age } else { 0.0 };
         let law_needs_flow = self.law.id() != LawId::None && self.auto_requested;
         if self.first_t_s.is_nan() {
             self.first_t_s = t_s;
@@ -501,6 +553,7 @@ impl ControlCore {
             m: &meas,
             op,
             model: &self.model,
+            history: &self.history,
         };
         match self.mode {
             Mode::Auto => {
@@ -541,6 +594,7 @@ impl ControlCore {
             .speed
             .update(op.speed_setpoint_rad_s, meas.omega_rad_s, extra_torque, dt);
         cmd.set(ActuatorId::DriveTorque, torque);
+        self.history.push(torque);
 
         let surge = self.detector.update(t_s, dt, meas.m_kg_s);
         if matches!(surge, Detection::SurgeStarted | Detection::ReversalStarted) {

@@ -85,10 +85,15 @@
 //! difference between the applied extra torque and −K1 (ω − ω0) as an offset that decays with
 //! `transfer_time_constant_s`: the first output equals the applied one.
 
+#[cfg(doc)]
+use super::law::LoopHistory;
 use super::law::{LawError, LawId, LawInputs, LawOutput, SurgeLaw};
+use super::measurements::Measurements;
 use super::model::ControlModel;
 use crate::physics::compressor_map::FlowCoordinate;
+use crate::plant::plenum_duct::{PlenumDuctPlant, N as PLENUM_N};
 use crate::signals::{ActuatorCommands, ActuatorId};
+use nalgebra::SVector;
 use serde::{Deserialize, Serialize};
 
 /// Where the law takes the mass flow from.
@@ -141,6 +146,14 @@ pub struct DriveTorqueConfig {
     pub torque_limit_nm: f64,
     /// Decay time of the bumpless-transfer offset, s.
     pub transfer_time_constant_s: f64,
+    /// Loop delay the law compensates, ms: from the control cycle to the moment its torque
+    /// acts (command transfer, the drive's torque loop, plus the sensor transfer before the
+    /// sample reached the controller). The law predicts speed and flow from the sample over
+    /// this delay plus the sample's measured age, in whole control periods, with the machine
+    /// model (seed 000 eq. 1) and the torques already commanded (module docs). 0: no
+    /// prediction, for a loop whose command acts within the period (`antisurge sim`). Not in
+    /// the seed.
+    pub delay_compensation_ms: f64,
 }
 
 impl Default for DriveTorqueConfig {
@@ -155,6 +168,7 @@ impl Default for DriveTorqueConfig {
             flow_filter_order: 1,
             torque_limit_nm: 0.0,
             transfer_time_constant_s: 0.5,
+            delay_compensation_ms: 0.0,
         }
     }
 }
@@ -168,6 +182,9 @@ impl DriveTorqueConfig {
 
 /// Largest number of low-pass sections.
 pub const MAX_FILTER_ORDER: usize = 4;
+
+/// Longest loop delay the predictor covers, control periods.
+pub const MAX_DELAY_PERIODS: usize = 8;
 
 /// The region of the map on which eq. 8 is evaluated.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -323,6 +340,10 @@ pub struct DriveTorque {
     /// Bumpless-transfer offset, N·m.
     offset_nm: f64,
     started: bool,
+    /// Loop delay compensated, s (0: none).
+    delay_s: f64,
+    /// The machine model the predictor integrates (plenum/duct machines only).
+    predictor: Option<PlenumDuctPlant>,
 }
 
 fn setting(key: &str, message: String) -> LawError {
@@ -366,6 +387,24 @@ impl DriveTorque {
                 format!("must be 1..={MAX_FILTER_ORDER}, got {order}"),
             ));
         }
+        let delay_s = 1e-3 * non_negative("delay_compensation_ms", cfg.delay_compensation_ms)?;
+        let predictor = match (delay_s > 0.0, model.plenum_duct) {
+            (false, _) => None,
+            (true, Some(params)) => Some(PlenumDuctPlant::for_prediction(
+                params,
+                model.map,
+                model.shaft,
+                model.gas,
+                model.orifice,
+                (model.drive.min_torque_nm, model.drive.rated_torque_nm),
+            )),
+            (true, None) => {
+                return Err(setting(
+                    "delay_compensation_ms",
+                    "the predictor needs the plenum/duct model (seed 000 plants); set 0".into(),
+                ))
+            }
+        };
         let range = model.drive.rated_torque_nm - model.drive.min_torque_nm;
         let limit_nm = match non_negative("torque_limit_nm", cfg.torque_limit_nm)? {
             0.0 => range,
@@ -393,7 +432,61 @@ impl DriveTorque {
             m_out_held: f64::NAN,
             offset_nm: 0.0,
             started: false,
+            delay_s,
+            predictor,
         })
+    }
+
+    /// The measurements the law acts on: as measured, or predicted over the loop delay.
+    ///
+    /// The sample is `sample_age_s` old and the torque computed now acts `delay_s` later: over
+    /// those D = round((age + delay)/h) periods the commands of the last D cycles act (the
+    /// core's [`LoopHistory`]). The
+    /// predictor integrates seed 000 eq. 1 (the plant's own right-hand side, one RK4 step per
+    /// period) from the measured plenum pressure and speed, the observer's flow and the
+    /// measured throttle position (held: the process moves it, the controller cannot know
+    /// how), and returns the predicted pressure, speed and flow. A missing input or history
+    /// returns the measurements unchanged.
+    fn predicted(&mut self, inputs: &LawInputs<'_>, dt_s: f64) -> Measurements {
+        let m = *inputs.m;
+        let Some(model) = self.predictor.as_mut() else {
+            return m;
+        };
+        if dt_s.is_nan() || dt_s <= 0.0 {
+            return m;
+        }
+        // from the sample to the moment the new command acts
+        let horizon_s = inputs.history.sample_age_s + self.delay_s;
+        let periods = ((horizon_s / dt_s).round() as usize).min(MAX_DELAY_PERIODS);
+        let m_hat = match self.flow {
+            FlowInput::Observer => m.m_observer_kg_s,
+            FlowInput::Selected => m.m_kg_s,
+            FlowInput::Measured => m.m_measured_kg_s,
+        };
+        let throttle = m.throttle_position;
+        let mut x = SVector::<f64, PLENUM_N>::new(m.p_discharge_pa, m_hat, m.omega_rad_s, throttle);
+        if periods == 0 || !x.iter().all(|v| v.is_finite()) {
+            return m;
+        }
+        for age in (1..=periods).rev() {
+            let torque = inputs.history.ago(age);
+            if !torque.is_finite() {
+                return m;
+            }
+            model.predict_step(&mut x, torque, throttle, dt_s);
+        }
+        if !x.iter().all(|v| v.is_finite()) {
+            return m;
+        }
+        let mut p = m;
+        p.p_discharge_pa = x[0];
+        p.omega_rad_s = x[2];
+        match self.flow {
+            FlowInput::Observer => p.m_observer_kg_s = x[1],
+            FlowInput::Selected => p.m_kg_s = x[1],
+            FlowInput::Measured => p.m_measured_kg_s = x[1],
+        }
+        p
     }
 
     /// c1, rad/s per kg/s.
@@ -488,6 +581,12 @@ impl SurgeLaw for DriveTorque {
         if !self.started {
             self.start(inputs, &ActuatorCommands::default());
         }
+        // over the loop delay, if one is compensated
+        let predicted = self.predicted(inputs, dt_s);
+        let inputs = &LawInputs {
+            m: &predicted,
+            ..*inputs
+        };
         let d = self.deviation(inputs);
         if d.is_finite() {
             // noise filter on d = m̂ − m_out
@@ -589,6 +688,7 @@ mod tests {
             m: &m,
             op: &o,
             model: &model,
+            history: &crate::control::law::LoopHistory::EMPTY,
         };
         let mut cur = ActuatorCommands::default();
         cur.set(ActuatorId::DriveTorque, 25.0);
@@ -605,6 +705,7 @@ mod tests {
             m: &m,
             op: &o,
             model: &model,
+            history: &crate::control::law::LoopHistory::EMPTY,
         };
         let mut t = f64::NAN;
         for _ in 0..10_000 {
@@ -627,6 +728,7 @@ mod tests {
             m: &m,
             op: &o,
             model: &model,
+            history: &crate::control::law::LoopHistory::EMPTY,
         };
         law.start(&inputs, &ActuatorCommands::default());
         let before = law.update(&inputs, 1e-3);
@@ -635,6 +737,7 @@ mod tests {
             m: &m,
             op: &o,
             model: &model,
+            history: &crate::control::law::LoopHistory::EMPTY,
         };
         let after = law.update(&inputs, 1e-3);
         assert!(before.diagnostic.abs() < 1e-12);

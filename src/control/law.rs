@@ -169,6 +169,54 @@ pub struct LawInputs<'a> {
     pub op: &'a OperatorInputs,
     /// The machine model.
     pub model: &'a ControlModel,
+    /// Loop timing: the drive torques of the last cycles (still in flight when the loop has a
+    /// delay) and the age of this cycle's sample.
+    pub history: &'a LoopHistory,
+}
+
+/// What a delay-compensating law needs to know about the loop: the total drive torque
+/// commands of the last cycles, newest first, N·m (NaN: none yet), and how old the pressure
+/// and speed sample of this cycle is. With a loop delay, the commands of the last cycles act
+/// before the one computed now does; a law predicts the machine through them.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct LoopHistory {
+    /// `newest_first_nm[0]` is the previous cycle's command.
+    pub newest_first_nm: [f64; LoopHistory::LEN],
+    /// Age of the oldest of the pressure and speed inputs this cycle runs on, s (time since
+    /// it arrived; 0 in the simulation).
+    pub sample_age_s: f64,
+}
+
+impl LoopHistory {
+    /// How many cycles are kept.
+    pub const LEN: usize = 16;
+    /// No commands yet.
+    pub const EMPTY: LoopHistory = LoopHistory {
+        newest_first_nm: [f64::NAN; LoopHistory::LEN],
+        sample_age_s: 0.0,
+    };
+
+    /// Record this cycle's command (allocation-free shift).
+    #[inline]
+    pub fn push(&mut self, torque_nm: f64) {
+        self.newest_first_nm.copy_within(0..Self::LEN - 1, 1);
+        self.newest_first_nm[0] = torque_nm;
+    }
+
+    /// The command of `age` cycles ago (1: the previous cycle), NaN if unknown.
+    #[inline]
+    pub fn ago(&self, age: usize) -> f64 {
+        age.checked_sub(1)
+            .and_then(|i| self.newest_first_nm.get(i))
+            .copied()
+            .unwrap_or(f64::NAN)
+    }
+}
+
+impl Default for LoopHistory {
+    fn default() -> Self {
+        Self::EMPTY
+    }
 }
 
 /// What a law returns in one cycle.

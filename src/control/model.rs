@@ -6,6 +6,7 @@ use super::observer::ObserverPlant;
 use crate::physics::compressor_map::{CompressorMap, FlowCoordinate};
 use crate::physics::gas::Gas;
 use crate::physics::orifice::Orifice;
+use crate::physics::shaft::Shaft;
 use crate::plant::file::{
     DriveSpec, ModelKind, PlantDescription, PlenumDuctParams, RecycleParams, SpoolParams,
     ThrustRating, TipClearanceParams,
@@ -26,6 +27,8 @@ pub struct ControlModel {
     pub map: CompressorMap,
     /// Drive data (rating, nominal speed, speed-loop gains).
     pub drive: DriveSpec,
+    /// Rotor data for the torque balance (seed 000 eq. 1c).
+    pub shaft: Shaft,
     /// Plenum/duct data (seed 000 plants).
     pub plenum_duct: Option<PlenumDuctParams>,
     /// Recycle system data (seed 001/002 plants).
@@ -60,6 +63,7 @@ impl ControlModel {
             orifice: f.orifice,
             map: desc.map,
             drive: f.drive,
+            shaft: f.shaft,
             plenum_duct: f.plenum_duct,
             recycle: f.recycle_system,
             tip: f.tip_clearance,

@@ -789,6 +789,7 @@ mod tests {
             m: &m,
             op: &o,
             model: &model,
+            history: &crate::control::law::LoopHistory::EMPTY,
         };
         let mt = law.map_terms(&inputs, 0.0).unwrap();
         let lin = law.linearize(&inputs, &mt, mt.dw_dt, u).unwrap();
@@ -848,6 +849,7 @@ mod tests {
                 m: &m,
                 op: &o,
                 model: &model,
+                history: &crate::control::law::LoopHistory::EMPTY,
             };
             let mt = law.map_terms(&inputs, 0.0).unwrap();
             let lin = law.linearize(&inputs, &mt, mt.dw_dt, u).unwrap();
@@ -873,6 +875,7 @@ mod tests {
                 m: &m,
                 op: &o,
                 model: &model,
+                history: &crate::control::law::LoopHistory::EMPTY,
             };
             let mt = law.map_terms(&inputs, 0.0).unwrap();
             let lin = law.linearize(&inputs, &mt, mt.dw_dt, 0.3).unwrap();
@@ -901,6 +904,7 @@ mod tests {
             m: &m,
             op: &o,
             model: &model,
+            history: &crate::control::law::LoopHistory::EMPTY,
         };
         let mut current = ActuatorCommands::default();
         current.set(ActuatorId::RecycleValve, 0.42);
@@ -916,6 +920,7 @@ mod tests {
             m: &lost,
             op: &o,
             model: &model,
+            history: &crate::control::law::LoopHistory::EMPTY,
         };
         let held = law
             .update(&inputs, 1e-3)
@@ -929,6 +934,7 @@ mod tests {
             m: &m,
             op: &o,
             model: &model,
+            history: &crate::control::law::LoopHistory::EMPTY,
         };
         law.start(&inputs, &current);
         assert_eq!(law.update(&inputs, 1e-3).diagnostic, 0.31);

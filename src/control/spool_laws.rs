@@ -1070,6 +1070,7 @@ mod tests {
                 m: &m,
                 op: &op,
                 model: &model,
+                history: &crate::control::law::LoopHistory::EMPTY,
             };
             let fr = law.c.frame(&inputs).unwrap();
             let u2 = law.raw_ccv(&fr);
@@ -1121,6 +1122,7 @@ mod tests {
                     m: &m,
                     op: &op,
                     model: &model,
+                    history: &crate::control::law::LoopHistory::EMPTY,
                 };
                 let fr = law.c.frame(&inputs).unwrap();
                 (fr, law.law(&fr))
@@ -1166,6 +1168,7 @@ mod tests {
                 m: &m,
                 op: &op,
                 model: &model,
+                history: &crate::control::law::LoopHistory::EMPTY,
             };
             let fr = ccv.c.frame(&inputs).unwrap();
             let (u1, u2) = law.law(&fr);
@@ -1191,6 +1194,7 @@ mod tests {
             m: &m,
             op: &op,
             model: &model,
+            history: &crate::control::law::LoopHistory::EMPTY,
         };
         let mut current = ActuatorCommands::default();
         current.set(ActuatorId::CloseCoupledValve, 0.03);

@@ -709,6 +709,7 @@ mod tests {
                     m: &at_start,
                     op: &OP,
                     model: &model,
+                    history: &crate::control::law::LoopHistory::EMPTY,
                 };
                 law.start(&inputs, &ActuatorCommands::default());
                 law.update(&inputs, 1e-3);
@@ -720,6 +721,7 @@ mod tests {
                         m: &x,
                         op: &OP,
                         model: &model,
+                        history: &crate::control::law::LoopHistory::EMPTY,
                     },
                     1e-3,
                 );
@@ -751,6 +753,7 @@ mod tests {
             m: &rest,
             op: &OP,
             model: &model,
+            history: &crate::control::law::LoopHistory::EMPTY,
         };
         let mut law = TipSliding::new(&model.controller.tip_sliding, &model).unwrap();
         let mut cur = ActuatorCommands::default();

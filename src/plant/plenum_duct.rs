@@ -113,6 +113,49 @@ impl PlenumDuctPlant {
         }
     }
 
+    /// The model without a state, for the controller's delay predictor (the same eq. 1 the
+    /// simulated plant integrates, built from the controller's own plant description).
+    pub fn for_prediction(
+        params: PlenumDuctParams,
+        map: CompressorMap,
+        shaft: Shaft,
+        gas: Gas,
+        orifice: Orifice,
+        torque_limits_nm: (f64, f64),
+    ) -> Self {
+        PlenumDuctPlant {
+            params,
+            map,
+            shaft,
+            gas,
+            orifice,
+            torque_limits_nm,
+            settings: StepSettings::default(),
+            x: SVector::zeros(),
+            t_s: 0.0,
+            h_state_s: 0.0,
+            torque_nm: 0.0,
+            throttle_cmd: 0.0,
+        }
+    }
+
+    /// Advance the state `x` (p, m, ω, throttle position) by `h_s` with the drive torque and
+    /// the throttle target held: one classical RK4 step (fixed work, for the control cycle).
+    #[inline]
+    pub fn predict_step(
+        &mut self,
+        x: &mut SVector<f64, N>,
+        torque_nm: f64,
+        throttle_target: f64,
+        h_s: f64,
+    ) {
+        let (lo, hi) = self.torque_limits_nm;
+        self.torque_nm = torque_nm.clamp(lo, hi);
+        self.throttle_cmd = throttle_target;
+        *x = solver::rk4::step(self, 0.0, x, h_s);
+        self.project(x);
+    }
+
     /// Throttle flow m_t at plenum pressure p and stem position l, kg/s.
     #[inline]
     pub fn throttle_flow(&self, p_pa: f64, position: f64) -> f64 {

@@ -23,6 +23,13 @@ pub struct SimOptions {
     pub law: LawId,
     /// Call the progress callback every this many control periods.
     pub progress_every: usize,
+    /// Loop delay, control periods: a command computed from the sensors of period k acts from
+    /// period k + delay on (0: at once, the ideal sampled loop). Models bus transfers and the
+    /// drive's response, to check a tuning's delay margin.
+    pub loop_delay_periods: usize,
+    /// Extra random delay of 0..=this many periods per command (deterministic sequence); the
+    /// plant applies the newest command that has arrived.
+    pub loop_delay_jitter_periods: usize,
 }
 
 impl Default for SimOptions {
@@ -30,7 +37,60 @@ impl Default for SimOptions {
         SimOptions {
             law: LawId::None,
             progress_every: 2000,
+            loop_delay_periods: 0,
+            loop_delay_jitter_periods: 0,
         }
+    }
+}
+
+/// Commands on their way to the plant (the loop delay of [`SimOptions`]).
+struct InFlight {
+    /// (period it arrives, period it was computed, commands).
+    queue: std::collections::VecDeque<(usize, usize, ActuatorCommands)>,
+    applied: ActuatorCommands,
+    applied_from: usize,
+    rng: u64,
+}
+
+impl InFlight {
+    fn new() -> Self {
+        InFlight {
+            queue: std::collections::VecDeque::with_capacity(64),
+            applied: ActuatorCommands::default(),
+            applied_from: 0,
+            rng: 0x9E37_79B9_7F4A_7C15,
+        }
+    }
+
+    /// Send `commands` computed in period `k`; return what the plant applies in period `k`.
+    fn pass(&mut self, k: usize, commands: ActuatorCommands, o: &SimOptions) -> ActuatorCommands {
+        if o.loop_delay_periods == 0 && o.loop_delay_jitter_periods == 0 {
+            return commands;
+        }
+        let mut d = o.loop_delay_periods;
+        if o.loop_delay_jitter_periods > 0 {
+            // xorshift64: a fixed sequence, so runs repeat exactly
+            self.rng ^= self.rng << 13;
+            self.rng ^= self.rng >> 7;
+            self.rng ^= self.rng << 17;
+            d += (self.rng % (o.loop_delay_jitter_periods as u64 + 1)) as usize;
+        }
+        self.queue.push_back((k + d, k, commands));
+        // the newest command that has arrived
+        let mut i = 0;
+        while i < self.queue.len() {
+            match self.queue.get(i) {
+                Some(&(arrive, from, c)) if arrive <= k => {
+                    if from >= self.applied_from {
+                        self.applied = c;
+                        self.applied_from = from;
+                    }
+                    self.queue.remove(i);
+                }
+                _ => i += 1,
+            }
+        }
+        self.applied
     }
 }
 
@@ -442,6 +502,7 @@ pub fn run_with(
 
     let dt = pr.dt_s();
     let n_steps = pr.n_steps();
+    let mut in_flight = InFlight::new();
     for k in 0..=n_steps {
         let t = k as f64 * dt;
         let (st, raw) = pr.sense(t);
@@ -474,7 +535,8 @@ pub fn run_with(
         if k == n_steps {
             break;
         }
-        pr.advance(&st, &out.commands, dt);
+        let applied = in_flight.pass(k, out.commands, &options);
+        pr.advance(&st, &applied, dt);
         if options.progress_every > 0 && k % options.progress_every == 0 {
             progress(k as f64 / n_steps as f64);
         }
