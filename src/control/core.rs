@@ -747,4 +747,45 @@ mod tests {
             .get(ActuatorId::DriveTorque);
         assert!((t - held).abs() < 5.0, "resumed at {t}, held {held}");
     }
+
+    #[test]
+    fn a_repeated_sample_holds_the_outputs_and_is_processed_once() {
+        // the controller's clock runs ahead of the sender's: the second cycle sees the same
+        // sample (arrival time unchanged, age one period older) and must hold, not re-run the
+        // observer and the law on it
+        let desc = kvangardsnes();
+        let sc = hold();
+        let mut run = PlantRun::new(&desc, &sc).expect("run");
+        let mut core = core_for(&desc, 1.0);
+        let op = op(&core);
+        let (_, raw) = run.sense(0.0);
+        let first = core.cycle(0.0, &raw, &op);
+        assert_eq!(first.mode, Mode::Auto);
+        let mut again = raw;
+        again.age_s = [0.001; SensorId::COUNT];
+        let held = core.cycle(0.001, &again, &op);
+        // (NaN fields: compare the printed values)
+        assert_eq!(
+            format!("{:?}", held.commands),
+            format!("{:?}", first.commands)
+        );
+        assert_eq!(
+            format!("{:?}", held.measurements),
+            format!("{:?}", first.measurements)
+        );
+        assert!(held.law_diagnostic.is_nan(), "the law did not run");
+        // a new sample runs the law, with dt over both periods
+        let mut next = raw;
+        next.values.set(
+            SensorId::PDischarge,
+            raw.values.get(SensorId::PDischarge) + 50.0,
+        );
+        let out = core.cycle(0.002, &next, &op);
+        assert!(out.law_diagnostic.is_finite());
+        assert!((out.measurements.t_s - 0.002).abs() < 1e-12);
+        // a sample that stops coming still goes stale and fails safe
+        let mut stale = next;
+        stale.age_s = [0.2; SensorId::COUNT];
+        assert_eq!(core.cycle(0.2, &stale, &op).mode, Mode::FailSafe);
+    }
 }
