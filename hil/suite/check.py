@@ -158,6 +158,42 @@ if case == "malformed":
     modes = [e["to"] for e in ev if e.get("event") == "mode_changed"]
     check(modes.count("fail_safe") <= 1, f"no fail-safe caused by the burst (mode changes: {modes})")
 
+if case == "timing":
+    # the real-time figures of the README: the drive-torque pair, with cyclictest at the same
+    # priority and candump on the bus during the same run
+    check(s["surge_cycles"] == 0, "drive-torque pair out of surge while measured")
+    w, c = stats["wake_jitter_us"], stats["compute_us"]
+    ct = (d / "cyclictest.txt").read_text() if (d / "cyclictest.txt").exists() else ""
+    hist = []
+    for l in ct.splitlines():
+        parts = l.split()
+        if len(parts) == 2 and parts[0].isdigit() and parts[1].isdigit():
+            hist.append((int(parts[0]), int(parts[1])))
+    n = sum(k for _, k in hist)
+
+    def hist_q(q):
+        acc = 0
+        for us, k in hist:
+            acc += k
+            if acc >= q * n:
+                return us
+        return float("nan")
+    maxl = [l for l in ct.splitlines() if l.startswith("# Max Latencies")]
+    ct_max = int(maxl[0].split(":")[1].split()[0]) if maxl else float("nan")
+    m = [f"p50 {hist_q(0.5)} / p99 {hist_q(0.99)} / max {ct_max} us over {n} wake-ups"] if n else []
+    check(n > 10000, f"cyclictest at the loops' priority, same run: {m[0] if m else ct.strip()[-300:]}")
+    lat = json.loads(subprocess.run([sys.executable, str(Path(__file__).with_name("latency.py")),
+                                     str(d / "candump.log"), "1", "17"],
+                                    capture_output=True, text=True).stdout or "{}")
+    check(lat.get("frames", 0) > 10000, f"sensor-frame-to-actuator-frame latency on vcan0 over {lat.get('frames', 0)} frames: "
+          f"p50 {lat.get('p50_us', float('nan')):.0f} / p99 {lat.get('p99_us', float('nan')):.0f} / max {lat.get('max_us', float('nan')):.0f} us")
+    check(lat.get("p99_us", 1e9) < 2000.0, "latency p99 under two periods")
+    figures = {"controller_wake_jitter_us": w, "controller_compute_us": c, "overruns": stats["overruns"],
+               "cycles": stats["cycles"], "max_rss_kib": stats["max_rss_kib"], "cyclictest": m[0] if m else None,
+               "frame_latency_us": lat}
+    (d / "timing.json").write_text(json.dumps(figures, indent=1))
+    print(f"  figures in {d / 'timing.json'}")
+
 if fails:
     print(f"case {case}: FAILED ({len(fails)} check(s))")
     sys.exit(1)

@@ -4,19 +4,19 @@
 # scenario in real time, and hil/suite/check.py checks the plant's summary and trace against
 # an in-process `antisurge sim` run of the same plant, scenario and law.
 #
-#   hil/suite/inside.sh [CASE...]     cases: recycle_pi drive_torque kill9 link_bounce malformed
+#   hil/suite/inside.sh [CASE...]     cases: recycle_pi drive_torque kill9 link_bounce malformed timing
 set -euo pipefail
 cd "$(dirname "$0")/../.."
 bin=${ANTISURGE_BIN:-target/release/antisurge}
 out=${ANTISURGE_HIL_OUT:-out/hil}
 iface=vcan0
 cases=("$@")
-[[ ${#cases[@]} -gt 0 ]] || cases=(recycle_pi drive_torque kill9 link_bounce malformed)
+[[ ${#cases[@]} -gt 0 ]] || cases=(recycle_pi drive_torque kill9 link_bounce malformed timing)
 mkdir -p "$out"
 echo "HIL suite on $iface (${ANTISURGE_HIL_INSIDE:-?}), cases: ${cases[*]}"
 
 # run_case NAME CONFIG ACTION: plant + controller on vcan0; ACTION runs in the background
-# during the scenario (none | kill9 | link_bounce | malformed).
+# during the scenario (none | kill9 | link_bounce | malformed | timing).
 run_case() {
     local name=$1 cfg=$2 action=$3
     local dir=$out/$name
@@ -31,6 +31,11 @@ run_case() {
     case $action in
         kill9) (sleep 6.5; kill -9 "$ctl"; echo "killed controller at +6.5 s") >"$dir/action.log" 2>&1 & ;;
         link_bounce) (sleep 9; ip link set "$iface" down; echo "down"; sleep 0.5; ip link set "$iface" up; echo "up") >"$dir/action.log" 2>&1 & ;;
+        timing)
+            # measured beside the loops, at their priority: cyclictest, and every frame on the bus
+            (cyclictest -m -p "$(awk -F' *= *' '/^priority/ {print $2}' "$cfg")" -i 1000 -D 18 -q -h 20000 \
+                >"$dir/cyclictest.txt" 2>&1) &
+            (timeout 20 candump -t a vcan0 >"$dir/candump.log" 2>/dev/null) & ;;
         malformed) python3 hil/suite/malformed.py "$iface" 300 "$(date -d '+8 seconds' +%s.%N)" >"$dir/action.log" 2>&1 & ;;
     esac
     local rc=0
@@ -53,6 +58,7 @@ for c in "${cases[@]}"; do
         kill9) run_case kill9 hil/configs/can_recycle_pi.toml kill9 || fail=1 ;;
         link_bounce) run_case link_bounce hil/configs/can_recycle_pi.toml link_bounce || fail=1 ;;
         malformed) run_case malformed hil/configs/can_recycle_pi.toml malformed || fail=1 ;;
+        timing) run_case timing hil/configs/can_drive_torque.toml timing || fail=1 ;;
         *) echo "unknown case $c"; fail=1 ;;
     esac
 done
