@@ -36,27 +36,15 @@ python3 - "$dir" <<'PY'
 import json, sys
 from pathlib import Path
 d = Path(sys.argv[1])
+sys.path.insert(0, "hil/suite")
+from cyclictest_hist import stats as cyclictest_stats
 stats = json.loads((d / "stats.json").read_text())
-hist, maxl = [], None
-for l in (d / "cyclictest.txt").read_text().splitlines():
-    p = l.split()
-    if len(p) == 2 and p[0].isdigit() and p[1].isdigit():
-        hist.append((int(p[0]), int(p[1])))
-    if l.startswith("# Max Latencies"):
-        maxl = int(l.split(":")[1].split()[0])
-n = sum(k for _, k in hist)
-def q(x):
-    acc = 0
-    for us, k in hist:
-        acc += k
-        if acc >= x * n:
-            return us
 print(json.dumps({
     "antisurge_wake_jitter_us": stats["wake_jitter_us"],
     "antisurge_compute_us": stats["compute_us"],
     "antisurge_input_age_us": stats["input_age_us"],
     "overruns": stats["overruns"], "cycles": stats["cycles"],
     "max_rss_kib": stats["max_rss_kib"],
-    "cyclictest_us": {"p50": q(0.5), "p99": q(0.99), "max": maxl, "samples": n},
+    "cyclictest_us": cyclictest_stats((d / "cyclictest.txt").read_text()),
 }, indent=1))
 PY

@@ -506,6 +506,35 @@ fn measurements(flow_map: f64, ratio: f64) -> Measurements {
     }
 }
 
+/// Operator inputs of the law-level tests (nominal speed, recycle station at 20 %).
+fn operator() -> OperatorInputs {
+    OperatorInputs {
+        speed_setpoint_rad_s: 1000.0,
+        throttle_demand: 0.6,
+        flow_setpoint_kg_s: f64::NAN,
+        recycle_manual: 0.2,
+    }
+}
+
+/// The law's inputs for measurements `m`, and a bumpless start from a 20 % valve.
+fn start_at_20pct<'a>(
+    law: &mut RecyclePi,
+    m: &'a Measurements,
+    op: &'a OperatorInputs,
+    model: &'a ControlModel,
+) -> LawInputs<'a> {
+    let inputs = LawInputs {
+        m,
+        op,
+        model,
+        history: &antisurge::control::law::LoopHistory::EMPTY,
+    };
+    let mut cur = antisurge::signals::ActuatorCommands::default();
+    cur.set(ActuatorId::RecycleValve, 0.2);
+    law.start(&inputs, &cur);
+    inputs
+}
+
 #[test]
 fn safety_on_moves_the_line_one_step_per_surge_up_to_its_cap() {
     let desc = common::plant(KV);
@@ -514,24 +543,11 @@ fn safety_on_moves_the_line_one_step_per_surge_up_to_its_cap() {
     cfg.safety_on_step_pct = 5.0;
     cfg.safety_on_max_pct = 12.0;
     let mut law = RecyclePi::new(&cfg, &model).expect("law");
-    let op = OperatorInputs {
-        speed_setpoint_rad_s: 1000.0,
-        throttle_demand: 0.6,
-        flow_setpoint_kg_s: f64::NAN,
-        recycle_manual: 0.2,
-    };
+    let op = operator();
     let r = 2.2;
     let q0 = law.control_line().flow_at_ratio(r);
     let m = measurements(q0, r);
-    let inputs = LawInputs {
-        m: &m,
-        op: &op,
-        model: &model,
-        history: &antisurge::control::law::LoopHistory::EMPTY,
-    };
-    let mut cur = antisurge::signals::ActuatorCommands::default();
-    cur.set(ActuatorId::RecycleValve, 0.2);
-    law.start(&inputs, &cur);
+    let inputs = start_at_20pct(&mut law, &m, &op, &model);
     let j = model.map.surge_line.flow_at_ratio(r);
     let expected = [0.05, 0.10, 0.12, 0.12];
     for (k, &total) in expected.iter().enumerate() {
@@ -767,22 +783,12 @@ fn rate_limited_closure_with_switch(
          [[event]]\nat_s=5\nramp={signal='throttle', to=0.2, over_s=2}\n",
     );
     let mut done = false;
-    antisurge::sim::run_with(
-        &p,
-        &sc,
-        antisurge::sim::SimOptions {
-            law: LawId::RecyclePi,
-            ..Default::default()
-        },
-        &mut |_| {},
-        &mut |t, core| {
-            if !done && t >= t_switch_s - 1e-9 {
-                done = true;
-                at_switch(core);
-            }
-        },
-    )
-    .expect("sim")
+    common::simulate_with(&p, &sc, LawId::RecyclePi, &mut |t, core| {
+        if !done && t >= t_switch_s - 1e-9 {
+            done = true;
+            at_switch(core);
+        }
+    })
 }
 
 /// Largest change of the valve command over `lag` rows, for rows ending in [t0, t1].
@@ -867,26 +873,16 @@ fn hot_reload_during_observer_fallback_stays_in_auto() {
     let p = common::plant(KV);
     let sc = common::scenario("flow_transmitter_failure");
     let c2 = p.file.controller.observer.c2_pa_s_kg;
-    let r = antisurge::sim::run_with(
-        &p,
-        &sc,
-        antisurge::sim::SimOptions {
-            law: LawId::RecyclePi,
-            ..Default::default()
-        },
-        &mut |_| {},
-        &mut |t, core| {
-            let mut cfg = core.config().clone();
-            if (t - 6.0).abs() < 1e-9 {
-                cfg.recycle_pi.ki_per_map_flow_s *= 1.01;
-                core.apply_config(cfg).expect("apply");
-            } else if (t - 7.0).abs() < 1e-9 {
-                cfg.observer.c2_pa_s_kg = 1.5 * c2;
-                core.apply_config(cfg).expect("apply");
-            }
-        },
-    )
-    .expect("sim");
+    let r = common::simulate_with(&p, &sc, LawId::RecyclePi, &mut |t, core| {
+        let mut cfg = core.config().clone();
+        if (t - 6.0).abs() < 1e-9 {
+            cfg.recycle_pi.ki_per_map_flow_s *= 1.01;
+            core.apply_config(cfg).expect("apply");
+        } else if (t - 7.0).abs() < 1e-9 {
+            cfg.observer.c2_pa_s_kg = 1.5 * c2;
+            core.apply_config(cfg).expect("apply");
+        }
+    });
     for row in r.trace.iter().filter(|row| row.t_s >= 4.1) {
         assert_eq!(row.mode, 2.0, "not in auto at {}", row.t_s);
         assert!(row.est_m_kg_s.is_finite(), "no estimate at {}", row.t_s);
@@ -914,23 +910,10 @@ fn retune_keeps_safety_on_shifts_and_counters() {
     let desc = common::plant(KV);
     let model = ControlModel::from_plant(&desc);
     let mut law = law_of(&desc);
-    let op = OperatorInputs {
-        speed_setpoint_rad_s: 1000.0,
-        throttle_demand: 0.6,
-        flow_setpoint_kg_s: f64::NAN,
-        recycle_manual: 0.2,
-    };
+    let op = operator();
     let r = 2.2;
     let m = measurements(law.control_line().flow_at_ratio(r), r);
-    let inputs = LawInputs {
-        m: &m,
-        op: &op,
-        model: &model,
-        history: &antisurge::control::law::LoopHistory::EMPTY,
-    };
-    let mut cur = antisurge::signals::ActuatorCommands::default();
-    cur.set(ActuatorId::RecycleValve, 0.2);
-    law.start(&inputs, &cur);
+    let inputs = start_at_20pct(&mut law, &m, &op, &model);
     law.surge_detected();
     law.surge_detected();
     let u_old = law

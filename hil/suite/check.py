@@ -164,23 +164,11 @@ if case == "timing":
     check(s["surge_cycles"] == 0, "drive-torque pair out of surge while measured")
     w, c = stats["wake_jitter_us"], stats["compute_us"]
     ct = (d / "cyclictest.txt").read_text() if (d / "cyclictest.txt").exists() else ""
-    hist = []
-    for l in ct.splitlines():
-        parts = l.split()
-        if len(parts) == 2 and parts[0].isdigit() and parts[1].isdigit():
-            hist.append((int(parts[0]), int(parts[1])))
-    n = sum(k for _, k in hist)
-
-    def hist_q(q):
-        acc = 0
-        for us, k in hist:
-            acc += k
-            if acc >= q * n:
-                return us
-        return float("nan")
-    maxl = [l for l in ct.splitlines() if l.startswith("# Max Latencies")]
-    ct_max = int(maxl[0].split(":")[1].split()[0]) if maxl else float("nan")
-    m = [f"p50 {hist_q(0.5)} / p99 {hist_q(0.99)} / max {ct_max} us over {n} wake-ups"] if n else []
+    sys.path.insert(0, str(Path(__file__).parent))
+    from cyclictest_hist import stats as cyclictest_stats
+    cs = cyclictest_stats(ct)
+    n = cs["samples"]
+    m = [f"p50 {cs['p50']} / p99 {cs['p99']} / max {cs['max']} us over {n} wake-ups"] if n else []
     check(n > 10000, f"cyclictest at the loops' priority, same run: {m[0] if m else ct.strip()[-300:]}")
     lat = json.loads(subprocess.run([sys.executable, str(Path(__file__).with_name("latency.py")),
                                      str(d / "candump.log"), "1", "17"],

@@ -401,20 +401,30 @@ impl ControlCore {
         }
     }
 
-    /// Still starting, inputs not yet healthy: command nothing.
-    fn init_hold(&mut self, meas: Measurements, validity: Validity) -> CycleOutput {
-        self.last = ActuatorCommands::default();
-        self.history.push(f64::NAN);
+    /// The output of a cycle in which no law ran (start-up, fail-safe, or a held sample).
+    fn passive_output(
+        &self,
+        commands: ActuatorCommands,
+        measurements: Measurements,
+        validity: Validity,
+    ) -> CycleOutput {
         CycleOutput {
-            commands: self.last,
-            measurements: meas,
-            mode: Mode::Init,
+            commands,
+            measurements,
+            mode: self.mode,
             law: self.law.id(),
             validity,
             law_diagnostic: f64::NAN,
             surge: Detection::None,
             law_event: None,
         }
+    }
+
+    /// Still starting, inputs not yet healthy: command nothing.
+    fn init_hold(&mut self, meas: Measurements, validity: Validity) -> CycleOutput {
+        self.last = ActuatorCommands::default();
+        self.history.push(f64::NAN);
+        self.passive_output(self.last, meas, validity)
     }
 
     fn failsafe(&mut self, meas: Measurements, validity: Validity) -> CycleOutput {
@@ -440,16 +450,7 @@ impl ControlCore {
         );
         self.history.push(cmd.get(ActuatorId::DriveTorque));
         self.last = cmd;
-        CycleOutput {
-            commands: cmd,
-            measurements: meas,
-            mode: self.mode,
-            law: self.law.id(),
-            validity,
-            law_diagnostic: f64::NAN,
-            surge: Detection::None,
-            law_event: None,
-        }
+        self.passive_output(cmd, meas, validity)
     }
 
     /// Run one cycle at time `t_s`.
@@ -478,16 +479,7 @@ impl ControlCore {
             && newest_sample_s <= self.last_sample_s + SAME_SAMPLE_S
         {
             self.history.push(self.last.get(ActuatorId::DriveTorque));
-            return CycleOutput {
-                commands: self.last,
-                measurements: self.last_meas,
-                mode: self.mode,
-                law: self.law.id(),
-                validity,
-                law_diagnostic: f64::NAN,
-                surge: Detection::None,
-                law_event: None,
-            };
+            return self.passive_output(self.last, self.last_meas, validity);
         }
         self.last_sample_s = newest_sample_s;
         let dt = if self.last_t_s.is_finite() {
@@ -650,6 +642,18 @@ mod tests {
         }
     }
 
+    /// A core on kvangardsnes (start-up grace `grace_s`), the plant's healthy initial sample
+    /// and the operator inputs.
+    fn started(grace_s: f64) -> (ControlCore, RawSensors, OperatorInputs) {
+        let desc = kvangardsnes();
+        let sc = hold();
+        let mut run = PlantRun::new(&desc, &sc).expect("run");
+        let core = core_for(&desc, grace_s);
+        let op = op(&core);
+        let (_, raw) = run.sense(0.0);
+        (core, raw, op)
+    }
+
     #[test]
     fn no_inputs_at_start_commands_nothing_then_fail_safe_after_the_grace() {
         let desc = kvangardsnes();
@@ -671,12 +675,7 @@ mod tests {
     fn first_healthy_cycle_takes_over_from_the_measured_valve_position() {
         // a controller (re)start on a running machine, inputs arriving after 30 ms: the law
         // starts from where the valve is, not from the fail-safe opening
-        let desc = kvangardsnes();
-        let sc = hold();
-        let mut run = PlantRun::new(&desc, &sc).expect("run");
-        let mut core = core_for(&desc, 1.0);
-        let op = op(&core);
-        let (_, raw) = run.sense(0.0);
+        let (mut core, raw, op) = started(1.0);
         let measured = raw.values.get(SensorId::RecycleValvePosition);
         assert!(measured.is_finite() && measured < 0.5, "{measured}");
         for k in 0..30 {
@@ -692,7 +691,7 @@ mod tests {
         );
 
         // with no grace, the same start goes fail-safe first and the law starts from 100 %
-        let mut eager = core_for(&desc, 0.0);
+        let (mut eager, _, _) = started(0.0);
         assert_eq!(
             eager.cycle(0.0, &RawSensors::missing(), &op).mode,
             Mode::FailSafe
@@ -708,12 +707,7 @@ mod tests {
     fn resume_after_fail_safe_takes_over_from_the_reported_drive_torque() {
         // the drive ran on its own governor during the fail-safe and now delivers 300 N·m
         // more than the controller held: the speed loop restarts from what the drive reports
-        let desc = kvangardsnes();
-        let sc = hold();
-        let mut run = PlantRun::new(&desc, &sc).expect("run");
-        let mut core = core_for(&desc, 1.0);
-        let op = op(&core);
-        let (_, raw) = run.sense(0.0);
+        let (mut core, raw, op) = started(1.0);
         let held = core
             .cycle(0.0, &raw, &op)
             .commands
@@ -736,7 +730,7 @@ mod tests {
         );
 
         // without the drive's report, it resumes from the held torque
-        let mut core = core_for(&desc, 1.0);
+        let (mut core, _, _) = started(1.0);
         core.cycle(0.0, &raw, &op);
         core.cycle(0.001, &RawSensors::missing(), &op);
         let mut blind = raw;
@@ -753,12 +747,7 @@ mod tests {
         // the controller's clock runs ahead of the sender's: the second cycle sees the same
         // sample (arrival time unchanged, age one period older) and must hold, not re-run the
         // observer and the law on it
-        let desc = kvangardsnes();
-        let sc = hold();
-        let mut run = PlantRun::new(&desc, &sc).expect("run");
-        let mut core = core_for(&desc, 1.0);
-        let op = op(&core);
-        let (_, raw) = run.sense(0.0);
+        let (mut core, raw, op) = started(1.0);
         let first = core.cycle(0.0, &raw, &op);
         assert_eq!(first.mode, Mode::Auto);
         let mut again = raw;

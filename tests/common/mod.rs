@@ -4,7 +4,7 @@
 use antisurge::control::LawId;
 use antisurge::plant::file::PlantDescription;
 use antisurge::scenario::Scenario;
-use antisurge::sim::{run, SimOptions, SimResult};
+use antisurge::sim::{SimOptions, SimResult};
 use std::path::{Path, PathBuf};
 
 /// The repository root (tests run from the package directory).
@@ -42,7 +42,18 @@ pub fn scenario_text(text: &str) -> Scenario {
 
 /// Run a scenario through the same code path as `antisurge sim`.
 pub fn simulate(plant: &PlantDescription, scenario: &Scenario, law: LawId) -> SimResult {
-    run(
+    simulate_with(plant, scenario, law, &mut |_, _| {})
+}
+
+/// [`simulate`], calling `before_cycle(t_s, core)` before every control cycle (a hot reload
+/// or a law switch at an exact time).
+pub fn simulate_with(
+    plant: &PlantDescription,
+    scenario: &Scenario,
+    law: LawId,
+    before_cycle: &mut dyn FnMut(f64, &mut antisurge::control::core::ControlCore),
+) -> SimResult {
+    antisurge::sim::run_with(
         plant,
         scenario,
         SimOptions {
@@ -50,7 +61,9 @@ pub fn simulate(plant: &PlantDescription, scenario: &Scenario, law: LawId) -> Si
             ..SimOptions::default()
         },
         &mut |_| {},
+        before_cycle,
     )
     .unwrap_or_else(|e| panic!("{e}"))
 }
+
 pub mod daemon;
