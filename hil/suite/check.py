@@ -175,6 +175,7 @@ if case == "timing":
                                     capture_output=True, text=True).stdout or "{}")
     check(lat.get("frames", 0) > 10000, f"sensor-frame-to-actuator-frame latency on vcan0 over {lat.get('frames', 0)} frames: "
           f"p50 {lat.get('p50_us', float('nan')):.0f} / p99 {lat.get('p99_us', float('nan')):.0f} / max {lat.get('max_us', float('nan')):.0f} us")
+    check(lat.get("dropped", 1) == 0, f"candump dropped no frame ({lat.get('dropped')})")
     check(lat.get("p99_us", 1e9) < 2000.0, "latency p99 under two periods")
     figures = {"controller_wake_jitter_us": w, "controller_compute_us": c, "overruns": stats["overruns"],
                "cycles": stats["cycles"], "max_rss_kib": stats["max_rss_kib"], "cyclictest": m[0] if m else None,

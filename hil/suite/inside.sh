@@ -13,6 +13,7 @@ iface=vcan0
 cases=("$@")
 [[ ${#cases[@]} -gt 0 ]] || cases=(recycle_pi drive_torque kill9 link_bounce malformed timing)
 mkdir -p "$out"
+tmp_candump=${TMPDIR:-/tmp}/antisurge-hil-candump.$$.log
 echo "HIL suite on $iface (${ANTISURGE_HIL_INSIDE:-?}), cases: ${cases[*]}"
 
 # run_case NAME CONFIG ACTION: plant + controller on vcan0; ACTION runs in the background
@@ -35,7 +36,10 @@ run_case() {
             # measured beside the loops, at their priority: cyclictest, and every frame on the bus
             (cyclictest -m -p "$(awk -F' *= *' '/^priority/ {print $2}' "$cfg")" -i 1000 -D 18 -q -h 20000 \
                 >"$dir/cyclictest.txt" 2>&1) &
-            (timeout 20 candump -t a vcan0 >"$dir/candump.log" 2>/dev/null) & ;;
+            # (kernel receive timestamps; a large socket buffer, a real-time priority below the
+            # loops' and a local file (not the VM's shared folder) so that it drops nothing)
+            sysctl -q -w net.core.rmem_max=16777216 2>/dev/null || true
+            (timeout 20 chrt -f 50 candump -t a -r 16777216 -d vcan0 >"$tmp_candump" 2>"$dir/candump.err") & ;;
         malformed) python3 hil/suite/malformed.py "$iface" 300 "$(date -d '+8 seconds' +%s.%N)" >"$dir/action.log" 2>&1 & ;;
     esac
     local rc=0
@@ -43,6 +47,7 @@ run_case() {
     kill -TERM "$ctl" 2>/dev/null || true
     wait "$ctl" 2>/dev/null || true
     wait || true
+    [[ ! -f $tmp_candump ]] || mv "$tmp_candump" "$dir/candump.log"
     unset ANTISURGE_EVENT_LOG__PATH ANTISURGE_STATUS__STATS_FILE
     if [[ $rc -ne 0 ]]; then
         echo "FAIL $name: plant exit $rc"; tail -20 "$dir/plant.log" "$dir/run.log"; return 1

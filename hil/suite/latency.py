@@ -5,7 +5,8 @@ For every controller command frame (CTRL_ActuatorCmd1, id 0x0A0) the latency is 
 the newest plant sensor frame (PLANT_Pressures, id 0x100) before it: what the loop adds between
 a sample on the wire and the command computed from it (the controller's wait for its next
 cycle, its compute time, both bus transfers). Usage: latency.py CANDUMP_LOG [T_FROM_S T_TO_S]
-(window in seconds after the first frame). Prints one JSON object.
+(window in seconds after the first frame). Prints one JSON object, with the frames candump
+reported dropped (a dropped sensor frame would inflate the figure).
 """
 import json
 import re
@@ -27,7 +28,13 @@ def main():
     t0 = None
     last_sensor = None
     lat_us = []
+    drops = 0
     for line in open(path):
+        if "DROPCOUNT" in line:
+            # candump -d: "DROPCOUNT: dropped N CAN frame(s) on 'vcan0' socket (total drops M)"
+            nums = re.findall(r"total drops (\d+)", line)
+            drops = max(drops, int(nums[0])) if nums else drops + 1
+            continue
         m = line_re.search(line)
         if not m:
             continue
@@ -38,10 +45,11 @@ def main():
         elif can_id == COMMAND and last_sensor is not None and t_from <= t - t0 <= t_to:
             lat_us.append((t - last_sensor) * 1e6)
     if not lat_us:
-        print(json.dumps({"frames": 0}))
+        print(json.dumps({"frames": 0, "dropped": drops}))
         return 1
     print(json.dumps({
         "frames": len(lat_us),
+        "dropped": drops,
         "p50_us": percentile(lat_us, 0.5),
         "p99_us": percentile(lat_us, 0.99),
         "max_us": max(lat_us),

@@ -60,6 +60,9 @@ impl RtSettings {
     }
 }
 
+/// Stack of each bus I/O thread, bytes.
+pub const IO_THREAD_STACK_BYTES: usize = 512 * 1024;
+
 /// How far the I/O threads' priority sits below the control loop's.
 pub const IO_PRIORITY_BELOW_LOOP: i32 = 10;
 
@@ -87,6 +90,9 @@ pub fn io_runtime(s: &RtSettings, name: &str) -> std::io::Result<tokio::runtime:
         .worker_threads(2)
         .enable_all()
         .thread_name(name)
+        // with locked memory (mlockall) every thread's whole stack is resident: the bus tasks
+        // need far less than tokio's default 2 MiB
+        .thread_stack_size(IO_THREAD_STACK_BYTES)
         .on_thread_start(move || {
             if let Some(p) = prio {
                 let got = set_current_thread_fifo(p);
