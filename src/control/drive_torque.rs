@@ -445,15 +445,14 @@ impl DriveTorque {
     /// predictor integrates seed 000 eq. 1 (the plant's own right-hand side, one RK4 step per
     /// period) from the measured plenum pressure and speed, the observer's flow and the
     /// measured throttle position (held: the process moves it, the controller cannot know
-    /// how), and returns the predicted pressure, speed and flow. A missing input or history
-    /// returns the measurements unchanged.
-    fn predicted(&mut self, inputs: &LawInputs<'_>, dt_s: f64) -> Measurements {
-        let m = *inputs.m;
-        let Some(model) = self.predictor.as_mut() else {
-            return m;
-        };
+    /// how), and returns the measurements with the predicted pressure, speed and flow. None
+    /// (use the measurements as they are) without a predictor or with an input or history
+    /// missing.
+    fn predicted(&mut self, inputs: &LawInputs<'_>, dt_s: f64) -> Option<Measurements> {
+        let m = inputs.m;
+        let model = self.predictor.as_mut()?;
         if dt_s.is_nan() || dt_s <= 0.0 {
-            return m;
+            return None;
         }
         // from the sample to the moment the new command acts
         let horizon_s = inputs.history.sample_age_s + self.delay_s;
@@ -466,19 +465,19 @@ impl DriveTorque {
         let throttle = m.throttle_position;
         let mut x = SVector::<f64, PLENUM_N>::new(m.p_discharge_pa, m_hat, m.omega_rad_s, throttle);
         if periods == 0 || !x.iter().all(|v| v.is_finite()) {
-            return m;
+            return None;
         }
         for age in (1..=periods).rev() {
             let torque = inputs.history.ago(age);
             if !torque.is_finite() {
-                return m;
+                return None;
             }
             model.predict_step(&mut x, torque, throttle, dt_s);
         }
         if !x.iter().all(|v| v.is_finite()) {
-            return m;
+            return None;
         }
-        let mut p = m;
+        let mut p = *m;
         p.p_discharge_pa = x[0];
         p.omega_rad_s = x[2];
         match self.flow {
@@ -486,7 +485,7 @@ impl DriveTorque {
             FlowInput::Selected => p.m_kg_s = x[1],
             FlowInput::Measured => p.m_measured_kg_s = x[1],
         }
-        p
+        Some(p)
     }
 
     /// c1, rad/s per kg/s.
@@ -583,9 +582,9 @@ impl SurgeLaw for DriveTorque {
         }
         // over the loop delay, if one is compensated
         let predicted = self.predicted(inputs, dt_s);
-        let inputs = &LawInputs {
-            m: &predicted,
-            ..*inputs
+        let inputs = &match &predicted {
+            Some(m) => LawInputs { m, ..*inputs },
+            None => *inputs,
         };
         let d = self.deviation(inputs);
         if d.is_finite() {
