@@ -152,6 +152,8 @@ if case == "link_bounce":
     check(len(bus) >= 2, f"bus state changes logged: {[e.get('state') for e in bus]}")
 
 if case == "malformed":
+    burst = (d / "action.log").read_text().strip() if (d / "action.log").exists() else "(no action.log)"
+    print("  burst: " + burst.replace("\n", "; "))
     can = (stats.get("links") or {}).get("can") or {}
     for k in ("unknown_id", "wrong_dlc", "bad_crc"):
         check(can.get(k, 0) >= 300, f"{k} counted: {can.get(k)} (sent 300)")

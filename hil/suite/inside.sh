@@ -16,41 +16,98 @@ mkdir -p "$out"
 tmp_candump=${TMPDIR:-/tmp}/antisurge-hil-candump.$$.log
 echo "HIL suite on $iface (${ANTISURGE_HIL_INSIDE:-?}), cases: ${cases[*]}"
 
+# Every wait below is bounded: a process that does not end in time is shown (each thread's
+# state, kernel wait channel and stack, the tail of its log) and killed, and the case fails.
+# Limits are in guest seconds; a 20-s scenario ends in about 22.
+plant_limit_s=${ANTISURGE_HIL_CASE_LIMIT_S:-90}
+stop_limit_s=15
+t_suite=$SECONDS
+
+# show_proc PID: what PID and its threads are doing (for a hang report).
+show_proc() {
+    local pid=$1 t
+    echo "  process $pid: $(tr '\0' ' ' <"/proc/$pid/cmdline" 2>/dev/null)"
+    for t in /proc/"$pid"/task/*; do
+        [[ -d $t ]] || continue
+        echo "    thread ${t##*/} $(cat "$t/comm" 2>/dev/null): state $(awk '{print $3}' "$t/stat" 2>/dev/null), wchan $(cat "$t/wchan" 2>/dev/null)"
+        sed 's/^/      /' "$t/stack" 2>/dev/null | head -12
+    done
+}
+
+# wait_bounded PID LIMIT_S WHAT LOG: PID's exit status, or 124 after LIMIT_S seconds (PID is
+# then shown and killed). One watchdog per wait: no polling beside the real-time loops.
+wait_bounded() {
+    local pid=$1 limit_s=$2 what=$3 log=${4:-}
+    local mark=${TMPDIR:-/tmp}/antisurge-hil-timeout.$$.$pid
+    rm -f "$mark"
+    (
+        sleep "$limit_s"
+        kill -0 "$pid" 2>/dev/null || exit 0
+        {
+            echo "FAIL: $what still running after ${limit_s} s; killed. What it was doing:"
+            show_proc "$pid"
+            [[ -z $log || ! -f $log ]] || { echo "  last lines of $log:"; tail -15 "$log" | sed 's/^/    /'; }
+        } >&2
+        touch "$mark"
+        kill -KILL "$pid" 2>/dev/null
+    ) &
+    local dog=$! rc=0
+    wait "$pid" || rc=$?
+    kill "$dog" 2>/dev/null || true
+    wait "$dog" 2>/dev/null || true
+    if [[ -f $mark ]]; then
+        rm -f "$mark"
+        return 124
+    fi
+    return "$rc"
+}
+
 # run_case NAME CONFIG ACTION: plant + controller on vcan0; ACTION runs in the background
 # during the scenario (none | kill9 | link_bounce | malformed | timing).
 run_case() {
     local name=$1 cfg=$2 action=$3
-    local dir=$out/$name
+    local dir=$out/$name t0=$SECONDS
     rm -rf "$dir"; mkdir -p "$dir"
+    echo "case $name: starting (+$((t0 - t_suite)) s)" >&2
     export ANTISURGE_EVENT_LOG__PATH="$PWD/$dir/events.jsonl"
     export ANTISURGE_STATUS__STATS_FILE="$PWD/$dir/controller_stats.json"
     "$bin" plant --config "$cfg" --out "$dir/plant" >"$dir/plant.log" 2>&1 &
     local plant=$!
     sleep 0.5
     "$bin" run --config "$cfg" >"$dir/run.log" 2>&1 &
-    local ctl=$!
+    local ctl=$! act=""
     case $action in
-        kill9) (sleep 6.5; kill -9 "$ctl"; echo "killed controller at +6.5 s") >"$dir/action.log" 2>&1 & ;;
-        link_bounce) (sleep 9; ip link set "$iface" down; echo "down"; sleep 0.5; ip link set "$iface" up; echo "up") >"$dir/action.log" 2>&1 & ;;
+        kill9) (sleep 6.5; kill -9 "$ctl"; echo "killed controller at +6.5 s") >"$dir/action.log" 2>&1 & act=$! ;;
+        link_bounce) (sleep 9; ip link set "$iface" down; echo "down"; sleep 0.5; ip link set "$iface" up; echo "up") >"$dir/action.log" 2>&1 & act=$! ;;
         timing)
             # measured beside the loops, at their priority: cyclictest, and every frame on the bus
             (cyclictest -m -p "$(awk -F' *= *' '/^priority/ {print $2}' "$cfg")" -i 1000 -D 18 -q -h 20000 \
                 >"$dir/cyclictest.txt" 2>&1) &
+            act=$!
             # (kernel receive timestamps; a large socket buffer, a real-time priority below the
             # loops' and a local file (not the VM's shared folder) so that it drops nothing)
             sysctl -q -w net.core.rmem_max=16777216 2>/dev/null || true
-            (timeout 20 chrt -f 50 candump -t a -r 16777216 -d vcan0 >"$tmp_candump" 2>"$dir/candump.err") & ;;
-        malformed) python3 hil/suite/malformed.py "$iface" 300 "$(date -d '+8 seconds' +%s.%N)" >"$dir/action.log" 2>&1 & ;;
+            (timeout 20 chrt -f 50 candump -t a -r 16777216 -d vcan0 >"$tmp_candump" 2>"$dir/candump.err") &
+            act="$act $!" ;;
+        malformed) python3 hil/suite/malformed.py "$iface" 300 "$(date -d '+8 seconds' +%s.%N)" >"$dir/action.log" 2>&1 & act=$! ;;
     esac
     local rc=0
-    wait "$plant" || rc=$?
+    wait_bounded "$plant" "$plant_limit_s" "the plant node ($name)" "$dir/plant.log" || rc=$?
     kill -TERM "$ctl" 2>/dev/null || true
-    wait "$ctl" 2>/dev/null || true
-    wait || true
+    local crc=0
+    wait_bounded "$ctl" "$stop_limit_s" "the controller, after SIGTERM ($name)" "$dir/run.log" || crc=$?
+    local p
+    for p in $act; do
+        wait_bounded "$p" "$stop_limit_s" "the $action action ($name)" "$dir/action.log" || true
+    done
     [[ ! -f $tmp_candump ]] || mv "$tmp_candump" "$dir/candump.log"
     unset ANTISURGE_EVENT_LOG__PATH ANTISURGE_STATUS__STATS_FILE
+    echo "case $name: scenario over after $((SECONDS - t0)) s" >&2
     if [[ $rc -ne 0 ]]; then
         echo "FAIL $name: plant exit $rc"; tail -20 "$dir/plant.log" "$dir/run.log"; return 1
+    fi
+    if [[ $crc -eq 124 ]]; then
+        echo "FAIL $name: the controller did not stop within $stop_limit_s s of SIGTERM"; return 1
     fi
     python3 hil/suite/check.py "$name" "$dir" "$bin"
 }

@@ -1,9 +1,9 @@
 //! Lock-free hand-off between the I/O tasks and the control thread.
 //!
 //! A [`SeqLock`] holds a few `f64`/`u64` words written by one writer and read by any number of
-//! readers: the writer never waits (two counter stores around relaxed word stores), readers
-//! retry while a write is in progress. No mutex, no allocation, nothing that can block the
-//! control cycle.
+//! readers: the writer never waits, and a reader never waits for a write in progress either
+//! (it reads the last completed of two buffers), whatever the threads' priorities and CPUs.
+//! No mutex, no allocation, nothing that can block the control cycle.
 //!
 //! - [`SensorBoard`]: one slot per sensor with its value and the monotonic time it arrived;
 //!   written by the bus task that owns the sensor, read by the control thread (which turns the
@@ -16,18 +16,45 @@
 use crate::signals::{ActuatorCommands, ActuatorId, SensorId, SensorSnapshot};
 use std::sync::atomic::{fence, AtomicU64, Ordering};
 
-/// Single-writer, multi-reader sequence lock over `N` 64-bit words.
+/// Single-writer, multi-reader sequence lock over `N` 64-bit words, double-buffered.
+///
+/// The writer fills the buffer readers are *not* directed to, then publishes it. A reader
+/// therefore never waits for a write in progress: it reads the last published buffer and
+/// retries only if the writer has meanwhile published *and* begun overwriting that same buffer
+/// (two writes during one read: possible only while the writer runs on another CPU, so the
+/// retry ends). This matters when the reader outranks the writer on one CPU (the control
+/// thread at SCHED_FIFO above the bus I/O thread, a single-core PLC-PC or both pinned to one
+/// isolated core): with a plain seqlock a reader that preempts the writer mid-write spins on
+/// the odd counter forever, because the writer can never run again. The HIL VM (one vCPU)
+/// hung that way.
 #[derive(Debug)]
 pub struct SeqLock<const N: usize> {
+    /// Completed writes; buffer `published & 1` holds the newest complete words.
+    published: AtomicU64,
+    bufs: [SeqBuffer<N>; 2],
+}
+
+/// One buffer of a [`SeqLock`], with its own sequence counter (odd while being written).
+#[derive(Debug)]
+struct SeqBuffer<const N: usize> {
     seq: AtomicU64,
     words: [AtomicU64; N],
+}
+
+impl<const N: usize> Default for SeqBuffer<N> {
+    fn default() -> Self {
+        SeqBuffer {
+            seq: AtomicU64::new(0),
+            words: std::array::from_fn(|_| AtomicU64::new(0)),
+        }
+    }
 }
 
 impl<const N: usize> Default for SeqLock<N> {
     fn default() -> Self {
         SeqLock {
-            seq: AtomicU64::new(0),
-            words: std::array::from_fn(|_| AtomicU64::new(0)),
+            published: AtomicU64::new(0),
+            bufs: [SeqBuffer::default(), SeqBuffer::default()],
         }
     }
 }
@@ -36,33 +63,55 @@ impl<const N: usize> SeqLock<N> {
     /// Publish new words. Must only be called by the one writer of this lock.
     #[inline]
     pub fn write(&self, words: &[u64; N]) {
-        let s = self.seq.load(Ordering::Relaxed);
-        self.seq.store(s.wrapping_add(1), Ordering::Relaxed);
-        fence(Ordering::Release);
-        for (slot, w) in self.words.iter().zip(words) {
+        let (n, buf) = self.begin_write();
+        for (slot, w) in buf.words.iter().zip(words) {
             slot.store(*w, Ordering::Relaxed);
         }
-        self.seq.store(s.wrapping_add(2), Ordering::Release);
+        self.finish_write(n, buf);
     }
 
-    /// Read a consistent copy of the words and the sequence number (even; 0 = never written).
+    /// Mark the buffer after the published one as being written (its counter becomes
+    /// `2k − 1` for write number `k`); returns the number of writes published so far.
+    #[inline]
+    fn begin_write(&self) -> (u64, &SeqBuffer<N>) {
+        let n = self.published.load(Ordering::Relaxed);
+        let k = n.wrapping_add(1);
+        let buf = &self.bufs[(k & 1) as usize];
+        buf.seq
+            .store(k.wrapping_mul(2).wrapping_sub(1), Ordering::Relaxed);
+        fence(Ordering::Release);
+        (n, buf)
+    }
+
+    /// Close the buffer (counter `2k`) and direct readers to it.
+    #[inline]
+    fn finish_write(&self, n: u64, buf: &SeqBuffer<N>) {
+        let k = n.wrapping_add(1);
+        buf.seq.store(k.wrapping_mul(2), Ordering::Release);
+        self.published.store(k, Ordering::Release);
+    }
+
+    /// Read a consistent copy of the newest words and the number of writes so far (0 = never
+    /// written). The copy is exactly write number `n` (its buffer's counter is `2n` before and
+    /// after the copy), so successive reads never go back in time.
     #[inline]
     pub fn read(&self) -> ([u64; N], u64) {
         loop {
-            let s1 = self.seq.load(Ordering::Acquire);
-            if s1 & 1 == 1 {
-                std::hint::spin_loop();
-                continue;
+            let n = self.published.load(Ordering::Acquire);
+            let buf = &self.bufs[(n & 1) as usize];
+            let expect = n.wrapping_mul(2);
+            if buf.seq.load(Ordering::Acquire) == expect {
+                let mut out = [0u64; N];
+                for (o, slot) in out.iter_mut().zip(&buf.words) {
+                    *o = slot.load(Ordering::Relaxed);
+                }
+                fence(Ordering::Acquire);
+                if buf.seq.load(Ordering::Relaxed) == expect {
+                    return (out, n);
+                }
             }
-            let mut out = [0u64; N];
-            for (o, slot) in out.iter_mut().zip(&self.words) {
-                *o = slot.load(Ordering::Relaxed);
-            }
-            fence(Ordering::Acquire);
-            let s2 = self.seq.load(Ordering::Relaxed);
-            if s1 == s2 {
-                return (out, s1);
-            }
+            // the writer lapped this read (it runs on another CPU): take the newer buffer
+            std::hint::spin_loop();
         }
     }
 }
@@ -366,7 +415,11 @@ mod tests {
         while !writer.is_finished() || last < 199_999 {
             let (words, _) = lock.read();
             assert!(words.iter().all(|&x| x == words[0]), "torn read {words:?}");
-            assert!(words[0] >= last, "went backwards");
+            assert!(
+                words[0] >= last,
+                "went backwards: {} after {last}",
+                words[0]
+            );
             last = words[0];
             if writer.is_finished() && last == 0 {
                 break;
@@ -374,6 +427,33 @@ mod tests {
         }
         writer.join().expect("writer");
         assert_eq!(lock.read().0, [199_999; 4]);
+    }
+
+    #[test]
+    fn a_reader_never_waits_for_a_stalled_writer() {
+        // The writer is preempted mid-write (on one CPU, by the higher-priority reader) and
+        // cannot run until the reader is done: the read must return the last complete words
+        // at once. (A plain seqlock spins forever here; the read runs on a thread so that a
+        // regression fails the test instead of hanging it.)
+        let lock = Arc::new(SeqLock::<3>::default());
+        lock.write(&[7, 7, 7]);
+        let (n, buf) = lock.begin_write();
+        buf.words[0].store(8, Ordering::Relaxed); // half-written
+        let r = Arc::clone(&lock);
+        let (tx, rx) = std::sync::mpsc::channel();
+        std::thread::spawn(move || tx.send(r.read()).ok());
+        let got = rx
+            .recv_timeout(std::time::Duration::from_secs(5))
+            .expect("read blocked behind a stalled writer");
+        assert_eq!(got, ([7, 7, 7], 1));
+        buf.words[1].store(8, Ordering::Relaxed);
+        buf.words[2].store(8, Ordering::Relaxed);
+        lock.finish_write(n, buf);
+        assert_eq!(lock.read(), ([8, 8, 8], 2));
+        // and the next write goes to the other buffer while this one stays readable
+        let (n, buf) = lock.begin_write();
+        assert_eq!(lock.read(), ([8, 8, 8], 2));
+        lock.finish_write(n, buf);
     }
 
     #[test]
