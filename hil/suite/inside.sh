@@ -104,7 +104,7 @@ run_case() {
     unset ANTISURGE_EVENT_LOG__PATH ANTISURGE_STATUS__STATS_FILE
     echo "case $name: scenario over after $((SECONDS - t0)) s" >&2
     if [[ $rc -ne 0 ]]; then
-        echo "FAIL $name: plant exit $rc"; tail -20 "$dir/plant.log" "$dir/run.log"; return 1
+        echo "FAIL $name: plant exit $rc"; tail -n 20 "$dir/plant.log" "$dir/run.log"; return 1
     fi
     if [[ $crc -eq 124 ]]; then
         echo "FAIL $name: the controller did not stop within $stop_limit_s s of SIGTERM"; return 1

@@ -42,6 +42,8 @@ pub fn init_logging() {
         .with(
             tracing_subscriber::fmt::layer()
                 .with_writer(std::io::stderr)
+                // colours for a terminal only: a log file or pipe gets plain text
+                .with_ansi(std::io::IsTerminal::is_terminal(&std::io::stderr()))
                 .with_target(true),
         )
         .try_init();
