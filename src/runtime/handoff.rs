@@ -20,8 +20,8 @@ use std::sync::atomic::{fence, AtomicU64, Ordering};
 ///
 /// The writer fills the buffer readers are *not* directed to, then publishes it. A reader
 /// therefore never waits for a write in progress: it reads the last published buffer and
-/// retries only if the writer has meanwhile published *and* begun overwriting that same buffer
-/// (two writes during one read: possible only while the writer runs on another CPU, so the
+/// retries only if the writer has meanwhile published again *and* begun overwriting that same
+/// buffer (it lapped the read: possible only while the writer runs on another CPU, so the
 /// retry ends). This matters when the reader outranks the writer on one CPU (the control
 /// thread at SCHED_FIFO above the bus I/O thread, a single-core PLC-PC or both pinned to one
 /// isolated core): with a plain seqlock a reader that preempts the writer mid-write spins on
