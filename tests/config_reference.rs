@@ -42,9 +42,10 @@ fn populated() -> DaemonConfig {
         address: 300,
     };
     DaemonConfig {
-        plant: PlantSection {
+        plant: Some(PlantSection {
             file: PathBuf::from("plants/kvangardsnes2009_recycle.toml"),
-        },
+        }),
+        machine: None,
         control: ControlSection {
             law: "recycle-pi".into(),
             mode: StartMode::Auto,

@@ -118,9 +118,9 @@ pub fn check(args: &CheckArgs) -> Result<std::process::ExitCode> {
                 .map(|x| x.path.display().to_string())
                 .collect();
             println!(
-                "{}: OK (plant {}, law {}, transport {:?}, {} Hz; layers: {})",
+                "{}: OK (machine {}, law {}, transport {:?}, {} Hz; layers: {})",
                 file.display(),
-                l.plant.name(),
+                l.machine.name,
                 l.law,
                 l.config.bus.transport,
                 l.config.cycle.rate_hz,

@@ -69,13 +69,19 @@ impl CoreSettings {
     /// machine's operating region and a 50 ms freshness timeout.
     pub fn defaults_for(model: &ControlModel) -> CoreSettings {
         let timeout_s = 0.05;
-        let w_max = 2.0 * model.drive.nominal_speed_rad_s;
+        // a drive of unknown nominal speed (vendor data, drive not the controller's): no bound
+        let w_max = match 2.0 * model.drive.nominal_speed_rad_s {
+            w if w.is_finite() => w,
+            _ => f64::MAX,
+        };
         let p_hi = match (model.recycle, model.plenum_duct, model.tip, model.spool) {
             (Some(r), ..) => 3.0 * r.downstream_pressure_pa,
             (_, Some(p), ..) => 5.0 * p.ambient_pressure_pa,
             (_, _, Some(t), _) => 5.0 * t.ambient_pressure_pa,
             (_, _, _, Some(s)) => 5.0 * s.ambient_pressure_pa,
-            _ => 1e7,
+            _ => model
+                .design_suction_pressure_pa
+                .map_or(1e7, |p| 5.0 * p * model.design_pressure_ratio),
         };
         let lim = |min: f64, max: f64| {
             Some(InputLimits {
@@ -93,10 +99,17 @@ impl CoreSettings {
         limits[SensorId::RecycleValvePosition.index()] = lim(-0.05, 1.05);
         limits[SensorId::ThrottlePosition.index()] = lim(-0.05, 1.05);
         limits[SensorId::ThrustPosition.index()] = lim(-5e-3, 5e-3);
-        let t_max = 1.5 * model.drive.rated_torque_nm.abs();
+        let t_max = match 1.5 * model.drive.rated_torque_nm.abs() {
+            t if t > 0.0 => t,
+            _ => f64::MAX, // a drive the controller does not own: its torque is only read
+        };
         limits[SensorId::DriveTorque.index()] = lim(-t_max, t_max);
         CoreSettings {
-            failsafe_recycle_opening: if model.recycle.is_some() { 1.0 } else { 0.0 },
+            failsafe_recycle_opening: match model.recycle_valve.map(|v| v.fail_position) {
+                Some(crate::machine::FailPosition::Closed) => 0.0,
+                Some(_) => 1.0,
+                None => 0.0,
+            },
             supervisor: Supervisor { limits },
             startup_grace_s: 1.0,
         }
@@ -432,7 +445,7 @@ impl ControlCore {
         self.mode = Mode::FailSafe;
         self.law_started = false;
         let mut cmd = ActuatorCommands::default();
-        if self.model.recycle.is_some() {
+        if self.model.has_recycle_valve() {
             cmd.set(
                 ActuatorId::RecycleValve,
                 self.settings.failsafe_recycle_opening,
@@ -456,9 +469,18 @@ impl ControlCore {
     /// Run one cycle at time `t_s`.
     pub fn cycle(&mut self, t_s: f64, raw: &RawSensors, op: &OperatorInputs) -> CycleOutput {
         let validity = self.settings.supervisor.check(raw);
+        // speed is essential when the controller runs the speed loop or the law reads it
+        // (law registry); a recycle-pi skid whose drive keeps its own speed may not bind it
+        let speed_needed = self.model.owns_drive
+            || self
+                .law
+                .id()
+                .descriptor()
+                .sensors
+                .contains(&SensorId::ShaftSpeed);
         let essentials_ok = validity.ok(SensorId::PSuction)
             && validity.ok(SensorId::PDischarge)
-            && validity.ok(SensorId::ShaftSpeed);
+            && (!speed_needed || validity.ok(SensorId::ShaftSpeed));
         // A cycle without a new pressure/speed sample holds its outputs: observers, filters
         // and integrators take each sample once. (Sender and controller run on their own
         // clocks; without this a late sample would be processed twice, which a law on a fast
@@ -566,7 +588,7 @@ impl ControlCore {
                 }
             }
             Mode::Manual => {
-                if self.model.recycle.is_some() {
+                if self.model.has_recycle_valve() {
                     // bumpless manual: hold the last output until the operator moves the station
                     if self.manual_recycle.is_nan() {
                         self.manual_recycle = current.get(ActuatorId::RecycleValve);
@@ -582,9 +604,14 @@ impl ControlCore {
             Mode::Init | Mode::FailSafe => {}
         }
         self.last_manual_input = op.recycle_manual;
-        let torque = self
-            .speed
-            .update(op.speed_setpoint_rad_s, meas.omega_rad_s, extra_torque, dt);
+        // the drive's speed loop runs here only when the controller owns the drive; otherwise
+        // its own governor keeps speed and no torque is commanded (NaN: not driven)
+        let torque = if self.model.owns_drive {
+            self.speed
+                .update(op.speed_setpoint_rad_s, meas.omega_rad_s, extra_torque, dt)
+        } else {
+            f64::NAN
+        };
         cmd.set(ActuatorId::DriveTorque, torque);
         self.history.push(torque);
 
@@ -626,7 +653,7 @@ mod tests {
     }
 
     fn core_for(desc: &PlantDescription, grace_s: f64) -> ControlCore {
-        let model = ControlModel::from_plant(desc);
+        let model = crate::sim::control_model(desc);
         let mut settings = CoreSettings::defaults_for(&model);
         settings.startup_grace_s = grace_s;
         let config = model.controller.clone();

@@ -318,9 +318,9 @@ impl RecyclePi {
                 format!("must be in 0..1, found {}", cfg.trip_step),
             ));
         }
-        let scl = SurgeControlLine::new(model.map.surge_line, cfg.control_line);
+        let scl = SurgeControlLine::new(model.surge_line, cfg.control_line);
         // the trip line must lie between the surge line and the SCL over the map's range
-        let mut pts = model.map.surge_line.points();
+        let mut pts = model.surge_line.points();
         let r_lo = pts.next().map_or(f64::NAN, |p| p.1);
         let r_hi = pts.last().map_or(f64::NAN, |p| p.1);
         if let Err((r, margin)) =
@@ -336,17 +336,22 @@ impl RecyclePi {
                 ),
             ));
         }
-        let q_ref = control_line_flow_at_speed(&model.map, &scl, model.drive.nominal_speed_rad_s)
-            .map(|(q, _)| q)
-            .ok_or_else(|| {
-                err(
-                    "control_line",
-                    format!(
-                        "does not cross the speed line at the nominal speed {} rad/s",
-                        model.drive.nominal_speed_rad_s
-                    ),
-                )
-            })?;
+        // the design point on the control line: where the speed line at nominal speed crosses
+        // it (with a map), else the control line at the design pressure ratio (vendor data)
+        let q_ref = match &model.map {
+            Some(map) => control_line_flow_at_speed(map, &scl, model.drive.nominal_speed_rad_s)
+                .map(|(q, _)| q)
+                .ok_or_else(|| {
+                    err(
+                        "control_line",
+                        format!(
+                            "does not cross the speed line at the nominal speed {} rad/s",
+                            model.drive.nominal_speed_rad_s
+                        ),
+                    )
+                })?,
+            None => scl.flow_at_ratio(model.design_pressure_ratio),
+        };
         // gains on z = gains on the linear flow error / (∂z/∂q on the line at q_ref)
         let s = cfg.control_variable.slope_on_line(q_ref);
         Ok(RecyclePi {
@@ -492,10 +497,14 @@ impl SurgeLaw for RecyclePi {
         let m = inputs.m;
         let r = m.pressure_ratio;
         let mut q = m.flow_map;
-        if m.flow_fallback && self.cfg.fallback_speed_line_check {
+        if let (true, true, Some(map)) = (
+            m.flow_fallback,
+            self.cfg.fallback_speed_line_check,
+            &inputs.model.map,
+        ) {
             // transmitter failed: cross-check the observer's flow against the steady flow from
             // pressure ratio and speed, and use the smaller (the safer for surge)
-            let q_line = speed_line_flow(&inputs.model.map, r, m.omega_rad_s);
+            let q_line = speed_line_flow(map, r, m.omega_rad_s);
             if q_line < q {
                 q = q_line;
             }
