@@ -183,20 +183,22 @@ pub fn ratio_flow_points(
     Ok(pts)
 }
 
-/// Tabulate (R_p, q) points as a [`SurgeLine`], linear between points. The tabulation
-/// parameter plays the role of an equivalent speed, √(R_p − 1) (fan laws), so that the table is
-/// monotone; beyond the points the line continues as q ∝ √(R_p − 1).
+/// Tabulate (R_p, q) points as a [`SurgeLine`], linear between points in the fan-law
+/// coordinate s = √(R_p − 1) (so that the closed form c √(R_p − 1) is reproduced exactly). The
+/// tabulation parameter s plays the role of an equivalent speed (fan laws: R_p − 1 ∝ N²), so
+/// the table is monotone; beyond the points the line continues as q ∝ √(R_p − 1).
 pub fn tabulate(points: &[(f64, f64)]) -> Result<SurgeLine, String> {
     let n = points.len();
-    let s_lo = (points[0].0 - 1.0).sqrt();
-    let s_hi = (points[n - 1].0 - 1.0).sqrt();
+    let s_of = |r: f64| (r - 1.0).max(0.0).sqrt();
+    let s_lo = s_of(points[0].0);
+    let s_hi = s_of(points[n - 1].0);
     SurgeLine::tabulate(s_lo, s_hi, |s| {
-        let r = (1.0 + s * s).clamp(points[0].0, points[n - 1].0);
-        let k = points.partition_point(|p| p.0 <= r).clamp(1, n - 1);
+        let s = s.clamp(s_lo, s_hi);
+        let k = points.partition_point(|p| s_of(p.0) <= s).clamp(1, n - 1);
         let (r0, q0) = points[k - 1];
         let (r1, q1) = points[k];
-        let t = (r - r0) / (r1 - r0);
-        Some((q0 + t * (q1 - q0), r))
+        let t = (s - s_of(r0)) / (s_of(r1) - s_of(r0));
+        Some((q0 + t * (q1 - q0), 1.0 + s * s))
     })
 }
 
