@@ -961,6 +961,7 @@ pub fn load_with_env(main: &Path, vars: &[(String, String)]) -> Result<Loaded, V
 
     // input limits: plant-derived defaults, overridden per sensor
     let mut core = CoreSettings::defaults_for(&model);
+    super::config_machine::apply_transmitter_ranges(&machine, &mut core);
     for (id, s) in &config.inputs {
         core.supervisor.limits[id.index()] = Some(InputLimits {
             min: s.min,

@@ -283,3 +283,22 @@ impl Loaded {
         })
     }
 }
+
+/// The machine's transmitter ranges become the inputs' plausibility limits (5 % of span beyond
+/// either end: a transmitter saturates a little past its calibrated range); `[inputs.<sensor>]`
+/// in the config still overrides them.
+pub fn apply_transmitter_ranges(
+    machine: &MachineDescription,
+    core: &mut crate::control::core::CoreSettings,
+) {
+    for (id, r) in &machine.transmitters {
+        let span = r.max - r.min;
+        let slot = &mut core.supervisor.limits[id.index()];
+        let timeout_s = slot.map_or(0.05, |l| l.timeout_s);
+        *slot = Some(crate::control::supervisor::InputLimits {
+            min: r.min - 0.05 * span,
+            max: r.max + 0.05 * span,
+            timeout_s,
+        });
+    }
+}
