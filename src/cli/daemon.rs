@@ -102,6 +102,10 @@ pub fn plant(args: &PlantArgs) -> Result<()> {
 pub struct CheckArgs {
     /// Config file (default: ./config/antisurge.toml, else /etc/antisurge/antisurge.toml).
     pub file: Option<PathBuf>,
+    /// Print the effective merged configuration with the source of every value (file:line,
+    /// conf.d file, environment variable, plant file, default).
+    #[arg(long)]
+    pub print: bool,
 }
 
 /// Check a config; exit status 1 on errors.
@@ -111,6 +115,9 @@ pub fn check(args: &CheckArgs) -> Result<std::process::ExitCode> {
         Ok(l) => {
             for w in &l.warnings {
                 eprintln!("{w}");
+            }
+            if args.print {
+                print!("{}", antisurge::daemon::config_print::print_effective(&l));
             }
             let layers: Vec<String> = l
                 .layers

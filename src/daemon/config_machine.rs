@@ -79,7 +79,8 @@ pub fn resolve_machine(
             Ok(Resolved {
                 plant,
                 machine: desc,
-                controller: ControllerConfig::default(),
+                // the schema's defaults (an empty `[controller]`), as for a plant file without one
+                controller: toml::from_str::<ControllerConfig>("").unwrap_or_default(),
             })
         }
         (None, Some(p)) => Ok(Resolved {
