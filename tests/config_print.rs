@@ -38,7 +38,11 @@ fn print_names_the_source_of_a_value_from_each_layer() {
         .output()
         .expect("run");
     let text = String::from_utf8_lossy(&out.stdout).to_string();
-    assert!(out.status.success(), "{text}{}", String::from_utf8_lossy(&out.stderr));
+    assert!(
+        out.status.success(),
+        "{text}{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
     let line = |key: &str| -> String {
         text.lines()
             .find(|l| l.starts_with(&format!("{key} = ")))
@@ -47,13 +51,22 @@ fn print_names_the_source_of_a_value_from_each_layer() {
     };
     // main file, with its line
     let l = line("control.law");
-    assert!(l.contains("\"recycle-pi\"") && l.ends_with("antisurge.toml:5"), "{l}");
+    assert!(
+        l.contains("\"recycle-pi\"") && l.ends_with("antisurge.toml:5"),
+        "{l}"
+    );
     // conf.d drop-in, with its line
     let l = line("status.log_interval_s");
-    assert!(l.contains("3.0") && l.ends_with("conf.d/20-status.toml:3"), "{l}");
+    assert!(
+        l.contains("3.0") && l.ends_with("conf.d/20-status.toml:3"),
+        "{l}"
+    );
     // environment beats the main file
     let l = line("cycle.rate_hz");
-    assert!(l.contains("250") && l.ends_with("# environment (ANTISURGE_CYCLE__RATE_HZ)"), "{l}");
+    assert!(
+        l.contains("250") && l.ends_with("# environment (ANTISURGE_CYCLE__RATE_HZ)"),
+        "{l}"
+    );
     // the plant file's tuned [controller] table, with its line
     let l = line("controller.recycle_pi.kp_per_map_flow");
     let plant_text = std::fs::read_to_string(&plant).unwrap();
@@ -63,7 +76,8 @@ fn print_names_the_source_of_a_value_from_each_layer() {
         .unwrap()
         + 1;
     assert!(
-        l.contains("10.0") && l.ends_with(&format!("kvangardsnes2009_recycle.toml:{n} [controller]")),
+        l.contains("10.0")
+            && l.ends_with(&format!("kvangardsnes2009_recycle.toml:{n} [controller]")),
         "{l}"
     );
     // untouched: the schema default
@@ -85,7 +99,13 @@ fn print_lists_the_machine_file_values_with_their_lines() {
         .lines()
         .find(|l| l.starts_with("surge_line.sqrt_c_m3_s = 0.354"))
         .unwrap_or_else(|| panic!("{text}"));
-    let machine = std::fs::read_to_string(common::root().join("config/machines/vendor_example.toml")).unwrap();
-    let n = machine.lines().position(|x| x.starts_with("sqrt_c_m3_s")).unwrap() + 1;
+    let machine =
+        std::fs::read_to_string(common::root().join("config/machines/vendor_example.toml"))
+            .unwrap();
+    let n = machine
+        .lines()
+        .position(|x| x.starts_with("sqrt_c_m3_s"))
+        .unwrap()
+        + 1;
     assert!(l.ends_with(&format!("vendor_example.toml:{n}")), "{l}");
 }

@@ -84,10 +84,7 @@ suction_temperature_k = {t}
                 .map(|i| all[i * (all.len() - 1) / 5])
                 .map(|(q, r)| format!("[{q}, {r}]"))
                 .collect();
-            let design = format!(
-                "[design]\nsuction_pressure_pa = {}\n",
-                2.0e6
-            );
+            let design = format!("[design]\nsuction_pressure_pa = {}\n", 2.0e6);
             let body = head.replace("[design]\nsuction_pressure_pa = 1.0e5\n", &design);
             let path = dir.path().join(format!("{stem}_points.toml"));
             std::fs::write(
@@ -113,7 +110,11 @@ fn the_dbc_value_table_of_active_law_comes_from_the_law_registry() {
         .lines()
         .filter(|l| l.starts_with("VAL_ 128 ActiveLaw"))
         .collect();
-    assert_eq!(found, vec![line.as_str()], "regenerate the line from control::law::REGISTRY");
+    assert_eq!(
+        found,
+        vec![line.as_str()],
+        "regenerate the line from control::law::REGISTRY"
+    );
     for d in antisurge::control::law::REGISTRY {
         assert_eq!(d.id.code(), d.code);
         assert_eq!(d.name.parse::<antisurge::control::LawId>(), Ok(d.id));

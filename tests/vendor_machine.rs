@@ -36,7 +36,8 @@ fn the_vendor_example_needs_at_most_20_keys_and_check_config_accepts_it() {
         .args(["check-config", &shipped("vendor_example.toml")])
         .output()
         .expect("run");
-    let text = String::from_utf8_lossy(&out.stdout).to_string() + &String::from_utf8_lossy(&out.stderr);
+    let text =
+        String::from_utf8_lossy(&out.stdout).to_string() + &String::from_utf8_lossy(&out.stderr);
     assert!(out.status.success(), "{text}");
     assert!(!text.contains("warning"), "{text}");
 }
@@ -68,7 +69,13 @@ log_interval_s = 5.0
 "#,
         events = dir.join("events.jsonl").display()
     );
-    for s in ["p_suction", "p_discharge", "orifice_dp", "t_suction", "recycle_valve_position"] {
+    for s in [
+        "p_suction",
+        "p_discharge",
+        "orifice_dp",
+        "t_suction",
+        "recycle_valve_position",
+    ] {
         let (min, max) = match s {
             "t_suction" => (200.0, 400.0),
             "recycle_valve_position" => (-0.05, 1.05),
@@ -104,7 +111,9 @@ heartbeat_timeout_ms = 300.0
 listen = "127.0.0.1:{port}"
 heartbeat_register = {{ unit_id = 1, address = 300 }}
 "#,
-        plant = root().join("tests/plants/vendor_skid_recycle.toml").display(),
+        plant = root()
+            .join("tests/plants/vendor_skid_recycle.toml")
+            .display(),
         scenario = shipped(&format!("scenarios/{}.toml", scenario.replace('-', "_"))),
     );
     let path = dir.join("plant.toml");

@@ -88,7 +88,8 @@ pub const REGISTRY: [LawDescriptor; 8] = [
         id: LawId::RecyclePi,
         name: "recycle-pi",
         code: 1,
-        summary: "PI on the recycle valve around a surge control line (seed 001 ch. 3, seed 002 ch. 4)",
+        summary:
+            "PI on the recycle valve around a surge control line (seed 001 ch. 3, seed 002 ch. 4)",
         actuators: ActuatorSet::of(&[A::RecycleValve]),
         sensors: &[S::RecycleValvePosition],
         needs_flow: true,
@@ -133,7 +134,10 @@ pub const REGISTRY: [LawDescriptor; 8] = [
         actuators: ActuatorSet::of(&[A::CloseCoupledValve]),
         sensors: &[S::ShaftSpeed],
         needs_flow: true,
-        machine_data: &[MachineData::SpeedLineMap, MachineData::Model(ModelKind::Spool)],
+        machine_data: &[
+            MachineData::SpeedLineMap,
+            MachineData::Model(ModelKind::Spool),
+        ],
         model_family: Some(ModelKind::Spool),
     },
     LawDescriptor {
@@ -144,7 +148,10 @@ pub const REGISTRY: [LawDescriptor; 8] = [
         actuators: ActuatorSet::of(&[A::Throttle]),
         sensors: &[S::ShaftSpeed],
         needs_flow: true,
-        machine_data: &[MachineData::SpeedLineMap, MachineData::Model(ModelKind::Spool)],
+        machine_data: &[
+            MachineData::SpeedLineMap,
+            MachineData::Model(ModelKind::Spool),
+        ],
         model_family: Some(ModelKind::Spool),
     },
     LawDescriptor {
@@ -558,7 +565,10 @@ mod tests {
             assert_eq!(d.id.descriptor(), d);
         }
         let line = dbc_value_table(128);
-        assert!(line.starts_with("VAL_ 128 ActiveLaw 0 \"none\" 1 \"recycle-pi\""), "{line}");
+        assert!(
+            line.starts_with("VAL_ 128 ActiveLaw 0 \"none\" 1 \"recycle-pi\""),
+            "{line}"
+        );
         assert!(line.ends_with("7 \"tip-sliding\" ;"), "{line}");
     }
 

@@ -1020,7 +1020,9 @@ mod tests {
         for k in 1..=400 {
             let opening = 0.6 - 0.001 * k as f64;
             let scan = sp.equilibrium(model.speed_map(), sp.gamma_max * opening, 1.0);
-            if let Some(nw) = sp.equilibrium_newton(model.speed_map(), sp.gamma_max * opening, 1.0, prev) {
+            if let Some(nw) =
+                sp.equilibrium_newton(model.speed_map(), sp.gamma_max * opening, 1.0, prev)
+            {
                 assert!(
                     (nw.0 - scan.0).abs() < 1e-9,
                     "opening {opening}: {nw:?} vs {scan:?}"
@@ -1035,7 +1037,9 @@ mod tests {
         );
         // a guess on the wrong side of the peak is refused, not misconverged
         let (phi_r, _) = sp.equilibrium(model.speed_map(), sp.gamma_max * 0.2, 1.0);
-        if let Some(e) = sp.equilibrium_newton(model.speed_map(), sp.gamma_max * 0.2, 1.0, 3.0 * phi_r) {
+        if let Some(e) =
+            sp.equilibrium_newton(model.speed_map(), sp.gamma_max * 0.2, 1.0, 3.0 * phi_r)
+        {
             assert!((e.0 - phi_r).abs() < 1e-9);
         }
     }

@@ -283,7 +283,9 @@ impl TipSliding {
             .speed_map()
             .peak(w0)
             .ok_or_else(|| setting("", "the map has no surge point at nominal speed"))?;
-        let slope_map = model.speed_map().max_slope((0.9 * w0, 1.1 * w0), (0.0, q_peak));
+        let slope_map = model
+            .speed_map()
+            .max_slope((0.9 * w0, 1.1 * w0), (0.0, q_peak));
         let per_kg = match model.flow_coordinate {
             FlowCoordinate::MassKgS => 1.0,
             FlowCoordinate::InletVolumeM3S => {
@@ -697,7 +699,10 @@ mod tests {
         let p01 = tip.ambient_pressure_pa;
         let c_p = tip.sonic_velocity_m_s.powi(2) / (tip.plenum_volume_m3 * p01);
         let c_m = tip.duct_area_m2 / tip.duct_length_m * p01;
-        let (q_peak, _) = model.speed_map().peak(model.drive.nominal_speed_rad_s).unwrap();
+        let (q_peak, _) = model
+            .speed_map()
+            .peak(model.drive.nominal_speed_rad_s)
+            .unwrap();
         for (throttle, dm) in [(0.2, 0.0), (0.1, 0.01), (0.35, 0.0), (0.6, -0.02)] {
             let m_eq = equilibrium(&model, throttle);
             for dp in [0.004, -0.003, 0.0005] {

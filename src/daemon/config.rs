@@ -1001,7 +1001,15 @@ pub fn load_with_env(main: &Path, vars: &[(String, String)]) -> Result<Loaded, V
 }
 
 /// The keys that cannot change while the daemon runs (a reload reports them).
-pub const RESTART_KEYS: &[&str] = &["plant", "machine", "cycle", "bus", "event_log", "simulation", "status"];
+pub const RESTART_KEYS: &[&str] = &[
+    "plant",
+    "machine",
+    "cycle",
+    "bus",
+    "event_log",
+    "simulation",
+    "status",
+];
 
 /// Is `key` (dotted) applied live on reload?
 pub fn is_live_key(key: &str) -> bool {
@@ -1017,7 +1025,10 @@ fn locate_for(l: &Loaded, key: &str, message: String) -> FileError {
     if let (true, false, Some(plant)) = (
         key.starts_with("controller."),
         layers_set(&l.layers, key),
-        l.config.plant.as_ref().filter(|_| l.config.machine.is_none()),
+        l.config
+            .plant
+            .as_ref()
+            .filter(|_| l.config.machine.is_none()),
     ) {
         let path = resolve(&l.main_path, &plant.file);
         if let Ok(text) = std::fs::read_to_string(&path) {

@@ -52,7 +52,11 @@ pub fn resolve_machine(
                     locate(
                         layers,
                         "plant.file",
-                        format!("cannot load the plant file {}: {}", path.display(), e.message),
+                        format!(
+                            "cannot load the plant file {}: {}",
+                            path.display(),
+                            e.message
+                        ),
                     )
                 } else {
                     file_error(e)
@@ -239,7 +243,10 @@ pub fn plausibility(l: &Loaded) -> Vec<Problem> {
     if let (Some(dp_max), crate::physics::compressor_map::FlowCoordinate::InletVolumeM3S) =
         (dp_range, l.model.flow_coordinate)
     {
-        let q = l.model.surge_line.flow_at_ratio(l.model.design_pressure_ratio);
+        let q = l
+            .model
+            .surge_line
+            .flow_at_ratio(l.model.design_pressure_ratio);
         let t = l.model.nominal_suction_temperature_k;
         let dp = element_dp_pa(&l.model.orifice, &l.model.gas, q, p_s, t);
         if dp > dp_max {

@@ -98,18 +98,19 @@ pub fn print_effective(l: &Loaded) -> String {
         .max()
         .unwrap_or(0)
         .min(72);
-    let mut out = String::from("# effective configuration (later layers win: main file, conf.d/, environment)\n");
+    let mut out = String::from(
+        "# effective configuration (later layers win: main file, conf.d/, environment)\n",
+    );
     for (k, v) in &pairs {
         let kv = format!("{k} = {v}");
         out += &format!("{kv:<width$}  # {}\n", source_of(l, k));
     }
     // the machine description, from its file
-    let file = l
+    let file = l.config.machine.as_ref().map(|m| &m.file).or(l
         .config
-        .machine
+        .plant
         .as_ref()
-        .map(|m| &m.file)
-        .or(l.config.plant.as_ref().map(|p| &p.file));
+        .map(|p| &p.file));
     if let Some(f) = file {
         let path = resolve(&l.main_path, f);
         if let Ok(text) = std::fs::read_to_string(&path) {
@@ -118,11 +119,7 @@ pub fn print_effective(l: &Loaded) -> String {
                 let mut t = t;
                 t.remove("controller");
                 flatten("", &toml::Value::Table(t), &mut m);
-                out += &format!(
-                    "\n# machine `{}` ({})\n",
-                    l.machine.name,
-                    path.display()
-                );
+                out += &format!("\n# machine `{}` ({})\n", l.machine.name, path.display());
                 for (k, v) in &m {
                     let kv = format!("{k} = {v}");
                     out += &format!("{kv:<width$}  # {}\n", at(&path, &text, k));

@@ -57,7 +57,9 @@ pub fn run(opts: &PlantOptions) -> Result<()> {
         .unwrap_or_else(|| {
             PathBuf::from(format!(
                 "out/plant-{}-{}",
-                l.plant.as_ref().map_or(l.machine.name.as_str(), |p| p.name()),
+                l.plant
+                    .as_ref()
+                    .map_or(l.machine.name.as_str(), |p| p.name()),
                 scenario.name()
             ))
         });

@@ -7,9 +7,7 @@
 //! outside any plausible differential pressure, a missing or doubled surge-line form.
 
 use super::surge_line::{self, FlowUnit, HeadAxis, SurgeLineForm};
-use super::{
-    DesignPoint, FailPosition, MachineDescription, RecycleValve, TransmitterRange,
-};
+use super::{DesignPoint, FailPosition, MachineDescription, RecycleValve, TransmitterRange};
 use crate::config::FileError;
 use crate::machine::params::DriveSpec;
 use crate::physics::compressor_map::{CompressorMap, FlowCoordinate};
@@ -169,7 +167,10 @@ pub fn build(f: &MachineFile, path: &Path, text: &str) -> Result<MachineDescript
         )
         .with_hint("in kg/mol: air 0.029, natural gas ≈ 0.018–0.022 (not g/mol)"));
     }
-    if !(g.heat_capacity_ratio.is_finite() && g.heat_capacity_ratio > 1.0 && g.heat_capacity_ratio < 2.0) {
+    if !(g.heat_capacity_ratio.is_finite()
+        && g.heat_capacity_ratio > 1.0
+        && g.heat_capacity_ratio < 2.0)
+    {
         return Err(at(
             "gas.heat_capacity_ratio",
             format!("κ = {} must lie in (1, 2)", g.heat_capacity_ratio),
@@ -203,11 +204,15 @@ pub fn build(f: &MachineFile, path: &Path, text: &str) -> Result<MachineDescript
     if !(positive(d.suction_pressure_pa) && d.suction_pressure_pa > 1e3) {
         return Err(at(
             "design.suction_pressure_pa",
-            format!("{} Pa is not an absolute suction pressure", d.suction_pressure_pa),
+            format!(
+                "{} Pa is not an absolute suction pressure",
+                d.suction_pressure_pa
+            ),
         )
         .with_hint("absolute pressure in Pa: 1 bar = 1e5 Pa, add the atmosphere to barg"));
     }
-    if !(d.suction_temperature_k.is_finite() && (150.0..=700.0).contains(&d.suction_temperature_k)) {
+    if !(d.suction_temperature_k.is_finite() && (150.0..=700.0).contains(&d.suction_temperature_k))
+    {
         return Err(at(
             "design.suction_temperature_k",
             format!("{} K is not a suction temperature", d.suction_temperature_k),
@@ -260,7 +265,9 @@ pub fn build(f: &MachineFile, path: &Path, text: &str) -> Result<MachineDescript
                 "flow_element",
                 "give either `c_w` or both `flow_coefficient` and `bore_diameter_m`".into(),
             )
-            .with_hint("c_w from the data sheet: w = c_w·√(p₁·Δp) with w in kg/s and pressures in Pa"))
+            .with_hint(
+                "c_w from the data sheet: w = c_w·√(p₁·Δp) with w in kg/s and pressures in Pa",
+            ))
         }
     };
     // surge line: exactly one of the forms, or a speed-line map
@@ -278,9 +285,12 @@ pub fn build(f: &MachineFile, path: &Path, text: &str) -> Result<MachineDescript
                 },
             )
         }),
-        sl.reduced_points
-            .clone()
-            .map(|p| ("surge_line.reduced_points", SurgeLineForm::Reduced { points: p })),
+        sl.reduced_points.clone().map(|p| {
+            (
+                "surge_line.reduced_points",
+                SurgeLineForm::Reduced { points: p },
+            )
+        }),
     ]
     .into_iter()
     .flatten()
@@ -323,7 +333,10 @@ pub fn build(f: &MachineFile, path: &Path, text: &str) -> Result<MachineDescript
         if !(r.min.is_finite() && r.max.is_finite() && r.min < r.max) {
             return Err(at(
                 &format!("transmitters.{}.max", id.name()),
-                format!("range [{}, {}] is empty (min must be below max)", r.min, r.max),
+                format!(
+                    "range [{}, {}] is empty (min must be below max)",
+                    r.min, r.max
+                ),
             )
             .with_hint(format!("in {}, the values at 4 mA and 20 mA", id.unit())));
         }
@@ -467,7 +480,11 @@ suction_temperature_k = 300.0
     #[test]
     fn vendor_closed_form_loads() {
         let dir = tempfile::tempdir().unwrap();
-        let p = write(dir.path(), "m.toml", &format!("{BASE}[surge_line]\nsqrt_c_m3_s = 0.354\n"));
+        let p = write(
+            dir.path(),
+            "m.toml",
+            &format!("{BASE}[surge_line]\nsqrt_c_m3_s = 0.354\n"),
+        );
         let m = load(&p).unwrap();
         let q = m.surge_line.flow_at_ratio(2.0);
         assert!((q - 0.354).abs() < 1e-3, "{q}");
@@ -512,7 +529,11 @@ suction_temperature_k = 300.0
         let dir = tempfile::tempdir().unwrap();
         // c_w 1000× too small: the surge flow would need Δp far above the suction pressure
         let body = BASE.replace("c_w = 3.0e-5", "c_w = 1.0e-6");
-        let p = write(dir.path(), "m.toml", &format!("{body}[surge_line]\nsqrt_c_m3_s = 0.354\n"));
+        let p = write(
+            dir.path(),
+            "m.toml",
+            &format!("{body}[surge_line]\nsqrt_c_m3_s = 0.354\n"),
+        );
         let e = load(&p).unwrap_err();
         assert!(e.message.contains("do not fit together"), "{e}");
         assert_eq!(e.key, "surge_line.sqrt_c_m3_s");

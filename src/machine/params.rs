@@ -227,14 +227,16 @@ fn default_uncertainty_frequency() -> f64 {
     10.0
 }
 
-
 impl PlenumDuctParams {
     /// Throttle flow to ambient, m_t = k_t(l) √(p − p01) (seed 000, with the smooth sign of seed 001
     /// eq. 2.9), kg/s. Shared by the plant and the controller's observer.
     #[inline]
     pub fn throttle_flow_kg_s(&self, gas: &Gas, p_pa: f64, position: f64) -> f64 {
         let rho = self.throttle_density_kg_m3.unwrap_or_else(|| {
-            gas.density_kg_m3(p_pa.max(self.ambient_pressure_pa), self.ambient_temperature_k)
+            gas.density_kg_m3(
+                p_pa.max(self.ambient_pressure_pa),
+                self.ambient_temperature_k,
+            )
         });
         valve::flow_kg_s(
             self.throttle.cv_m2(position),
@@ -262,13 +264,7 @@ impl RecycleParams {
 
     /// Quasi-steady flow through the discharge line's throttle to the header at `p_a_pa`, with the
     /// check valve shut when p2 ≤ p_a (seed 002 eq. 3.17), kg/s.
-    pub fn throttle_flow_steady_kg_s(
-        &self,
-        gas: &Gas,
-        p2: f64,
-        p_a_pa: f64,
-        lt: f64,
-    ) -> f64 {
+    pub fn throttle_flow_steady_kg_s(&self, gas: &Gas, p2: f64, p_a_pa: f64, lt: f64) -> f64 {
         let cv = self.throttle.cv_m2(lt);
         let dp = p2 - p_a_pa;
         if dp <= 0.0 && self.check_valve {
@@ -285,7 +281,10 @@ impl TipClearanceParams {
     #[inline]
     pub fn throttle_flow_kg_s(&self, gas: &Gas, p_pa: f64, position: f64) -> f64 {
         let rho = self.throttle_density_kg_m3.unwrap_or_else(|| {
-            gas.density_kg_m3(p_pa.max(self.ambient_pressure_pa), self.ambient_temperature_k)
+            gas.density_kg_m3(
+                p_pa.max(self.ambient_pressure_pa),
+                self.ambient_temperature_k,
+            )
         });
         valve::flow_kg_s(
             self.throttle.cv_m2(position),

@@ -226,8 +226,8 @@ mod tests {
 
     #[test]
     fn closed_form_is_reproduced_by_the_table_and_beyond() {
-        let pts = ratio_flow_points(&SurgeLineForm::Sqrt { c_m3_s: 0.354 }, &GAS, &EL, 300.0)
-            .unwrap();
+        let pts =
+            ratio_flow_points(&SurgeLineForm::Sqrt { c_m3_s: 0.354 }, &GAS, &EL, 300.0).unwrap();
         let sl = tabulate(&pts).unwrap();
         for r in [1.2, 1.8, 2.5, 4.0, 8.0] {
             let q = 0.354 * (r - 1.0_f64).sqrt();
@@ -267,10 +267,13 @@ mod tests {
                 [dp / p_s, (r.powf(s) - 1.0) / s]
             })
             .collect();
-        let b = ratio_flow_points(&SurgeLineForm::Reduced { points: reduced }, &GAS, &EL, t)
-            .unwrap();
+        let b =
+            ratio_flow_points(&SurgeLineForm::Reduced { points: reduced }, &GAS, &EL, t).unwrap();
         for ((ra, qa), (rb, qb)) in a.iter().zip(&b) {
-            assert!((ra - rb).abs() < 1e-9 && (qa - qb).abs() < 1e-9 * qa, "{ra} {qa} {rb} {qb}");
+            assert!(
+                (ra - rb).abs() < 1e-9 && (qa - qb).abs() < 1e-9 * qa,
+                "{ra} {qa} {rb} {qb}"
+            );
         }
         for (k, &r) in rs.iter().enumerate() {
             assert!((a[k].0 - r).abs() < 1e-9);

@@ -2,17 +2,17 @@
 //! its source in a comment in the file itself.
 
 use crate::config::FileError;
+use crate::machine::{DesignPoint, FailPosition, MachineDescription, RecycleValve};
 use crate::physics::characteristic::MooreGreitzerCubic;
 use crate::physics::compressor_map::{CompressorMap, FlowCoordinate};
 use crate::physics::gas::Gas;
 use crate::physics::orifice::Orifice;
 use crate::physics::shaft::Shaft;
-use crate::machine::{DesignPoint, FailPosition, MachineDescription, RecycleValve};
 use crate::solver::StepSettings;
 // The machine's parameters live in the machine description; the plant file embeds them.
 pub use crate::machine::params::{
-    DriveSpec, FeedSpec, ModelKind, PlenumDuctParams, RecycleParams, SpoolParams,
-    ThrustRating, TipClearanceParams,
+    DriveSpec, FeedSpec, ModelKind, PlenumDuctParams, RecycleParams, SpoolParams, ThrustRating,
+    TipClearanceParams,
 };
 use serde::Deserialize;
 use std::path::{Path, PathBuf};
