@@ -45,7 +45,9 @@ fn populated() -> DaemonConfig {
         plant: Some(PlantSection {
             file: PathBuf::from("plants/kvangardsnes2009_recycle.toml"),
         }),
-        machine: None,
+        machine: Some(antisurge::daemon::config_machine::MachineSection {
+            file: PathBuf::from("machines/vendor_example.toml"),
+        }),
         control: ControlSection {
             law: "recycle-pi".into(),
             mode: StartMode::Auto,
