@@ -234,12 +234,15 @@ impl LawId {
         self.descriptor().actuators
     }
 
-    /// Plant model families the law's equations are written for.
+    /// Whether a simulation plant of model family `kind` gives the machine data the law
+    /// needs (a plant file has a map and owns its drive; only the recycle system has a
+    /// recycle valve; a model-based law needs its own family).
     pub fn supports(self, kind: ModelKind) -> bool {
-        match self.descriptor().model_family {
-            None => true,
-            Some(k) => k == kind,
-        }
+        self.descriptor().machine_data.iter().all(|d| match d {
+            MachineData::SurgeLine | MachineData::SpeedLineMap | MachineData::OwnedDrive => true,
+            MachineData::RecycleValve => kind == ModelKind::RecycleSystem,
+            MachineData::Model(k) => *k == kind,
+        })
     }
 
     /// The first machine datum the law needs that the machine lacks.
