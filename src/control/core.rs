@@ -681,6 +681,50 @@ mod tests {
         (core, raw, op)
     }
 
+    /// Vendor data only (no map, no model, the drive on its own governor): recycle-pi runs on
+    /// pressures, Δp and valve position without a speed reading and never commands torque.
+    #[test]
+    fn a_drive_the_controller_does_not_own_gets_no_torque_and_speed_is_not_essential() {
+        let desc = kvangardsnes();
+        let mut m = desc.machine();
+        m.family = None;
+        m.map = None;
+        m.recycle = None;
+        m.owns_drive_speed_loop = false;
+        let model = ControlModel::from_machine(&m, desc.file.controller.clone());
+        let mut settings = CoreSettings::defaults_for(&model);
+        settings.startup_grace_s = 0.0;
+        let config = model.controller.clone();
+        let mut core = ControlCore::new(model, config, settings, LawId::RecyclePi, 0.0)
+            .expect("recycle-pi on vendor data");
+        let sc = hold();
+        let mut run = PlantRun::new(&desc, &sc).expect("run");
+        let (_, mut raw) = run.sense(0.0);
+        raw.values.set(SensorId::ShaftSpeed, f64::NAN);
+        raw.age_s[SensorId::ShaftSpeed.index()] = f64::INFINITY;
+        let op = op(&core);
+        for k in 0..20 {
+            let t = k as f64 * 1e-3;
+            for a in raw.age_s.iter_mut().filter(|a| a.is_finite()) {
+                *a = 0.0;
+            }
+            let out = core.cycle(t, &raw, &op);
+            assert_eq!(out.mode, Mode::Auto, "cycle {k}");
+            assert!(
+                out.commands.get(ActuatorId::DriveTorque).is_nan(),
+                "cycle {k}"
+            );
+            assert!(out.commands.get(ActuatorId::RecycleValve).is_finite());
+            let (_, next) = run.sense(t);
+            raw.values = next.values;
+            raw.values.set(SensorId::ShaftSpeed, f64::NAN);
+        }
+        // the plant-file machine owns its drive: the same sample without speed fails safe
+        let mut owned = core_for(&desc, 0.0);
+        let out = owned.cycle(0.0, &raw, &op);
+        assert_eq!(out.mode, Mode::FailSafe);
+    }
+
     #[test]
     fn no_inputs_at_start_commands_nothing_then_fail_safe_after_the_grace() {
         let desc = kvangardsnes();
