@@ -61,7 +61,9 @@ fn main() -> std::process::ExitCode {
         Err(e) => {
             eprintln!("error: {e:#}");
             // a configuration error is not a crash: 78 (EX_CONFIG) stops systemd's restart loop
-            if e.chain().any(|c| c.is::<antisurge::config::ConfigInvalid>()) {
+            if e.chain()
+                .any(|c| c.is::<antisurge::config::ConfigInvalid>())
+            {
                 std::process::ExitCode::from(antisurge::config::EX_CONFIG)
             } else {
                 std::process::ExitCode::from(2)

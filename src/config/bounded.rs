@@ -81,12 +81,8 @@ pub fn read_text_bounded(path: &Path, limit: u64) -> io::Result<String> {
     if bytes.len() as u64 > limit {
         return Err(too_big(bytes.len() as u64, limit));
     }
-    String::from_utf8(bytes).map_err(|e| {
-        io::Error::new(
-            io::ErrorKind::InvalidData,
-            format!("not UTF-8 text ({e})"),
-        )
-    })
+    String::from_utf8(bytes)
+        .map_err(|e| io::Error::new(io::ErrorKind::InvalidData, format!("not UTF-8 text ({e})")))
 }
 
 /// [`read_text_bounded`] with [`MAX_CONFIG_FILE_BYTES`].

@@ -1224,7 +1224,10 @@ pub fn check(l: &Loaded) -> Vec<Problem> {
         if cpu >= n {
             error(
                 "cycle.cpu",
-                format!("CPU {cpu} does not exist: this machine has CPUs 0–{}", n - 1),
+                format!(
+                    "CPU {cpu} does not exist: this machine has CPUs 0–{}",
+                    n - 1
+                ),
                 "leave it out for no pinning, or name an isolated CPU (isolcpus=)",
             );
         }

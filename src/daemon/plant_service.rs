@@ -29,6 +29,7 @@ pub struct PlantOptions {
 
 /// Run the plant node until the scenario ends (or SIGTERM/SIGINT).
 pub fn run(opts: &PlantOptions) -> Result<()> {
+    super::service::ignore_sigxfsz();
     let l = config::load(&opts.config).map_err(|p| {
         crate::config::ConfigInvalid(format!(
             "the configuration is invalid:\n{}",

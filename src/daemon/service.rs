@@ -340,8 +340,19 @@ fn start_load(main: &Path) -> PendingLoad {
     }
 }
 
+/// Ignore SIGXFSZ: with a file-size limit (`ulimit -f`, `LimitFSIZE=`) a write past it would
+/// kill the process; ignored, the write fails with EFBIG, which the event log handles like a
+/// full disk (events counted as lost, retried). Call before any thread starts.
+pub fn ignore_sigxfsz() {
+    // SAFETY: installing SIG_IGN for one signal; no handler code runs.
+    unsafe {
+        libc::signal(libc::SIGXFSZ, libc::SIG_IGN);
+    }
+}
+
 /// Run the service until SIGTERM/SIGINT (or `duration_s`).
 pub fn run(opts: &RunOptions) -> Result<()> {
+    ignore_sigxfsz();
     let loaded = load_with_time_limit(&opts.config).map_err(|p| {
         crate::config::ConfigInvalid(format!(
             "the configuration is invalid; nothing was started:\n{}",
@@ -361,9 +372,19 @@ async fn serve(loaded: Loaded, opts: RunOptions) -> Result<()> {
     if let Some(dir) = cfg.event_log.path.parent() {
         let _ = std::fs::create_dir_all(dir);
     }
-    let log = EventLog::start(cfg.event_log.clone())
+    // the event log is an audit trail, never a start dependency of the protection: if it
+    // cannot be opened the controller runs with it degraded and the writer keeps retrying
+    let (log, open_error) = EventLog::start_degraded_ok(cfg.event_log.clone())
         .map_err(|e| anyhow!("{e}"))
-        .with_context(|| format!("cannot open the event log {}", cfg.event_log.path.display()))?;
+        .with_context(|| {
+            format!(
+                "cannot start the event log {}",
+                cfg.event_log.path.display()
+            )
+        })?;
+    if let Some(e) = open_error {
+        tracing::error!(target: "events", "event log DEGRADED: {e}; the controller runs without it, events are counted as lost, and the log is retried every {} s", crate::events::writer::REOPEN_RETRY.as_secs());
+    }
     let events = log.sender();
     let _ = events.send(Event::started(&loaded.main_path, loaded.law));
 
@@ -516,8 +537,9 @@ async fn serve(loaded: Loaded, opts: RunOptions) -> Result<()> {
                 if every > 0.0 && last_status.elapsed().as_secs_f64() >= every {
                     last_status = std::time::Instant::now();
                     let r = stats.report();
-                    tracing::info!(target: "status", "mode {} · {} cycles · jitter p99 {:.0} µs · compute p99 {:.1} µs · overruns {} · surges {}",
-                        health.mode().name(), r.cycles, r.wake_jitter.p99_us, r.compute.p99_us, r.overruns, health.surges.load(Ordering::Relaxed));
+                    tracing::info!(target: "status", "mode {} · {} cycles · jitter p99 {:.0} µs · compute p99 {:.1} µs · overruns {} · surges {}{}",
+                        health.mode().name(), r.cycles, r.wake_jitter.p99_us, r.compute.p99_us, r.overruns, health.surges.load(Ordering::Relaxed),
+                        if log.writable() { "" } else { " · event log DEGRADED (not writable, retrying)" });
                 }
                 if let Some(p) = &plant {
                     if p.status.finished.load(Ordering::Relaxed) && opts.duration_s.is_none() && opts.out_dir.is_some() {
@@ -559,6 +581,7 @@ async fn serve(loaded: Loaded, opts: RunOptions) -> Result<()> {
             "links": link_counters.to_json(),
             "surges": health.surges.load(Ordering::Relaxed),
             "updates_applied": health.updates_applied.load(Ordering::Relaxed),
+            "event_log_writable": log.writable(),
         });
         if let Err(e) = std::fs::write(path, serde_json::to_string_pretty(&json)? + "\n") {
             tracing::warn!(target: "antisurge", "cannot write {}: {e}", path.display());
