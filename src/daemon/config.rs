@@ -370,6 +370,10 @@ pub fn conf_d(main: &Path) -> PathBuf {
     base_dir(main).join("conf.d")
 }
 
+/// Deepest key an environment variable may set (`ANTISURGE_A__B__…`): the schema's deepest key
+/// has 6 levels (`controller.recycle_pi.control_line.margin.margin_pct`).
+pub const MAX_ENV_DEPTH: usize = 8;
+
 /// Environment overrides (`ANTISURGE_A__B=v` → `a.b`), sorted, from `vars`.
 fn env_layer(vars: &[(String, String)]) -> Option<Layer> {
     let mut lines = Vec::new();
@@ -382,6 +386,11 @@ fn env_layer(vars: &[(String, String)]) -> Option<Layer> {
             continue;
         }
         let key = rest.to_ascii_lowercase().replace("__", ".");
+        if key.split('.').count() > MAX_ENV_DEPTH {
+            // deeper than any key of the schema; a very deep one overflowed the stack
+            tracing::warn!(target: "config", "{k} ignored: more than {MAX_ENV_DEPTH} levels, no config key is that deep");
+            continue;
+        }
         lines.push((key, v.clone()));
     }
     if lines.is_empty() {
@@ -1231,6 +1240,14 @@ pub fn check(l: &Loaded) -> Vec<Problem> {
                 "leave it out for no pinning, or name an isolated CPU (isolcpus=)",
             );
         }
+    }
+    // gains: documented plausibility bounds (control/config.rs), before any law sees them
+    for (key, message) in l.controller.plausibility_problems() {
+        error(
+            &format!("controller.{key}"),
+            message,
+            "the seed defaults are in the plant files; change a gain by a factor of 2 at a time",
+        );
     }
     let settle = c.reload.settle_ms;
     if !(settle.is_finite() && (100.0..=60_000.0).contains(&settle)) {

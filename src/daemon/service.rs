@@ -72,15 +72,18 @@ pub fn operator_inputs(l: &Loaded) -> OperatorInputs {
     }
 }
 
-/// The live part of a loaded config, for the control thread.
-pub fn update_of(l: &Loaded) -> ControlUpdate {
-    ControlUpdate {
-        config: l.controller.clone(),
+/// The live part of a loaded config, built for the control thread here (off it): the law
+/// for `model`, the model the running core was built with. Fails if the law does not apply.
+pub fn update_of(
+    model: &crate::control::model::ControlModel,
+    l: &Loaded,
+) -> Result<ControlUpdate, crate::control::law::LawError> {
+    Ok(ControlUpdate {
+        reconf: ControlCore::prepare(model, l.controller.clone(), l.law)?,
         settings: l.core,
-        law: l.law,
         auto: l.config.control.mode == config::StartMode::Auto,
         op: operator_inputs(l),
-    }
+    })
 }
 
 /// Format config problems for the terminal and the log.
@@ -190,6 +193,7 @@ fn initial_torque_nm(l: &Loaded) -> f64 {
 /// accepted.
 fn reload(
     current: &Loaded,
+    model: &crate::control::model::ControlModel,
     loaded: Result<Loaded, Vec<config::Problem>>,
     updates: &mut rtrb::Producer<ControlUpdate>,
     events: &EventSender,
@@ -244,7 +248,20 @@ fn reload(
                 });
             }
             if !diff.is_empty() || controller_changed {
-                if updates.push(update_of(&new)).is_err() {
+                let update = match update_of(model, &new) {
+                    Ok(u) => u,
+                    Err(e) => {
+                        tracing::error!(target: "config", "reload rejected, the running configuration stays: {e}");
+                        let _ = events.send(Event::ConfigRejected {
+                            file: file.clone(),
+                            key: Some("control.law".into()),
+                            line: None,
+                            message: e.to_string(),
+                        });
+                        return None;
+                    }
+                };
+                if updates.push(update).is_err() {
                     tracing::error!(target: "config", "reload: the control thread has not taken the previous update yet; try again");
                     return None;
                 }
@@ -394,6 +411,10 @@ async fn serve(loaded: Loaded, opts: RunOptions) -> Result<()> {
     let stats = Arc::new(CycleStats::default());
     let health = Arc::new(Health::default());
     let (mut updates_tx, updates_rx) = rtrb::RingBuffer::<ControlUpdate>::new(4);
+    // replaced laws and settings come back here to be dropped off the control thread
+    let (retired_tx, mut retired_rx) =
+        rtrb::RingBuffer::<crate::control::core::Reconfiguration>::new(8);
+    let model0 = loaded.model.clone();
     let stop = Arc::new(AtomicBool::new(false));
 
     let core = ControlCore::new(
@@ -414,6 +435,7 @@ async fn serve(loaded: Loaded, opts: RunOptions) -> Result<()> {
             outputs: Arc::clone(&outputs),
             wake: Arc::clone(&wake),
             updates: updates_rx,
+            retired: retired_tx,
             events: Some(log.rt_sender().map_err(|e| anyhow!("{e}"))?),
             health: Arc::clone(&health),
             stats: Arc::clone(&stats),
@@ -513,10 +535,11 @@ async fn serve(loaded: Loaded, opts: RunOptions) -> Result<()> {
                         continue;
                     }
                 };
-                if let Some(n) = reload(&current, result, &mut updates_tx, &events) { current = n; }
+                if let Some(n) = reload(&current, &model0, result, &mut updates_tx, &events) { current = n; }
                 if std::mem::take(&mut reload_again) { loading = Some(start_load(&current.main_path)); }
             }
             _ = ticker.tick() => {
+                while let Ok(old) = retired_rx.pop() { drop(old); }
                 if let Some((since, fp)) = settling.take() {
                     let now_fp = fingerprint(&current.main_path);
                     if now_fp != fp {
