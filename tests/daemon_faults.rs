@@ -228,10 +228,10 @@ fn a_file_written_in_two_halves_is_never_applied_half() {
         .truncate(true)
         .open(&cfg)
         .expect("open");
-    f.write_all(full[..cut].as_bytes()).expect("first half");
+    f.write_all(&full.as_bytes()[..cut]).expect("first half");
     f.flush().expect("flush");
     std::thread::sleep(Duration::from_millis(500));
-    f.write_all(full[cut..].as_bytes()).expect("second half");
+    f.write_all(&full.as_bytes()[cut..]).expect("second half");
     drop(f);
     let st = wait(&mut ctl, Duration::from_secs(20), "controller", dir);
     let log = events(dir);

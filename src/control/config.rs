@@ -199,8 +199,10 @@ mod tests {
         let p = c.plausibility_problems();
         assert!(p.iter().any(|(_, m)| m.contains("both 0")), "{p:?}");
 
-        let mut c = ControllerConfig::default();
-        c.derivative_filter_hz = 1e12;
+        let c = ControllerConfig {
+            derivative_filter_hz: 1e12,
+            ..ControllerConfig::default()
+        };
         let p = c.plausibility_problems();
         assert_eq!(p[0].0, "derivative_filter_hz", "{p:?}");
     }

@@ -539,7 +539,8 @@ async fn serve(loaded: Loaded, opts: RunOptions) -> Result<()> {
                 if std::mem::take(&mut reload_again) { loading = Some(start_load(&current.main_path)); }
             }
             _ = ticker.tick() => {
-                while let Ok(old) = retired_rx.pop() { drop(old); }
+                // replaced laws and settings are freed here, off the control thread
+                while retired_rx.pop().is_ok() {}
                 if let Some((since, fp)) = settling.take() {
                     let now_fp = fingerprint(&current.main_path);
                     if now_fp != fp {
