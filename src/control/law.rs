@@ -37,6 +37,9 @@ pub enum LawId {
     Robust,
     /// Sliding mode on the tip clearance via the magnetic thrust bearing (seed 004).
     TipSliding,
+    /// The yardstick: textbook symmetric PI on the normalised deviation (simulation and
+    /// benchmarks only, never offered to the daemon: not in [`LawId::ALL`]).
+    BaselinePi,
 }
 
 impl LawId {
@@ -52,9 +55,26 @@ impl LawId {
         LawId::TipSliding,
     ];
 
+    /// Laws of the simulation and benchmarks only (not in [`LawId::ALL`], so the daemon's
+    /// config and the bus never offer them).
+    pub const SIM_ONLY: [LawId; 1] = [LawId::BaselinePi];
+
+    /// Parse a law name for `antisurge sim` and the benchmarks: every daemon law and the
+    /// simulation-only ones.
+    pub fn parse_sim(s: &str) -> Result<LawId, UnknownLaw> {
+        s.parse::<LawId>().or_else(|e| {
+            LawId::SIM_ONLY
+                .iter()
+                .copied()
+                .find(|l| l.name() == s)
+                .ok_or(e)
+        })
+    }
+
     /// Name used in config files, on the command line and in the event log.
     pub const fn name(self) -> &'static str {
         match self {
+            LawId::BaselinePi => "baseline-pi",
             LawId::None => "none",
             LawId::RecyclePi => "recycle-pi",
             LawId::RecycleFl => "recycle-fl",
@@ -77,6 +97,7 @@ impl LawId {
             LawId::ThrottleBackstep => 5,
             LawId::Robust => 6,
             LawId::TipSliding => 7,
+            LawId::BaselinePi => 255,
         }
     }
 
@@ -84,7 +105,7 @@ impl LawId {
     pub const fn actuators(self) -> ActuatorSet {
         match self {
             LawId::None => ActuatorSet::of(&[ActuatorId::DriveTorque]),
-            LawId::RecyclePi | LawId::RecycleFl => {
+            LawId::RecyclePi | LawId::RecycleFl | LawId::BaselinePi => {
                 ActuatorSet::of(&[ActuatorId::DriveTorque, ActuatorId::RecycleValve])
             }
             LawId::DriveTorque => ActuatorSet::of(&[ActuatorId::DriveTorque]),
@@ -105,7 +126,9 @@ impl LawId {
     pub fn supports(self, kind: ModelKind) -> bool {
         match self {
             LawId::None => true,
-            LawId::RecyclePi | LawId::RecycleFl => kind == ModelKind::RecycleSystem,
+            LawId::RecyclePi | LawId::RecycleFl | LawId::BaselinePi => {
+                kind == ModelKind::RecycleSystem
+            }
             LawId::DriveTorque => kind == ModelKind::PlenumDuct,
             LawId::Ccv | LawId::ThrottleBackstep | LawId::Robust => kind == ModelKind::Spool,
             LawId::TipSliding => kind == ModelKind::TipClearance,
@@ -290,6 +313,8 @@ pub enum Law {
     Robust(super::spool_laws::Robust),
     /// Tip-clearance sliding mode.
     TipSliding(super::tip_sliding::TipSliding),
+    /// The benchmark yardstick.
+    BaselinePi(super::baseline_pi::BaselinePi),
 }
 
 impl Law {
@@ -323,6 +348,14 @@ impl Law {
                 &cfg.tip_sliding,
                 model,
             )?),
+            LawId::BaselinePi => {
+                // the same control line as recycle-pi (with its checks), textbook gains
+                let rp = super::recycle_pi::RecyclePi::new(&cfg.recycle_pi, model)?;
+                Law::BaselinePi(super::baseline_pi::BaselinePi::new(
+                    *rp.control_line(),
+                    cfg.recycle_pi.min_opening,
+                ))
+            }
         })
     }
 
@@ -337,6 +370,7 @@ impl Law {
             Law::ThrottleBackstep(_) => LawId::ThrottleBackstep,
             Law::Robust(_) => LawId::Robust,
             Law::TipSliding(_) => LawId::TipSliding,
+            Law::BaselinePi(_) => LawId::BaselinePi,
         }
     }
 
@@ -350,6 +384,7 @@ impl Law {
             Law::ThrottleBackstep(l) => Some(l),
             Law::Robust(l) => Some(l),
             Law::TipSliding(l) => Some(l),
+            Law::BaselinePi(l) => Some(l),
         }
     }
 
