@@ -17,6 +17,7 @@
 use crate::control::core::{ControlCore, CoreSettings, Mode};
 use crate::control::measurements::{OperatorInputs, RawSensors};
 use crate::control::model::ControlModel;
+use crate::control::recycle_pi::RecyclePiConfig;
 use crate::control::surge_control_line::ControlLineForm;
 use crate::control::LawId;
 use crate::plant::file::PlantDescription;
@@ -176,15 +177,18 @@ pub struct CaseResult {
     pub resume_step: f64,
 }
 
-/// Apply a case's control-line margin to a controller configuration: the same line for both
-/// laws, and recycle-pi's trip line at most halfway between surge line and control line.
+/// The controller configuration of a case: the plant's observer and detector settings, and
+/// recycle-pi with its built-in defaults (no per-plant tuning: the defaults must hold on every
+/// machine) on a control line `margin_pct` right of the surge line, which baseline-pi uses too.
 pub fn controller_for(model: &ControlModel, margin_pct: f64) -> crate::control::ControllerConfig {
     let mut cfg = model.controller.clone();
-    cfg.recycle_pi.control_line = ControlLineForm::Margin {
-        margin_pct,
-        offset: 0.0,
+    cfg.recycle_pi = RecyclePiConfig {
+        control_line: ControlLineForm::Margin {
+            margin_pct,
+            offset: 0.0,
+        },
+        ..RecyclePiConfig::default()
     };
-    cfg.recycle_pi.trip_margin_pct = cfg.recycle_pi.trip_margin_pct.min(0.5 * margin_pct);
     cfg
 }
 

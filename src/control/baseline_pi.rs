@@ -10,7 +10,8 @@
 //! map's coordinate, c(R) the control-line flow at the measured pressure ratio (the same
 //! control line as recycle-pi's `[controller.recycle_pi] control_line`, seed 002 eq. 4.1/4.2).
 //! Valve opening u = Kp·e + I, e = −d (left of the line opens), İ = Ki·e, clamped to
-//! [min opening, 1]; the integrator stops while the output is saturated and the error pushes
+//! [min opening, 1], d through a first-order 1 Hz filter (the usual flow-signal damping); the
+//! integrator stops while the output is saturated and the error pushes
 //! further into the limit (conditional integration).
 
 use super::law::{LawInputs, LawOutput, SurgeLaw};
@@ -18,11 +19,15 @@ use super::surge_control_line::SurgeControlLine;
 use crate::signals::{ActuatorCommands, ActuatorId};
 
 /// Proportional gain: valve fraction per unit of normalised deviation (a 5 % deviation moves
-/// the valve 10 %).
-pub const BASELINE_KP: f64 = 2.0;
+/// the valve 5 %). Chosen as the largest round gains that close the throttle closure without a
+/// limit cycle on both recycle plants (2/2 at 2 Hz limit-cycles on hemchi2016).
+pub const BASELINE_KP: f64 = 1.0;
 /// Integral gain: valve fraction per unit of normalised deviation and second (integral time
-/// Kp/Ki = 1 s).
+/// Kp/Ki = 0.5 s).
 pub const BASELINE_KI_PER_S: f64 = 2.0;
+
+/// Cut-off of the first-order filter on the deviation, Hz.
+pub const BASELINE_FILTER_HZ: f64 = 1.0;
 
 /// Law state.
 #[derive(Debug, Clone)]
@@ -32,6 +37,9 @@ pub struct BaselinePi {
     ki_per_s: f64,
     min_opening: f64,
     integ: f64,
+    /// Filtered deviation.
+    d_f: f64,
+    filter_hz: f64,
     started: bool,
 }
 
@@ -45,6 +53,8 @@ impl BaselinePi {
             ki_per_s: BASELINE_KI_PER_S,
             min_opening: min_opening.clamp(0.0, 1.0),
             integ: 0.0,
+            d_f: f64::NAN,
+            filter_hz: BASELINE_FILTER_HZ,
             started: false,
         }
     }
@@ -71,7 +81,9 @@ impl SurgeLaw for BaselinePi {
         if !u0.is_finite() {
             u0 = self.min_opening;
         }
-        let e = -self.deviation(m.flow_map, m.pressure_ratio);
+        let d = self.deviation(m.flow_map, m.pressure_ratio);
+        self.d_f = d;
+        let e = -d;
         self.integ = if e.is_finite() { u0 - self.kp * e } else { u0 };
         self.started = true;
     }
@@ -81,11 +93,19 @@ impl SurgeLaw for BaselinePi {
             self.start(inputs, &ActuatorCommands::default());
         }
         let m = inputs.m;
-        let e = -self.deviation(m.flow_map, m.pressure_ratio);
+        let d = self.deviation(m.flow_map, m.pressure_ratio);
         let mut out = LawOutput::idle();
-        if !e.is_finite() {
+        if !d.is_finite() {
             return out;
         }
+        // first-order measurement filter, as field controllers put on the flow signal
+        if self.d_f.is_finite() && self.filter_hz > 0.0 {
+            let a = 1.0 - (-2.0 * std::f64::consts::PI * self.filter_hz * dt_s.max(0.0)).exp();
+            self.d_f += a * (d - self.d_f);
+        } else {
+            self.d_f = d;
+        }
+        let e = -self.d_f;
         let (lo, hi) = (self.min_opening, 1.0);
         let u_raw = self.integ + self.kp * e;
         // conditional integration: not while saturated with the error pushing further out

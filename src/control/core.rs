@@ -62,6 +62,14 @@ pub struct CoreSettings {
     /// does not move its actuators, and the first law cycle takes over from the measured
     /// positions.
     pub startup_grace_s: f64,
+    /// Transmitter-failure hold: when an essential input fails in automatic or manual mode,
+    /// the last outputs are kept this long before the fail-safe state, s. A blip shorter
+    /// than this (a late Modbus answer, a dropped frame) does not slam the valve open; a loss
+    /// longer than freshness timeout + hold enters fail-safe.
+    pub failure_hold_s: f64,
+    /// Hysteresis on leaving fail-safe: inputs must be healthy this long without a break
+    /// before the controller resumes, s (no auto ↔ fail-safe chatter on a marginal link).
+    pub failsafe_exit_s: f64,
 }
 
 impl CoreSettings {
@@ -99,9 +107,27 @@ impl CoreSettings {
             failsafe_recycle_opening: if model.recycle.is_some() { 1.0 } else { 0.0 },
             supervisor: Supervisor { limits },
             startup_grace_s: 1.0,
+            failure_hold_s: DEFAULT_FAILURE_HOLD_S,
+            failsafe_exit_s: DEFAULT_FAILSAFE_EXIT_S,
         }
     }
+
+    /// Freshness defaults for inputs that arrive by polling every `poll_period_s` (Modbus):
+    /// every default timeout becomes at least [`POLL_PERIODS_PER_TIMEOUT`] poll periods, so a
+    /// device answering at the poll rate is never stale between two answers.
+    pub fn follow_poll_period(&mut self, poll_period_s: f64) {
+        self.supervisor
+            .follow_poll_period(poll_period_s, POLL_PERIODS_PER_TIMEOUT);
+    }
 }
+
+/// Default transmitter-failure hold, s: longer than a 100 ms blip plus a 50 Hz poll period,
+/// short against the ≈ 1 s a closing throttle takes to move a machine onto its surge line.
+pub const DEFAULT_FAILURE_HOLD_S: f64 = 0.25;
+/// Default healthy time before leaving fail-safe, s.
+pub const DEFAULT_FAILSAFE_EXIT_S: f64 = 0.5;
+/// Default freshness timeout in poll periods of a polled bus.
+pub const POLL_PERIODS_PER_TIMEOUT: f64 = 3.0;
 
 /// What one cycle produced (for traces, the event log and the I/O layer).
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -182,6 +208,10 @@ pub struct ControlCore {
     /// Measurements of the last processed sample (repeated by a holding cycle).
     last_meas: Measurements,
     law_started: bool,
+    /// Since when essential inputs have failed in auto/manual (the failure hold), s; NaN: not.
+    failing_since_s: f64,
+    /// Since when inputs have been healthy in fail-safe (exit hysteresis), s; NaN: not.
+    healthy_since_s: f64,
 }
 
 impl ControlCore {
@@ -223,6 +253,8 @@ impl ControlCore {
             last_sample_s: f64::NAN,
             last_meas: Measurements::unavailable(f64::NAN),
             law_started: false,
+            failing_since_s: f64::NAN,
+            healthy_since_s: f64::NAN,
             model,
             config,
             settings,
@@ -503,8 +535,31 @@ impl ControlCore {
             if self.mode == Mode::Init && t_s - self.first_t_s < self.settings.startup_grace_s {
                 return self.init_hold(meas, validity);
             }
+            self.healthy_since_s = f64::NAN;
+            if matches!(self.mode, Mode::Auto | Mode::Manual) {
+                // transmitter-failure hold: keep the last outputs for a short time
+                if self.failing_since_s.is_nan() {
+                    self.failing_since_s = t_s;
+                }
+                if t_s - self.failing_since_s < self.settings.failure_hold_s {
+                    self.history.push(self.last.get(ActuatorId::DriveTorque));
+                    return self.passive_output(self.last, meas, validity);
+                }
+            }
+            self.failing_since_s = f64::NAN;
             return self.failsafe(meas, validity);
         }
+        self.failing_since_s = f64::NAN;
+        if self.mode == Mode::FailSafe {
+            // hysteresis: stay in fail-safe until the inputs have been healthy for a while
+            if self.healthy_since_s.is_nan() {
+                self.healthy_since_s = t_s;
+            }
+            if t_s - self.healthy_since_s < self.settings.failsafe_exit_s {
+                return self.failsafe(meas, validity);
+            }
+        }
+        self.healthy_since_s = f64::NAN;
         let from_failsafe = matches!(self.mode, Mode::FailSafe | Mode::Init);
         self.mode = if self.auto_requested {
             Mode::Auto
@@ -529,9 +584,13 @@ impl ControlCore {
                     .track(from, op.speed_setpoint_rad_s, meas.omega_rad_s);
             }
         }
-        // the current outputs, with positions measured where the controller did not drive them
+        // the current outputs, with positions measured where the controller did not drive them;
+        // every resume (start, fail-safe exit, link restart) takes over from the *measured*
+        // valve position, not from the fail-safe command the valve may not have reached
         let mut current = self.last;
-        if current.get(ActuatorId::RecycleValve).is_nan() {
+        if current.get(ActuatorId::RecycleValve).is_nan()
+            || (from_failsafe && meas.recycle_position.is_finite())
+        {
             current.set(ActuatorId::RecycleValve, meas.recycle_position);
         }
         if current.get(ActuatorId::Throttle).is_nan() {

@@ -67,7 +67,7 @@ use crate::physics::compressor_map::CompressorMap;
 use crate::signals::{ActuatorCommands, ActuatorId};
 use serde::{Deserialize, Serialize};
 
-/// Which control variable the PI acts on (seed 002 ch. 4).
+/// Which control variable the PI acts on (seed 002 ch. 4, or the normalised deviation).
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize, Default)]
 #[serde(rename_all = "snake_case")]
 pub enum ControlVariable {
@@ -75,8 +75,13 @@ pub enum ControlVariable {
     Strategy1,
     /// Strategy 2: z = 1 − q̄/c(R)² (seed 002 eq. 4.38), dimensionless. Its steady-state gain
     /// varies less with speed (seed 002 Fig. 4.11 vs 4.7).
-    #[default]
     Strategy2,
+    /// The normalised deviation d = (q − c(R))/c(R): distance to the control line as a
+    /// fraction of the control-line flow, positive = safe; the PI acts on z = −d. Gains
+    /// `kp`, `ki_per_s` are per unit of d, so one set of defaults fits every machine (the
+    /// map's flow unit and the machine's size drop out).
+    #[default]
+    Deviation,
 }
 
 impl ControlVariable {
@@ -96,6 +101,14 @@ impl ControlVariable {
                     f64::NAN
                 }
             }
+            // z = −d = (c − q)/c (signed q: a reversal reads as far left)
+            ControlVariable::Deviation => {
+                if c > 0.0 {
+                    (c - q) / c
+                } else {
+                    f64::NAN
+                }
+            }
         }
     }
 
@@ -105,6 +118,7 @@ impl ControlVariable {
         match self {
             ControlVariable::Strategy1 => 2.0 * q_line,
             ControlVariable::Strategy2 => 2.0 / q_line,
+            ControlVariable::Deviation => 1.0 / q_line,
         }
     }
 }
@@ -118,18 +132,39 @@ pub struct RecyclePiConfig {
     pub control_line: ControlLineForm,
     /// Control variable: `strategy1` (eq. 4.19) or `strategy2` (eq. 4.38). Default strategy 2.
     pub control_variable: ControlVariable,
-    /// Proportional gain: valve opening (fraction) per map flow unit (kg/s or m³/s at suction) of
-    /// equivalent linear flow error at the design point. Seed 001 §3.4: 35.5 (per kg/s).
+    /// Proportional gain of `strategy1`/`strategy2`: valve opening (fraction) per map flow
+    /// unit (kg/s or m³/s at suction) of equivalent linear flow error at the design point.
+    /// Seed 001 §3.4: 35.5 (per kg/s). Not used by `deviation`.
     pub kp_per_map_flow: f64,
-    /// Integral gain: valve opening (fraction) per map flow unit and second. Seed 001 §3.4: 85.
+    /// Integral gain of `strategy1`/`strategy2`: valve opening (fraction) per map flow unit
+    /// and second. Seed 001 §3.4: 85. Not used by `deviation`.
     pub ki_per_map_flow_s: f64,
+    /// Proportional gain of `deviation`: valve opening (fraction) per unit of normalised
+    /// deviation (a seed gain K per map flow unit is K × q_ref, q_ref the control-line flow
+    /// at the design point). Default 1.0: 1 % of the line's flow moves the valve 1 %.
+    pub kp: f64,
+    /// Integral gain of `deviation`: valve opening per unit of normalised deviation and
+    /// second (seed: K_i × q_ref). Default 2.0/s (integral time 0.5 s).
+    pub ki_per_s: f64,
+    /// Closing-rate adaptation: the allowed closing rate grows by `closing_rate_per_s` for
+    /// every this many percent of control-line flow the operating point lies right of the
+    /// control line (far from the line the valve closes fast, near it slowly); 0 disables.
+    /// Default 5 %.
+    pub closing_rate_distance_pct: f64,
+    /// Trip agreement: the trip condition must hold this many consecutive samples. Default 5.
+    pub trip_confirm_samples: u32,
+    /// Trip noise allowance: the trip thresholds move by this many times the measured noise
+    /// of the surge margin (a running mean absolute deviation from its filtered value), so
+    /// noise cannot fire the trip. Default 3.
+    pub trip_noise_factor: f64,
     /// Largest closing speed of the valve command, opening fraction per second (seed 002
     /// §2.2.2, [15]: rate-limited closing). Opening is not rate-limited. Default 0.1/s.
     pub closing_rate_per_s: f64,
     /// Smallest valve opening the law commands, fraction (0..1). Default 0.
     pub min_opening: f64,
     /// Trip line: surge margin (q − j(R))/j(R), percent, below which the recycle trip fires
-    /// (between the surge line and the SCL). Default 5 %.
+    /// (between the surge line and the SCL). 0 (default): halfway between the surge line
+    /// and the control line at every pressure ratio, so the default fits every margin.
     pub trip_margin_pct: f64,
     /// Rate-of-approach trip: fires when the surge margin, extrapolated at its current
     /// (filtered) rate of approach over this horizon, falls below the trip line, s. 0 disables
@@ -138,7 +173,7 @@ pub struct RecyclePiConfig {
     /// Cut-off of the low-pass on the surge margin before differentiation, Hz (two
     /// cascaded stages). Default 2 Hz.
     pub approach_filter_hz: f64,
-    /// Cut-off of a first-order low-pass on z before the PI, Hz (0: none). Default 0.
+    /// Cut-off of a first-order low-pass on z before the PI, Hz (0: none). Default 1 Hz.
     pub z_filter_hz: f64,
     /// Open-loop step of the trip, valve opening fraction added to the current command
     /// (seed 002 §2.2.2 [11], [13]); 0 disables the trip. Default 0.3.
@@ -163,12 +198,17 @@ impl Default for RecyclePiConfig {
             control_variable: ControlVariable::default(),
             kp_per_map_flow: 35.5,
             ki_per_map_flow_s: 85.0,
+            kp: 1.0,
+            ki_per_s: 2.0,
+            closing_rate_distance_pct: 5.0,
+            trip_confirm_samples: 5,
+            trip_noise_factor: 3.0,
             closing_rate_per_s: 0.1,
             min_opening: 0.0,
-            trip_margin_pct: 5.0,
+            trip_margin_pct: 0.0,
             trip_lead_time_s: 0.5,
             approach_filter_hz: 2.0,
-            z_filter_hz: 0.0,
+            z_filter_hz: 1.0,
             trip_step: 0.3,
             trip_hold_s: 1.0,
             fallback_speed_line_check: true,
@@ -258,6 +298,10 @@ pub struct RecyclePi {
     margin_f2_last: f64,
     /// Remaining trip hold time, s (≤ 0: not tripped).
     trip_left_s: f64,
+    /// Consecutive samples the trip condition held.
+    trip_agree: u32,
+    /// Running mean absolute deviation of the surge margin from its filtered value (noise).
+    margin_noise: f64,
     /// Opening held by the trip.
     trip_level: f64,
     /// Trips so far.
@@ -288,6 +332,10 @@ impl RecyclePi {
         };
         positive("kp_per_map_flow", cfg.kp_per_map_flow)?;
         positive("ki_per_map_flow_s", cfg.ki_per_map_flow_s)?;
+        positive("kp", cfg.kp)?;
+        positive("ki_per_s", cfg.ki_per_s)?;
+        positive("closing_rate_distance_pct", cfg.closing_rate_distance_pct)?;
+        positive("trip_noise_factor", cfg.trip_noise_factor)?;
         positive("trip_lead_time_s", cfg.trip_lead_time_s)?;
         positive("trip_hold_s", cfg.trip_hold_s)?;
         positive("safety_on_step_pct", cfg.safety_on_step_pct)?;
@@ -323,8 +371,10 @@ impl RecyclePi {
         let mut pts = model.map.surge_line.points();
         let r_lo = pts.next().map_or(f64::NAN, |p| p.1);
         let r_hi = pts.last().map_or(f64::NAN, |p| p.1);
-        if let Err((r, margin)) =
-            scl.check_right_of_surge_line((r_lo, r_hi), 0.01 * cfg.trip_margin_pct)
+        if let Err((r, margin)) = scl.check_right_of_surge_line(
+            (r_lo, r_hi),
+            (0.01 * cfg.trip_margin_pct).max(1e-3),
+        )
         {
             return Err(err(
                 "control_line",
@@ -347,14 +397,19 @@ impl RecyclePi {
                     ),
                 )
             })?;
-        // gains on z = gains on the linear flow error / (∂z/∂q on the line at q_ref)
+        // gains on z = gains on the linear flow error / (∂z/∂q on the line at q_ref); the
+        // normalised deviation's gains are on z = −d directly
         let s = cfg.control_variable.slope_on_line(q_ref);
+        let (kp_z, ki_z) = match cfg.control_variable {
+            ControlVariable::Deviation => (cfg.kp, cfg.ki_per_s),
+            _ => (cfg.kp_per_map_flow / s, cfg.ki_per_map_flow_s / s),
+        };
         Ok(RecyclePi {
             cfg: cfg.clone(),
             scl,
             q_ref,
-            kp_z: cfg.kp_per_map_flow / s,
-            ki_z: cfg.ki_per_map_flow_s / s,
+            kp_z,
+            ki_z,
             z_f: f64::NAN,
             integ: 0.0,
             u_last: f64::NAN,
@@ -362,6 +417,8 @@ impl RecyclePi {
             margin_f2: f64::NAN,
             margin_f2_last: f64::NAN,
             trip_left_s: 0.0,
+            trip_agree: 0,
+            margin_noise: 0.0,
             trip_level: 0.0,
             trips: 0,
             shifts: 0,
@@ -453,6 +510,37 @@ impl RecyclePi {
         self.margin_f2_last = margin;
     }
 
+    /// Trip line at a pressure ratio, fraction of surge-line flow: `trip_margin_pct`, or
+    /// halfway to the control line.
+    fn trip_margin_at(&self, ratio: f64) -> f64 {
+        if self.cfg.trip_margin_pct > 0.0 {
+            return 0.01 * self.cfg.trip_margin_pct;
+        }
+        let j = self.scl.surge_line().flow_at_ratio(ratio);
+        let c = self.scl.flow_at_ratio(ratio);
+        if j > 0.0 {
+            0.5 * (c - j) / j
+        } else {
+            0.0
+        }
+    }
+
+    /// Allowed closing rate, fraction/s: the base rate, plus one base rate per
+    /// `closing_rate_distance_pct` of control-line flow right of the line.
+    fn closing_rate(&self, q: f64, ratio: f64) -> f64 {
+        let base = self.cfg.closing_rate_per_s;
+        if self.cfg.closing_rate_distance_pct <= 0.0 {
+            return base;
+        }
+        let c = self.scl.flow_at_ratio(ratio);
+        let right = if c > 0.0 { (q - c) / c } else { 0.0 };
+        if right.is_finite() && right > 0.0 {
+            base * (1.0 + right / (0.01 * self.cfg.closing_rate_distance_pct))
+        } else {
+            base
+        }
+    }
+
     #[inline]
     fn limits(&self) -> (f64, f64) {
         (self.cfg.min_opening, 1.0)
@@ -538,10 +626,25 @@ impl SurgeLaw for RecyclePi {
 
         // recycle trip ([11], [13]): the trip line is crossed, or, at or left of the control
         // line (z ≥ 0), it would be crossed within the lead time at the present rate of approach
-        let trip_margin = 0.01 * self.cfg.trip_margin_pct;
-        let predicted = margin + self.cfg.trip_lead_time_s * d_margin.min(0.0);
-        let trip_now =
-            margin.is_finite() && (margin < trip_margin || (z >= 0.0 && predicted < trip_margin));
+        // noise-proof: the level criterion uses the filtered margin, both thresholds move
+        // left by the measured noise (mean absolute deviation of the margin from its filtered
+        // value, ≈ 1 s average), and the condition must hold over several samples
+        let trip_margin = self.trip_margin_at(r);
+        if margin.is_finite() && self.margin_f1.is_finite() {
+            let a = (dt / 1.0).min(1.0);
+            self.margin_noise += a * ((margin - self.margin_f1).abs() - self.margin_noise);
+        }
+        let allowance = self.cfg.trip_noise_factor * self.margin_noise;
+        let predicted = self.margin_f1 + self.cfg.trip_lead_time_s * d_margin.min(0.0);
+        let trip_cond = margin.is_finite()
+            && (self.margin_f1 < trip_margin - allowance
+                || (z >= 0.0 && predicted < trip_margin - allowance));
+        self.trip_agree = if trip_cond {
+            self.trip_agree.saturating_add(1)
+        } else {
+            0
+        };
+        let trip_now = trip_cond && self.trip_agree >= self.cfg.trip_confirm_samples.max(1);
         self.trip_left_s -= dt;
         let mut event = None;
         if trip_now && self.trip_left_s <= 0.0 && self.cfg.trip_step > 0.0 {
@@ -561,8 +664,11 @@ impl SurgeLaw for RecyclePi {
         let u_pi = integ_next + self.kp_z * z;
         let demand = u_pi.clamp(lo, hi);
         // fast opening, rate-limited closing ([15]): the valve follows the demand up at once and
-        // down at most at the closing rate; the PI keeps its own demand meanwhile
-        let follow = demand.max(self.u_last - self.cfg.closing_rate_per_s * dt);
+        // down at most at the closing rate; the PI keeps its own demand meanwhile. The rate
+        // grows with the distance right of the control line: far from it the valve closes
+        // fast (less recycle after a trip or a fail-safe), near it slowly.
+        let rate = self.closing_rate(q, r);
+        let follow = demand.max(self.u_last - rate * dt);
         let mut u = follow;
         // trip hold: at least the tripped opening
         if self.trip_left_s > 0.0 {
@@ -574,10 +680,18 @@ impl SurgeLaw for RecyclePi {
         // holds the valve above the demand, the integrator does not integrate further in the
         // closing direction (conditional integration), so the demand cannot dive below the
         // valve; against the static limits it tracks the clamped demand
+        // At the closed limit the integrator stops at the limit itself (not at limit − Kp·z,
+        // which would let every noise uptick right of the line open the valve).
         self.integ = if u > follow {
             u - self.kp_z * z
-        } else if demand != u_pi {
-            demand - self.kp_z * z
+        } else if u_pi > hi {
+            hi - self.kp_z * z
+        } else if u_pi < lo {
+            if z < 0.0 {
+                integ_next.max(lo)
+            } else {
+                integ_next
+            }
         } else if u > demand && z < 0.0 {
             self.integ
         } else {
