@@ -452,6 +452,96 @@ pub fn run_matrix(
     all.into_iter().map(|(_, r)| r).collect()
 }
 
+/// Whether the recycle valve's stroke suffices for an ESD rundown without surge (recycle-pi
+/// at a 10 % margin), and if not, the longest of the candidate stroke times (1, 0.5, 0.25 s)
+/// with which a variant of the plant holds it.
+#[derive(Debug, Clone, PartialEq)]
+pub struct EsdStroke {
+    /// Plant name.
+    pub plant: String,
+    /// The plant's recycle-valve stroke time, s.
+    pub stroke_time_s: f64,
+    /// Surge cycles of the ESD with that stroke.
+    pub surge_cycles: u32,
+    /// A stroke time that holds the ESD (None: the plant's own does, or none of the
+    /// candidates does).
+    pub holding_stroke_s: Option<f64>,
+}
+
+/// Check the ESD stroke of every recycle plant.
+pub fn esd_strokes(
+    plants: &[PlantDescription],
+    config_dir: &Path,
+) -> Result<Vec<EsdStroke>, SimError> {
+    let path = config_dir.join("scenarios").join("emergency_shutdown.toml");
+    let sc = Scenario::load(&path).map_err(|e| SimError::Scenario {
+        scenario: "emergency-shutdown".into(),
+        message: e.to_string(),
+    })?;
+    let case = CASES[4];
+    let mut out = Vec::new();
+    for p in plants
+        .iter()
+        .filter(|p| LawId::RecyclePi.supports(p.file.model))
+    {
+        let Some(rs) = p.file.recycle_system else {
+            continue;
+        };
+        let stroke = rs.recycle_valve.stroke_time_s;
+        let r = run_case(p, &sc, &case, LawId::RecyclePi, 10.0)?;
+        let mut holding = None;
+        if r.surge_cycles > 0 {
+            for cand in [1.0, 0.5, 0.25] {
+                if cand >= stroke {
+                    continue;
+                }
+                let mut v = p.clone();
+                if let Some(rs) = v.file.recycle_system.as_mut() {
+                    rs.recycle_valve.stroke_time_s = cand;
+                }
+                if run_case(&v, &sc, &case, LawId::RecyclePi, 10.0)?.surge_cycles == 0 {
+                    holding = Some(cand);
+                    break;
+                }
+            }
+        }
+        out.push(EsdStroke {
+            plant: p.name().to_string(),
+            stroke_time_s: stroke,
+            surge_cycles: r.surge_cycles,
+            holding_stroke_s: holding,
+        });
+    }
+    Ok(out)
+}
+
+/// The ESD verdicts as Markdown lines.
+pub fn esd_markdown(rows: &[EsdStroke]) -> String {
+    let mut s = String::new();
+    for r in rows {
+        let verdict = if r.surge_cycles == 0 {
+            "suffices (no surge cycle)".to_string()
+        } else {
+            match r.holding_stroke_s {
+                Some(t) => format!(
+                    "is too slow ({} surge cycles); a {t} s stroke holds the ESD without surge",
+                    r.surge_cycles
+                ),
+                None => format!(
+                    "is too slow ({} surge cycles); no stroke down to 0.25 s holds it",
+                    r.surge_cycles
+                ),
+            }
+        };
+        let _ = writeln!(
+            s,
+            "- {}: the recycle valve's {} s stroke {verdict}.",
+            r.plant, r.stroke_time_s
+        );
+    }
+    s
+}
+
 fn pct(x: f64) -> String {
     if x.is_finite() {
         format!("{:+.1} %", 100.0 * x)

@@ -34,7 +34,13 @@ pub fn run(args: &BenchMatrixArgs) -> Result<()> {
     });
     let rows = antisurge::bench_matrix::run_matrix(&plants, &cfg, threads)
         .context("running the benchmark matrix")?;
-    let md = antisurge::bench_matrix::markdown(&rows);
+    let esd = antisurge::bench_matrix::esd_strokes(&plants, &cfg)
+        .context("checking the ESD stroke")?;
+    let md = format!(
+        "{}\nESD rundown, recycle-pi at 10 %:\n\n{}",
+        antisurge::bench_matrix::markdown(&rows),
+        antisurge::bench_matrix::esd_markdown(&esd)
+    );
     print!("{md}");
     if let Some(out) = &args.out {
         std::fs::write(out, &md).with_context(|| format!("writing {}", out.display()))?;

@@ -148,9 +148,13 @@ pub struct RecyclePiConfig {
     pub ki_per_s: f64,
     /// Closing-rate adaptation: the allowed closing rate grows by `closing_rate_per_s` for
     /// every this many percent of control-line flow the operating point lies right of the
-    /// control line (far from the line the valve closes fast, near it slowly); 0 disables.
-    /// Default 5 %.
+    /// control line (far from the line the valve closes fast, near it slowly), at most 5× the
+    /// base rate; 0 disables. Default 10 %.
     pub closing_rate_distance_pct: f64,
+    /// ESD detection: a shaft deceleration beyond this percentage of the nominal speed per
+    /// second (a drive trip; speed ramps are far slower) opens the valve fully at once, held
+    /// until the speed has risen for 1 s. 0 disables. Default 20 %/s.
+    pub esd_decel_pct_per_s: f64,
     /// Trip agreement: the trip condition must hold this many consecutive samples. Default 5.
     pub trip_confirm_samples: u32,
     /// Trip noise allowance: the trip thresholds move by this many times the measured noise
@@ -200,7 +204,8 @@ impl Default for RecyclePiConfig {
             ki_per_map_flow_s: 85.0,
             kp: 1.0,
             ki_per_s: 2.0,
-            closing_rate_distance_pct: 5.0,
+            closing_rate_distance_pct: 10.0,
+            esd_decel_pct_per_s: 20.0,
             trip_confirm_samples: 5,
             trip_noise_factor: 3.0,
             closing_rate_per_s: 0.1,
@@ -209,7 +214,7 @@ impl Default for RecyclePiConfig {
             trip_lead_time_s: 0.5,
             approach_filter_hz: 2.0,
             z_filter_hz: 1.0,
-            trip_step: 0.3,
+            trip_step: 0.15,
             trip_hold_s: 1.0,
             fallback_speed_line_check: true,
             safety_on_step_pct: 5.0,
@@ -302,6 +307,15 @@ pub struct RecyclePi {
     trip_agree: u32,
     /// Running mean absolute deviation of the surge margin from its filtered value (noise).
     margin_noise: f64,
+    /// The two previous raw margins (for the noise estimate).
+    margin_prev: [f64; 2],
+    /// Filtered shaft speed, rad/s, and its previous value (ESD detection).
+    omega_f: f64,
+    omega_f_last: f64,
+    /// Emergency shutdown detected (valve held fully open), and how long the speed has
+    /// been rising since, s.
+    esd: bool,
+    esd_rising_s: f64,
     /// Opening held by the trip.
     trip_level: f64,
     /// Trips so far.
@@ -336,6 +350,7 @@ impl RecyclePi {
         positive("ki_per_s", cfg.ki_per_s)?;
         positive("closing_rate_distance_pct", cfg.closing_rate_distance_pct)?;
         positive("trip_noise_factor", cfg.trip_noise_factor)?;
+        positive("esd_decel_pct_per_s", cfg.esd_decel_pct_per_s)?;
         positive("trip_lead_time_s", cfg.trip_lead_time_s)?;
         positive("trip_hold_s", cfg.trip_hold_s)?;
         positive("safety_on_step_pct", cfg.safety_on_step_pct)?;
@@ -419,6 +434,11 @@ impl RecyclePi {
             trip_left_s: 0.0,
             trip_agree: 0,
             margin_noise: 0.0,
+            margin_prev: [f64::NAN; 2],
+            omega_f: f64::NAN,
+            omega_f_last: f64::NAN,
+            esd: false,
+            esd_rising_s: 0.0,
             trip_level: 0.0,
             trips: 0,
             shifts: 0,
@@ -510,6 +530,47 @@ impl RecyclePi {
         self.margin_f2_last = margin;
     }
 
+    /// ESD detection on the shaft speed (2 Hz low-pass, then differentiated): a deceleration
+    /// beyond `esd_decel_pct_per_s` of the nominal speed per second. Returns true when it
+    /// starts. 0 disables.
+    fn detect_esd(&mut self, omega: f64, nominal: f64, dt: f64) -> bool {
+        if self.cfg.esd_decel_pct_per_s <= 0.0 || !omega.is_finite() || dt <= 0.0 {
+            return false;
+        }
+        if !self.omega_f.is_finite() {
+            self.omega_f = omega;
+            self.omega_f_last = omega;
+            return false;
+        }
+        let a = 1.0 - (-2.0 * std::f64::consts::PI * 2.0 * dt).exp();
+        self.omega_f_last = self.omega_f;
+        self.omega_f += a * (omega - self.omega_f);
+        let rate = (self.omega_f - self.omega_f_last) / dt;
+        let limit = -0.01 * self.cfg.esd_decel_pct_per_s * nominal.abs();
+        if self.esd {
+            self.esd_rising_s = if rate > 0.0 {
+                self.esd_rising_s + dt
+            } else {
+                0.0
+            };
+            if self.esd_rising_s >= 1.0 {
+                self.esd = false;
+            }
+            false
+        } else if rate < limit {
+            self.esd = true;
+            self.esd_rising_s = 0.0;
+            true
+        } else {
+            false
+        }
+    }
+
+    /// Whether an emergency shutdown (drive trip) is detected.
+    pub fn esd_detected(&self) -> bool {
+        self.esd
+    }
+
     /// Trip line at a pressure ratio, fraction of surge-line flow: `trip_margin_pct`, or
     /// halfway to the control line.
     fn trip_margin_at(&self, ratio: f64) -> f64 {
@@ -535,7 +596,7 @@ impl RecyclePi {
         let c = self.scl.flow_at_ratio(ratio);
         let right = if c > 0.0 { (q - c) / c } else { 0.0 };
         if right.is_finite() && right > 0.0 {
-            base * (1.0 + right / (0.01 * self.cfg.closing_rate_distance_pct))
+            base * (1.0 + right / (0.01 * self.cfg.closing_rate_distance_pct)).min(5.0)
         } else {
             base
         }
@@ -569,6 +630,13 @@ impl SurgeLaw for RecyclePi {
         let margin = inputs.model.surge_margin(m.flow_map, m.pressure_ratio);
         self.reset_margin_filter(margin);
         self.trip_left_s = 0.0;
+        self.trip_agree = 0;
+        self.margin_prev = [f64::NAN; 2];
+        // the speed filter restarts too: after a fail-safe or a hold, the last filtered
+        // speed is old, and the difference is no deceleration
+        self.omega_f = f64::NAN;
+        self.omega_f_last = f64::NAN;
+        self.esd = false;
         self.started = true;
     }
 
@@ -630,14 +698,20 @@ impl SurgeLaw for RecyclePi {
         // left by the measured noise (mean absolute deviation of the margin from its filtered
         // value, ≈ 1 s average), and the condition must hold over several samples
         let trip_margin = self.trip_margin_at(r);
-        if margin.is_finite() && self.margin_f1.is_finite() {
+        // (noise from the second difference |m_k − 2 m_k−1 + m_k−2|/2: ≈ σ for white noise,
+        // ≈ 0 for a ramp, so a fast but clean approach does not raise the allowance)
+        let [p1, p2] = self.margin_prev;
+        if margin.is_finite() && p1.is_finite() && p2.is_finite() {
             let a = (dt / 1.0).min(1.0);
-            self.margin_noise += a * ((margin - self.margin_f1).abs() - self.margin_noise);
+            let d2 = 0.5 * (margin - 2.0 * p1 + p2).abs();
+            self.margin_noise += a * (d2 - self.margin_noise);
         }
-        let allowance = self.cfg.trip_noise_factor * self.margin_noise;
-        let predicted = self.margin_f1 + self.cfg.trip_lead_time_s * d_margin.min(0.0);
+        self.margin_prev = [margin, p1];
+        // (capped: in deep surge the margin swings hard, which is no reason not to trip)
+        let allowance = (self.cfg.trip_noise_factor * self.margin_noise).min(0.5 * trip_margin);
+        let predicted = margin + self.cfg.trip_lead_time_s * d_margin.min(0.0);
         let trip_cond = margin.is_finite()
-            && (self.margin_f1 < trip_margin - allowance
+            && (margin < trip_margin - allowance
                 || (z >= 0.0 && predicted < trip_margin - allowance));
         self.trip_agree = if trip_cond {
             self.trip_agree.saturating_add(1)
@@ -655,6 +729,19 @@ impl SurgeLaw for RecyclePi {
             event = Some(LawEvent::RecycleTrip {
                 opening: self.trip_level,
             });
+        }
+
+        // emergency shutdown (seed 002 §2.2.2: ESD events): the shaft decelerates faster than
+        // any speed ramp (drive trip) → valve fully open at once, held until the speed has
+        // been rising for 1 s (the drive back)
+        let esd_started = self.detect_esd(m.omega_rad_s, inputs.model.drive.nominal_speed_rad_s, dt);
+        if esd_started && event.is_none() {
+            event = Some(LawEvent::RecycleTrip { opening: 1.0 });
+            self.trips = self.trips.saturating_add(1);
+        }
+        if self.esd {
+            self.trip_level = 1.0;
+            self.trip_left_s = self.trip_left_s.max(self.cfg.trip_hold_s.max(dt));
         }
 
         // PI on z (seed 001 eq. 3.7, K_d = 0) with anti-windup against the static limits: the
