@@ -688,6 +688,9 @@ mod tests {
         let model = ControlModel::from_plant(desc);
         let mut settings = CoreSettings::defaults_for(&model);
         settings.startup_grace_s = grace_s;
+        // these tests look at single cycles: no failure hold, no exit hysteresis
+        settings.failure_hold_s = 0.0;
+        settings.failsafe_exit_s = 0.0;
         let config = model.controller.clone();
         ControlCore::new(model, config, settings, LawId::RecyclePi, 0.0).expect("core")
     }
@@ -749,17 +752,111 @@ mod tests {
             "first command {u}, valve at {measured}"
         );
 
-        // with no grace, the same start goes fail-safe first and the law starts from 100 %
+        // with no grace, the same start goes fail-safe first (commanding 100 %), and the law
+        // still resumes from the measured position, not from the fail-safe command
         let (mut eager, _, _) = started(0.0);
-        assert_eq!(
-            eager.cycle(0.0, &RawSensors::missing(), &op).mode,
-            Mode::FailSafe
-        );
+        let fs = eager.cycle(0.0, &RawSensors::missing(), &op);
+        assert_eq!(fs.mode, Mode::FailSafe);
+        assert_eq!(fs.commands.get(ActuatorId::RecycleValve), 1.0);
         let u = eager
             .cycle(0.001, &raw, &op)
             .commands
             .get(ActuatorId::RecycleValve);
-        assert!(u > 0.99, "{u}");
+        assert!(
+            (u - measured).abs() < 0.005,
+            "resumed at {u}, valve at {measured}"
+        );
+    }
+
+    /// A core with the default supervision following a 50 Hz poll, and a function giving the
+    /// raw sample at `t` with its poll age (arrivals every 20 ms), late by `late_s`.
+    fn polled() -> (ControlCore, RawSensors, OperatorInputs) {
+        let (mut core, raw, op) = started(1.0);
+        let model = core.model().clone();
+        let mut settings = CoreSettings::defaults_for(&model);
+        settings.follow_poll_period(0.02);
+        core.set_settings(settings);
+        (core, raw, op)
+    }
+
+    fn aged(raw: &RawSensors, age_s: f64) -> RawSensors {
+        let mut r = *raw;
+        r.age_s = [age_s; SensorId::COUNT];
+        r
+    }
+
+    #[test]
+    fn freshness_follows_the_poll_period() {
+        let (core, _, _) = polled();
+        let lim = core.settings().supervisor.limits[SensorId::PSuction.index()].unwrap();
+        assert!((lim.timeout_s - 0.06).abs() < 1e-12, "{}", lim.timeout_s);
+    }
+
+    #[test]
+    fn blips_of_100_ms_every_second_do_not_enter_fail_safe() {
+        // 50 Hz poll; from t = 1 s, for 10 s, every second the answers stop for 100 ms
+        let (mut core, raw, op) = polled();
+        let dt = 1e-3;
+        let mut last_arrival = 0.0;
+        let mut stale_cycles = 0;
+        for k in 0..12_000 {
+            let t = k as f64 * dt;
+            let in_blip = t >= 1.0 && t < 11.0 && (t - t.floor()) < 0.1;
+            let due = (t / 0.02).floor() * 0.02;
+            if !in_blip && due > last_arrival {
+                last_arrival = due;
+            }
+            let out = core.cycle(t, &aged(&raw, t - last_arrival), &op);
+            assert_ne!(out.mode, Mode::FailSafe, "fail-safe at {t:.3} s");
+            if !out.validity.ok(SensorId::PSuction) {
+                stale_cycles += 1;
+            }
+        }
+        // the blips were seen (inputs stale), and held through
+        assert!(stale_cycles > 300, "{stale_cycles}");
+    }
+
+    #[test]
+    fn a_loss_longer_than_the_hold_enters_fail_safe_in_time_and_leaves_with_hysteresis() {
+        let (mut core, raw, op) = polled();
+        let s = *core.settings();
+        let timeout = s.supervisor.limits[SensorId::PSuction.index()]
+            .unwrap()
+            .timeout_s;
+        let dt = 1e-3;
+        for k in 0..1000 {
+            let t = k as f64 * dt;
+            assert_eq!(core.cycle(t, &aged(&raw, 0.0), &op).mode, Mode::Auto);
+        }
+        // answers stop at t = 1 s
+        let mut entered = None;
+        for k in 1000..2000 {
+            let t = k as f64 * dt;
+            let out = core.cycle(t, &aged(&raw, t - 0.999), &op);
+            if out.mode == Mode::FailSafe && entered.is_none() {
+                entered = Some(t);
+            }
+        }
+        let entered = entered.expect("never entered fail-safe");
+        let due = 0.999 + timeout + s.failure_hold_s;
+        assert!(
+            entered <= due + 2.0 * dt && entered >= due - 2.0 * dt,
+            "fail-safe at {entered}, due at {due}"
+        );
+        // back: healthy for less than the exit time keeps fail-safe, then auto
+        let mut resumed = None;
+        for k in 2000..3000 {
+            let t = k as f64 * dt;
+            let out = core.cycle(t, &aged(&raw, 0.0), &op);
+            if out.mode == Mode::Auto && resumed.is_none() {
+                resumed = Some(t);
+            }
+        }
+        let resumed = resumed.expect("never resumed");
+        assert!(
+            (resumed - (2.0 + s.failsafe_exit_s)).abs() < 2.0 * dt,
+            "resumed at {resumed}"
+        );
     }
 
     #[test]
