@@ -286,7 +286,11 @@ pub fn run_case(
         match case.fault {
             FieldFault::None => {}
             FieldFault::Noise { .. } => {
-                for id in [SensorId::PSuction, SensorId::PDischarge, SensorId::OrificeDp] {
+                for id in [
+                    SensorId::PSuction,
+                    SensorId::PDischarge,
+                    SensorId::OrificeDp,
+                ] {
                     let v = raw.values.get(id) + noise_amp[id.index()] * uniform(&mut rng);
                     raw.values.set(id, v);
                 }

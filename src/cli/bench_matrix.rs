@@ -34,8 +34,8 @@ pub fn run(args: &BenchMatrixArgs) -> Result<()> {
     });
     let rows = antisurge::bench_matrix::run_matrix(&plants, &cfg, threads)
         .context("running the benchmark matrix")?;
-    let esd = antisurge::bench_matrix::esd_strokes(&plants, &cfg)
-        .context("checking the ESD stroke")?;
+    let esd =
+        antisurge::bench_matrix::esd_strokes(&plants, &cfg).context("checking the ESD stroke")?;
     let md = format!(
         "{}\nESD rundown, recycle-pi at 10 %:\n\n{}",
         antisurge::bench_matrix::markdown(&rows),

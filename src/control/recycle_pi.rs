@@ -386,10 +386,8 @@ impl RecyclePi {
         let mut pts = model.map.surge_line.points();
         let r_lo = pts.next().map_or(f64::NAN, |p| p.1);
         let r_hi = pts.last().map_or(f64::NAN, |p| p.1);
-        if let Err((r, margin)) = scl.check_right_of_surge_line(
-            (r_lo, r_hi),
-            (0.01 * cfg.trip_margin_pct).max(1e-3),
-        )
+        if let Err((r, margin)) =
+            scl.check_right_of_surge_line((r_lo, r_hi), (0.01 * cfg.trip_margin_pct).max(1e-3))
         {
             return Err(err(
                 "control_line",
@@ -734,7 +732,8 @@ impl SurgeLaw for RecyclePi {
         // emergency shutdown (seed 002 §2.2.2: ESD events): the shaft decelerates faster than
         // any speed ramp (drive trip) → valve fully open at once, held until the speed has
         // been rising for 1 s (the drive back)
-        let esd_started = self.detect_esd(m.omega_rad_s, inputs.model.drive.nominal_speed_rad_s, dt);
+        let esd_started =
+            self.detect_esd(m.omega_rad_s, inputs.model.drive.nominal_speed_rad_s, dt);
         if esd_started && event.is_none() {
             event = Some(LawEvent::RecycleTrip { opening: 1.0 });
             self.trips = self.trips.saturating_add(1);
