@@ -83,3 +83,32 @@ fn on_the_line_the_same_noise_does_move_the_valve() {
     let (_, hi) = run("hemchi2016_recycle.toml", 0.0, 0.02);
     assert!(hi > 0.0, "{hi}");
 }
+
+#[test]
+fn built_in_defaults_settle_the_closure_on_the_control_line_without_valve_ripple() {
+    // issue 14 item 4: no [controller.recycle_pi] overrides on each shipped recycle plant
+    for stem in ["kvangardsnes2009_recycle", "hemchi2016_recycle"] {
+        let mut p = common::plant(stem);
+        p.file.controller.recycle_pi = RecyclePiConfig::default();
+        let r = common::simulate(&p, &common::scenario("throttle_closure"), LawId::RecyclePi);
+        assert_eq!(r.summary.surge_cycles, 0, "{stem}");
+        let tail: Vec<_> = r.trace.iter().filter(|row| row.t_s >= 15.0).collect();
+        let (lo, hi) = tail
+            .iter()
+            .fold((f64::INFINITY, f64::NEG_INFINITY), |a, row| {
+                (
+                    a.0.min(row.cmd_recycle_valve),
+                    a.1.max(row.cmd_recycle_valve),
+                )
+            });
+        assert!(
+            hi - lo < 0.01,
+            "{stem}: valve ripple {} % of travel",
+            100.0 * (hi - lo)
+        );
+        assert!(hi > 0.0, "{stem}: the closure needs recycle");
+        // on the default control line: 10 % right of the surge line
+        let m = tail.last().unwrap().surge_margin;
+        assert!((m - 0.10).abs() < 0.005, "{stem}: final margin {m}");
+    }
+}
