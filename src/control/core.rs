@@ -864,7 +864,7 @@ mod tests {
         let mut stale_cycles = 0;
         for k in 0..12_000 {
             let t = k as f64 * dt;
-            let in_blip = t >= 1.0 && t < 11.0 && (t - t.floor()) < 0.1;
+            let in_blip = (1.0..11.0).contains(&t) && (t - t.floor()) < 0.1;
             let due = (t / 0.02).floor() * 0.02;
             if !in_blip && due > last_arrival {
                 last_arrival = due;
