@@ -155,6 +155,8 @@ fn assert_settles_on_line(what: &str, p: &PlantDescription, r: &SimResult, bound
         ControlVariable::Strategy2 => 1.0,
         // z₁ = c² z₂: compare in strategy-2 units
         ControlVariable::Strategy1 => law.design_flow().powi(2),
+        // z = −d ≈ z₂/2
+        ControlVariable::Deviation => 0.5,
     };
     assert!(zmax / scale < 1e-3, "{what}: |z| = {zmax} in the last 2 s");
     // the flow settles (summary: within ±2 % of its final value)
@@ -274,11 +276,16 @@ fn valve_never_closes_faster_than_its_closing_rate() {
             );
             fastest = fastest.max(closing);
         }
-        // the limit was exercised: after the trip the valve closed a long way, at the limit
+        // the limit was exercised where the trip overshoots the final opening: after the
+        // trip the valve closed a long way, at the limit (on hemchi2016 the trip now lands on
+        // the final opening: the closed-limit anti-windup no longer pre-opens the valve on
+        // the approach, so there is nothing to close)
         let peak = cmd.iter().fold(0.0f64, |a, c| a.max(c.1));
         let end = cmd.last().expect("commands").1;
-        assert!(peak - end > 0.05, "{stem}: peak {peak}, end {end}");
-        assert!(fastest > 0.99 * rate, "{stem}: fastest closing {fastest}/s");
+        if stem == KV {
+            assert!(peak - end > 0.05, "{stem}: peak {peak}, end {end}");
+            assert!(fastest > 0.99 * rate, "{stem}: fastest closing {fastest}/s");
+        }
         // the stem follows: never faster than the command (positioner lag only slows it)
         let stem_rate = r.summary.actuator_peaks.recycle_valve_closing_rate_per_s;
         assert!(

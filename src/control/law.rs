@@ -38,6 +38,9 @@ pub enum LawId {
     Robust,
     /// Sliding mode on the tip clearance via the magnetic thrust bearing (seed 004).
     TipSliding,
+    /// The yardstick: textbook symmetric PI on the normalised deviation (simulation and
+    /// benchmarks only, never offered to the daemon: not in [`LawId::ALL`]).
+    BaselinePi,
 }
 
 /// What a law is and what it needs: one registry line per law ([`REGISTRY`]). The config
@@ -185,6 +188,20 @@ pub const REGISTRY: [LawDescriptor; 8] = [
     },
 ];
 
+/// The simulation-only yardstick (`baseline-pi`): not in [`REGISTRY`], so neither the
+/// daemon's config, the bus nor the DBC value table offer it.
+pub const BASELINE_PI: LawDescriptor = LawDescriptor {
+    id: LawId::BaselinePi,
+    name: "baseline-pi",
+    code: 255,
+    summary: "textbook symmetric PI on the normalised deviation (simulation and benchmarks only)",
+    actuators: ActuatorSet::of(&[A::RecycleValve]),
+    sensors: &[],
+    needs_flow: true,
+    machine_data: &[MachineData::SurgeLine, MachineData::RecycleValve],
+    model_family: None,
+};
+
 /// The DBC value table line of the heartbeat's `ActiveLaw` signal (message `msg_id`), from
 /// the registry: `VAL_ 128 ActiveLaw 0 "none" 1 "recycle-pi" … ;`.
 pub fn dbc_value_table(msg_id: u32) -> String {
@@ -216,7 +233,26 @@ impl LawId {
             }
             i += 1;
         }
+        if self as u8 == LawId::BaselinePi as u8 {
+            return &BASELINE_PI;
+        }
         panic!("every law has a registry line")
+    }
+
+    /// Laws of the simulation and benchmarks only (not in [`LawId::ALL`], so the daemon's
+    /// config and the bus never offer them).
+    pub const SIM_ONLY: [LawId; 1] = [LawId::BaselinePi];
+
+    /// Parse a law name for `antisurge sim` and the benchmarks: every daemon law and the
+    /// simulation-only ones.
+    pub fn parse_sim(s: &str) -> Result<LawId, UnknownLaw> {
+        s.parse::<LawId>().or_else(|e| {
+            LawId::SIM_ONLY
+                .iter()
+                .copied()
+                .find(|l| l.name() == s)
+                .ok_or(e)
+        })
     }
 
     /// Name used in config files, on the command line and in the event log.
@@ -442,6 +478,8 @@ pub enum Law {
     Robust(super::spool_laws::Robust),
     /// Tip-clearance sliding mode.
     TipSliding(super::tip_sliding::TipSliding),
+    /// The benchmark yardstick.
+    BaselinePi(super::baseline_pi::BaselinePi),
 }
 
 impl Law {
@@ -483,6 +521,14 @@ impl Law {
                 &cfg.tip_sliding,
                 model,
             )?),
+            LawId::BaselinePi => {
+                // the same control line as recycle-pi (with its checks), textbook gains
+                let rp = super::recycle_pi::RecyclePi::new(&cfg.recycle_pi, model)?;
+                Law::BaselinePi(super::baseline_pi::BaselinePi::new(
+                    *rp.control_line(),
+                    cfg.recycle_pi.min_opening,
+                ))
+            }
         })
     }
 
@@ -497,6 +543,7 @@ impl Law {
             Law::ThrottleBackstep(_) => LawId::ThrottleBackstep,
             Law::Robust(_) => LawId::Robust,
             Law::TipSliding(_) => LawId::TipSliding,
+            Law::BaselinePi(_) => LawId::BaselinePi,
         }
     }
 
@@ -510,6 +557,7 @@ impl Law {
             Law::ThrottleBackstep(l) => Some(l),
             Law::Robust(l) => Some(l),
             Law::TipSliding(l) => Some(l),
+            Law::BaselinePi(l) => Some(l),
         }
     }
 

@@ -493,7 +493,7 @@ pub fn run_with(
         .law_names
         .iter()
         .map(|n| {
-            n.parse::<LawId>().map_err(|e| SimError::Scenario {
+            LawId::parse_sim(n).map_err(|e| SimError::Scenario {
                 scenario: scenario.name().to_string(),
                 message: e.to_string(),
             })
