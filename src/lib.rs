@@ -14,6 +14,7 @@ pub mod config;
 pub mod control;
 pub mod daemon;
 pub mod events;
+pub mod faults;
 pub mod io;
 pub mod physics;
 pub mod plant;

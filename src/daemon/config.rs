@@ -1052,17 +1052,24 @@ fn target_key(t: SignalTarget) -> String {
 fn check_map(l: &Loaded) -> Vec<Problem> {
     let map = &l.signal_map;
     let mut out = Vec::new();
-    let push = |out: &mut Vec<Problem>, e: FileError, hint: Option<&str>| {
+    let push_w = |out: &mut Vec<Problem>, e: FileError, hint: Option<&str>, warning: bool| {
         out.push(Problem {
             error: FileError {
                 hint: hint.map(str::to_string),
                 ..e
             },
-            warning: false,
+            warning,
         })
     };
+    let push = |out: &mut Vec<Problem>, e: FileError, hint: Option<&str>| {
+        push_w(out, e, hint, false)
+    };
     for p in map.check() {
-        push(&mut out, map_error(l, &p.key, p.message), None);
+        let hint = p
+            .key
+            .ends_with(".unit")
+            .then(|| "declare the unit the device uses (e.g. \"%\", \"bar\", \"rpm\", \"degC\"); it must measure what the signal is");
+        push_w(&mut out, map_error(l, &p.key, p.message), hint, p.warning);
     }
     let mut seen: Vec<(String, &str, &str)> = Vec::new();
     let can = map
@@ -1095,7 +1102,7 @@ fn check_map(l: &Loaded) -> Vec<Problem> {
             seen.push((key, message, signal));
         }
     }
-    if out.is_empty() {
+    if out.iter().all(|p| p.warning) {
         if let Some(hb) = l
             .config
             .bus

@@ -4,5 +4,7 @@
 //! They know nothing of the control laws.
 
 pub mod can;
+pub mod field_link;
 pub mod modbus;
 pub mod signal_map;
+pub mod units;

@@ -17,6 +17,7 @@ pub mod link;
 pub mod plan;
 pub mod register;
 pub mod server;
+pub mod watchdog;
 
 pub use client::{
     ClientConfig, ClientCounters, ConfigError, ConnectionState, ModbusClient, ModbusError, Parity,
@@ -25,13 +26,14 @@ pub use client::{
 pub use link::{
     run_controller, run_plant_server, ExceptionInfo, FailureCause, HeartbeatRegister,
     HeartbeatWords, LinkCounters, LinkCounts, LinkError, LinkMonitor, LinkState, ModbusLinkConfig,
-    ModbusServerConfig, Pacing, PlantCounters, PlantCounts, PlantServer,
+    ModbusServerConfig, Pacing, PlantCounters, PlantCounts, PlantServer, WriteFailure, WriteHealth,
 };
 pub use plan::{PlanError, PlannedRequest, ReadPlan, WritePlan};
 pub use register::{
     find_overlaps, BindingError, ByteOrder, DataType, DecodeError, EncodeError, EncodeOutcome,
     Overlap, RegisterBinding, RegisterTable, WordOrder,
 };
+pub use watchdog::{ModbusWatchdog, WatchdogPart, WatchdogWriter};
 pub use server::{
     lock_image, open_rtu_server, spawn_rtu_server, spawn_tcp_server, spawn_tcp_server_on,
     ImageError, RegisterImage, ResponseMode, RtuServerHandle, SharedImage, TcpServerHandle,
