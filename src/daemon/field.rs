@@ -12,7 +12,9 @@ use crate::io::can::bus::{
 };
 use crate::events::event::BusState;
 use crate::faults::FaultCategory;
+use crate::io::feedback::FeedbackSupervisor;
 use crate::io::field_link::{EventSink, FieldLinkReporter};
+use crate::signals::ActuatorId;
 use crate::io::modbus::{
     run_controller as modbus_controller, run_plant_server, LinkMonitor, LinkState,
     ModbusLinkConfig, Pacing, TransportConfig, WriteHealth,
@@ -61,6 +63,51 @@ fn bus_event_hook(events: EventSender, interface: String) -> crate::io::can::bus
             r.state(state, &s.to_string());
         }
     })
+}
+
+/// Compare every supervised actuator's command with its feedback every 10 ms and report
+/// mismatches (event naming the actuator and the difference, journal, fault word).
+pub async fn supervise_feedback(
+    mut sup: FeedbackSupervisor,
+    sensors: Arc<SensorBoard>,
+    outputs: Arc<OutputBoard>,
+    timeouts_s: [f64; crate::signals::SensorId::COUNT],
+    events: EventSender,
+    shutdown: watch::Receiver<bool>,
+) {
+    let mut reporters: std::collections::BTreeMap<ActuatorId, FieldLinkReporter> =
+        Default::default();
+    let stop = until_true(shutdown);
+    tokio::pin!(stop);
+    let mut tick = tokio::time::interval(std::time::Duration::from_millis(10));
+    tick.set_missed_tick_behavior(tokio::time::MissedTickBehavior::Delay);
+    loop {
+        tokio::select! {
+            biased;
+            () = &mut stop => return,
+            _ = tick.tick() => {}
+        }
+        let now = crate::runtime::handoff::monotonic_ns();
+        let Some(o) = outputs.latest() else { continue };
+        let (values, age) = sensors.snapshot(now);
+        sup.step(
+            now,
+            |a| o.commands.get(a),
+            |s| {
+                if age[s.index()] <= timeouts_s[s.index()] {
+                    values.get(s)
+                } else {
+                    f64::NAN
+                }
+            },
+            |t| {
+                let r = reporters.entry(t.actuator).or_insert_with(|| {
+                    FieldLinkReporter::new(t.actuator.name(), event_sink(events.clone()))
+                });
+                r.fault(FaultCategory::ActuatorFeedbackMismatch, t.active, &t.cause());
+            },
+        );
+    }
 }
 
 /// The Modbus link's name in events: `modbus:<address>` or `modbus:<serial device>`.
@@ -172,6 +219,24 @@ pub fn spawn_controller_links(
 ) -> Result<LinkCounters> {
     let mut counters = LinkCounters::default();
     let map = &l.signal_map;
+    let sup = FeedbackSupervisor::new(&map.feedback);
+    if !sup.is_empty() {
+        // feedback counts as fresh for its input timeout (else: no judgement)
+        let mut timeouts_s = [0.2; crate::signals::SensorId::COUNT];
+        for (id, t) in timeouts_s.iter_mut().enumerate() {
+            if let Some(lim) = l.core.supervisor.limits[id] {
+                *t = lim.timeout_s;
+            }
+        }
+        tasks.spawn(supervise_feedback(
+            sup,
+            Arc::clone(&sensors),
+            Arc::clone(&outputs),
+            timeouts_s,
+            events.clone(),
+            shutdown.clone(),
+        ));
+    }
     if map.uses_can() {
         let (can, codec) = can_codec(l)?;
         let (handles, _state) = BusHandles::new(shutdown.clone());

@@ -49,6 +49,10 @@ pub struct SignalMap {
     /// own watchdogs see it alive.
     #[serde(default)]
     pub watchdog: WatchdogSection,
+    /// Actuator feedback supervision: per actuator, the tolerance and time after which a
+    /// difference between command and feedback is a fault ([`crate::io::feedback`]).
+    #[serde(default)]
+    pub feedback: BTreeMap<ActuatorId, super::feedback::FeedbackLimit>,
 }
 
 /// `[watchdog]` of the signal map.
@@ -215,6 +219,37 @@ impl SignalMap {
                         r.address, r.address, r.address
                     ),
                     warning: true,
+                });
+            }
+        }
+        for (a, l) in &self.feedback {
+            let key = format!("feedback.{}", a.name());
+            match super::feedback::feedback_sensor(*a) {
+                None => problems.push(MapProblem {
+                    key: key.clone(),
+                    message: format!("{} has no feedback sensor to compare with", a.name()),
+                    warning: false,
+                }),
+                Some(s) if !self.sensors.contains_key(&s) => problems.push(MapProblem {
+                    key: key.clone(),
+                    message: format!(
+                        "the feedback sensor {} of {} is not bound in [sensors]",
+                        s.name(),
+                        a.name()
+                    ),
+                    warning: false,
+                }),
+                Some(_) => {}
+            }
+            if !(l.tolerance.is_finite() && l.tolerance > 0.0 && l.time_ms.is_finite() && l.time_ms >= 0.0)
+            {
+                problems.push(MapProblem {
+                    key,
+                    message: format!(
+                        "tolerance must be > 0 and time_ms ≥ 0, got {} and {}",
+                        l.tolerance, l.time_ms
+                    ),
+                    warning: false,
                 });
             }
         }
