@@ -170,6 +170,6 @@ mod tests {
         );
         r.fault(FaultCategory::FieldWriteFailed, false, "acknowledged");
         r.fault(FaultCategory::FieldWriteFailed, false, "acknowledged");
-        assert_eq!(seen.lock().unwrap().len(), 3 + 1);
+        assert_eq!(seen.lock().unwrap().len(), 2 + 1);
     }
 }

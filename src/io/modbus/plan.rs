@@ -342,6 +342,19 @@ mod tests {
     }
 
     #[test]
+    fn separate_write_plan_never_merges() {
+        let list = [
+            rb(1, RegisterTable::Holding, 0, DataType::U16),
+            rb(1, RegisterTable::Holding, 1, DataType::F32),
+            rb(1, RegisterTable::Holding, 3, DataType::U16),
+        ];
+        assert_eq!(WritePlan::new(&list).unwrap().requests().len(), 1);
+        let sep = WritePlan::separate(&list).unwrap();
+        let r: Vec<(u16, u16)> = sep.requests().iter().map(|q| (q.address, q.count)).collect();
+        assert_eq!(r, [(0, 1), (1, 2), (3, 1)]);
+    }
+
+    #[test]
     fn write_plan_word_offsets_are_contiguous() {
         let list = [
             rb(1, Holding, 100, DataType::F32),
