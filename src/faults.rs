@@ -200,6 +200,26 @@ mod tests {
     }
 
     #[test]
+    fn shipped_dbc_documents_this_vocabulary() {
+        let dbc = std::fs::read_to_string(
+            std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("config/skid.dbc"),
+        )
+        .expect("skid.dbc");
+        assert!(
+            dbc.contains(&dbc_value_table(128, "Faults")),
+            "config/skid.dbc must carry: {}",
+            dbc_value_table(128, "Faults")
+        );
+        for c in FaultCategory::ALL {
+            assert!(
+                dbc.contains(&format!("bit {} {}", c.code(), c.name())),
+                "{}",
+                c.name()
+            );
+        }
+    }
+
+    #[test]
     fn value_table_lists_every_category() {
         let t = dbc_value_table(128, "Faults");
         assert!(t.starts_with("VAL_ 128 Faults 0 \"healthy\" 1 \"sensor_timeout\""));
