@@ -139,9 +139,7 @@ impl FaultSet {
             match v.fault[id.index()] {
                 InputFault::None => {}
                 InputFault::Stale => f.set(FaultCategory::SensorTimeout),
-                InputFault::Nan | InputFault::OutOfRange => {
-                    f.set(FaultCategory::SensorImplausible)
-                }
+                InputFault::Nan | InputFault::OutOfRange => f.set(FaultCategory::SensorImplausible),
             }
         }
         f

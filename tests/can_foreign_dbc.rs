@@ -20,7 +20,11 @@ fn bindings() -> Vec<SignalBinding> {
             "VLV_Command",
             "RecycleValveSetpoint",
         ),
-        SignalBinding::actuator(ActuatorId::DriveTorque, "VLV_Command", "DriveTorqueSetpoint"),
+        SignalBinding::actuator(
+            ActuatorId::DriveTorque,
+            "VLV_Command",
+            "DriveTorqueSetpoint",
+        ),
         SignalBinding::sensor(SensorId::PSuction, "SKID_Process", "SuctionPressure"),
         SignalBinding::sensor(SensorId::PDischarge, "SKID_Process", "DischargePressure"),
         SignalBinding::sensor(SensorId::ShaftSpeed, "SKID_Process", "Speed"),
@@ -44,7 +48,9 @@ fn percent_signal_bound_to_a_fraction_converts() {
     let e = codec.encode(m, &c, 0).expect("encode");
     // 37.50 % = 3750 = 0x0EA6, Intel; -120 N·m = 0xFF88
     assert_eq!(&e.data[..4], &[0xA6, 0x0E, 0x88, 0xFF]);
-    let d = codec.decode(FrameId::Standard(256), &e.data[..8]).expect("decode");
+    let d = codec
+        .decode(FrameId::Standard(256), &e.data[..8])
+        .expect("decode");
     let v = d
         .get(antisurge::io::can::SignalTarget::Actuator(
             ActuatorId::RecycleValve,

@@ -225,15 +225,16 @@ fn refused_writes_are_a_fault_with_the_exception_code_within_1_s() {
     let fault = ev
         .iter()
         .find(|e| {
-            e["event"] == "field_fault"
-                && e["fault"] == "field_write_failed"
-                && e["active"] == true
+            e["event"] == "field_fault" && e["fault"] == "field_write_failed" && e["active"] == true
         })
         .unwrap_or_else(|| panic!("no field_write_failed fault: {ctx}"));
     let cause = fault["cause"].as_str().expect("cause");
     assert!(cause.contains("exception 2"), "{cause}");
     assert!(cause.contains("address 1"), "{cause}");
-    assert!(fault["link"].as_str().unwrap().starts_with("modbus:127.0.0.1:"));
+    assert!(fault["link"]
+        .as_str()
+        .unwrap()
+        .starts_with("modbus:127.0.0.1:"));
     let dt = secs_between(ts(up), ts(fault));
     assert!(dt < 1.0, "fault {dt:.3} s after the link came up: {ctx}");
     // the safe behaviour: watchdog withheld, the device's own fail-safe took over

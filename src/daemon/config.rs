@@ -1061,14 +1061,13 @@ fn check_map(l: &Loaded) -> Vec<Problem> {
             warning,
         })
     };
-    let push = |out: &mut Vec<Problem>, e: FileError, hint: Option<&str>| {
-        push_w(out, e, hint, false)
-    };
+    let push =
+        |out: &mut Vec<Problem>, e: FileError, hint: Option<&str>| push_w(out, e, hint, false);
     for p in map.check() {
         let hint = p
             .key
             .ends_with(".unit")
-            .then(|| "declare the unit the device uses (e.g. \"%\", \"bar\", \"rpm\", \"degC\"); it must measure what the signal is");
+            .then_some("declare the unit the device uses (e.g. \"%\", \"bar\", \"rpm\", \"degC\"); it must measure what the signal is");
         push_w(&mut out, map_error(l, &p.key, p.message), hint, p.warning);
     }
     let mut seen: Vec<(String, &str, &str)> = Vec::new();

@@ -4,17 +4,16 @@
 //! checks take the machine to its safe state.
 
 use super::config::Loaded;
+use crate::events::event::BusState;
 use crate::events::event::Event;
 use crate::events::EventSender;
+use crate::faults::FaultCategory;
 use crate::io::can::bus::{
     run_controller as can_controller, run_plant as can_plant, BusCodec, BusHandles,
     ControllerBoards, PlantBoards,
 };
-use crate::events::event::BusState;
-use crate::faults::FaultCategory;
 use crate::io::feedback::FeedbackSupervisor;
 use crate::io::field_link::{EventSink, FieldLinkReporter};
-use crate::signals::ActuatorId;
 use crate::io::modbus::{
     run_controller as modbus_controller, run_plant_server, LinkMonitor, LinkState,
     ModbusLinkConfig, Pacing, TransportConfig, WriteHealth,
@@ -22,6 +21,7 @@ use crate::io::modbus::{
 use crate::runtime::handoff::{
     CommandBoard, HeartbeatBoard, OutputBoard, SensorBoard, SnapshotBoard, Wakeup,
 };
+use crate::signals::ActuatorId;
 use anyhow::{anyhow, Context, Result};
 use std::sync::Arc;
 use tokio::sync::watch;
@@ -53,13 +53,12 @@ fn event_sink(events: EventSender) -> EventSink {
 
 /// CAN state changes through the one reporter.
 fn bus_event_hook(events: EventSender, interface: String) -> crate::io::can::bus::StateHook {
-    let reporter = std::sync::Mutex::new(FieldLinkReporter::new(
-        interface,
-        event_sink(events),
-    ));
+    let reporter = std::sync::Mutex::new(FieldLinkReporter::new(interface, event_sink(events)));
     Arc::new(move |s| {
         if let Some(state) = s.to_event() {
-            let mut r = reporter.lock().unwrap_or_else(std::sync::PoisonError::into_inner);
+            let mut r = reporter
+                .lock()
+                .unwrap_or_else(std::sync::PoisonError::into_inner);
             r.state(state, &s.to_string());
         }
     })
@@ -104,7 +103,11 @@ pub async fn supervise_feedback(
                 let r = reporters.entry(t.actuator).or_insert_with(|| {
                     FieldLinkReporter::new(t.actuator.name(), event_sink(events.clone()))
                 });
-                r.fault(FaultCategory::ActuatorFeedbackMismatch, t.active, &t.cause());
+                r.fault(
+                    FaultCategory::ActuatorFeedbackMismatch,
+                    t.active,
+                    &t.cause(),
+                );
             },
         );
     }

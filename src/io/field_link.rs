@@ -120,10 +120,7 @@ mod tests {
     fn reporter() -> (FieldLinkReporter, Arc<Mutex<Vec<Event>>>) {
         let seen = Arc::new(Mutex::new(Vec::new()));
         let s = Arc::clone(&seen);
-        let r = FieldLinkReporter::new(
-            "modbus:x",
-            Arc::new(move |e| s.lock().unwrap().push(e)),
-        );
+        let r = FieldLinkReporter::new("modbus:x", Arc::new(move |e| s.lock().unwrap().push(e)));
         (r, seen)
     }
 

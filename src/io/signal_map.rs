@@ -241,7 +241,10 @@ impl SignalMap {
                 }),
                 Some(_) => {}
             }
-            if !(l.tolerance.is_finite() && l.tolerance > 0.0 && l.time_ms.is_finite() && l.time_ms >= 0.0)
+            if !(l.tolerance.is_finite()
+                && l.tolerance > 0.0
+                && l.time_ms.is_finite()
+                && l.time_ms >= 0.0)
             {
                 problems.push(MapProblem {
                     key,

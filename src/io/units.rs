@@ -98,8 +98,18 @@ const UNITS: &[(&str, Quantity, f64, f64)] = &[
     ("degC", Quantity::Temperature, 1.0, 273.15),
     ("°C", Quantity::Temperature, 1.0, 273.15),
     ("C", Quantity::Temperature, 1.0, 273.15),
-    ("degF", Quantity::Temperature, 5.0 / 9.0, 273.15 - 32.0 * 5.0 / 9.0),
-    ("°F", Quantity::Temperature, 5.0 / 9.0, 273.15 - 32.0 * 5.0 / 9.0),
+    (
+        "degF",
+        Quantity::Temperature,
+        5.0 / 9.0,
+        273.15 - 32.0 * 5.0 / 9.0,
+    ),
+    (
+        "°F",
+        Quantity::Temperature,
+        5.0 / 9.0,
+        273.15 - 32.0 * 5.0 / 9.0,
+    ),
     ("fraction", Quantity::Fraction, 1.0, 0.0),
     ("%", Quantity::Fraction, 0.01, 0.0),
     ("m", Quantity::Length, 1.0, 0.0),
@@ -131,7 +141,10 @@ impl Unit {
 
     /// The accepted spelling of `name`, as a static string (`None`: unknown).
     pub fn static_name(name: &str) -> Option<&'static str> {
-        UNITS.iter().find(|(n, ..)| *n == name.trim()).map(|(n, ..)| *n)
+        UNITS
+            .iter()
+            .find(|(n, ..)| *n == name.trim())
+            .map(|(n, ..)| *n)
     }
 
     /// Every accepted name, for hints.

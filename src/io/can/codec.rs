@@ -492,14 +492,13 @@ impl CanCodec {
                 SignalTarget::Sensor(id) => crate::io::units::Quantity::of_sensor(id),
                 SignalTarget::Actuator(id) => crate::io::units::Quantity::of_actuator(id),
             };
-            let unit = crate::io::units::resolve(s.unit(), quantity).map_err(|e| {
-                BindingError::Unit {
+            let unit =
+                crate::io::units::resolve(s.unit(), quantity).map_err(|e| BindingError::Unit {
                     target: b.target,
                     message: b.message.clone(),
                     signal: b.signal.clone(),
                     reason: e.to_string(),
-                }
-            })?;
+                })?;
             if let Some(cm) = messages.get_mut(mi) {
                 cm.bound.push(BoundSignal {
                     target: b.target,

@@ -33,10 +33,10 @@ pub use register::{
     find_overlaps, BindingError, ByteOrder, DataType, DecodeError, EncodeError, EncodeOutcome,
     Overlap, RegisterBinding, RegisterTable, WordOrder,
 };
-pub use watchdog::{ModbusWatchdog, WatchdogPart, WatchdogWriter};
 pub use server::{
     lock_image, open_rtu_server, spawn_rtu_server, spawn_tcp_server, spawn_tcp_server_on,
     ImageError, RegisterImage, ResponseMode, RtuServerHandle, SharedImage, TcpServerHandle,
 };
 /// Modbus exception codes, as reported in [`ModbusError::Exception`].
 pub use tokio_modbus::ExceptionCode;
+pub use watchdog::{ModbusWatchdog, WatchdogPart, WatchdogWriter};

@@ -350,7 +350,11 @@ mod tests {
         ];
         assert_eq!(WritePlan::new(&list).unwrap().requests().len(), 1);
         let sep = WritePlan::separate(&list).unwrap();
-        let r: Vec<(u16, u16)> = sep.requests().iter().map(|q| (q.address, q.count)).collect();
+        let r: Vec<(u16, u16)> = sep
+            .requests()
+            .iter()
+            .map(|q| (q.address, q.count))
+            .collect();
         assert_eq!(r, [(0, 1), (1, 2), (3, 1)]);
     }
 

@@ -235,14 +235,12 @@ impl TryFrom<RawRegisterBinding> for RegisterBinding {
         };
         let unit = match r.unit {
             None => None,
-            Some(u) => Some(
-                crate::io::units::Unit::static_name(&u).ok_or_else(|| {
-                    format!(
-                        "unknown unit \"{u}\" (known: {})",
-                        crate::io::units::Unit::names()
-                    )
-                })?,
-            ),
+            Some(u) => Some(crate::io::units::Unit::static_name(&u).ok_or_else(|| {
+                format!(
+                    "unknown unit \"{u}\" (known: {})",
+                    crate::io::units::Unit::names()
+                )
+            })?),
         };
         Ok(RegisterBinding {
             unit_id: r.unit_id,

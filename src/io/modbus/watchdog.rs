@@ -172,7 +172,11 @@ impl WatchdogWriter {
     ) {
         if advance {
             let wrap = wd.alive_wrap();
-            self.alive = if self.alive >= wrap { 0 } else { self.alive + 1 };
+            self.alive = if self.alive >= wrap {
+                0
+            } else {
+                self.alive + 1
+            };
             self.toggle = !self.toggle;
         }
         for (k, (p, _)) in wd.parts().iter().enumerate() {
