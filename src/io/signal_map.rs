@@ -277,6 +277,15 @@ impl SignalMap {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::io::modbus::RegisterTable;
+
+    impl RegisterBinding {
+        fn encode_words(&self, v: f64) -> [u16; 2] {
+            let mut w = [0u16; 2];
+            let _ = self.encode(v, &mut w).unwrap();
+            w
+        }
+    }
 
     fn parse(t: &str) -> SignalMap {
         crate::config::toml_file::parse(t, std::path::Path::new("signals.toml")).expect("parse")
@@ -308,6 +317,44 @@ mod tests {
             p.iter()
                 .any(|x| x.key == "actuators.throttle.modbus" && x.message.contains("holding")),
             "{p:?}"
+        );
+    }
+
+    #[test]
+    fn units_modicon_numbers_and_their_warning() {
+        let m = parse(
+            "[sensors.recycle_valve_position]\nmodbus = { unit_id = 1, register = 30010, data_type = \"u16\", scale = 0.01, unit = \"%\" }\n\
+             [sensors.p_suction]\nmodbus = { unit_id = 1, table = \"input\", address = 30001, data_type = \"f32\", word_order = \"little\", unit = \"kPa\" }\n",
+        );
+        let s = m.modbus_sensors();
+        let (_, valve) = s[1];
+        assert_eq!((valve.table, valve.address), (RegisterTable::Input, 9));
+        // 5000 counts × 0.01 = 50 % = 0.5
+        assert!((valve.decode(&[5000]).unwrap() - 0.5).abs() < 1e-12);
+        let (_, p) = s[0];
+        let mut w = [0u16; 2];
+        let _ = p.encode(101_325.0, &mut w).unwrap();
+        assert_eq!(
+            w,
+            crate::io::modbus::RegisterBinding::new(
+                1,
+                RegisterTable::Input,
+                0,
+                crate::io::modbus::DataType::F32
+            )
+            .with_order(
+                crate::io::modbus::ByteOrder::Big,
+                crate::io::modbus::WordOrder::Little
+            )
+            .encode_words(101.325)
+        );
+        let problems = m.check();
+        assert_eq!(problems.len(), 1, "{problems:?}");
+        assert!(problems[0].warning);
+        assert_eq!(problems[0].key, "sensors.p_suction.modbus.address");
+        assert!(
+            problems[0].message.contains("register = 30001"),
+            "{problems:?}"
         );
     }
 
