@@ -146,6 +146,42 @@ impl FaultSet {
     }
 }
 
+/// Field faults (links, writes, actuator feedback) raised by the I/O tasks, for the fault
+/// word on the wire: per category, how many sources have it active. The control thread's
+/// input faults and these are OR-ed into the heartbeat's `Faults` and the Modbus watchdog's
+/// `faults` register, so a PLC sees a refused write or a valve that does not follow.
+pub mod field {
+    use super::{FaultCategory, FaultSet};
+    use std::sync::atomic::{AtomicU32, Ordering};
+
+    #[allow(clippy::declare_interior_mutable_const)]
+    const ZERO: AtomicU32 = AtomicU32::new(0);
+    static ACTIVE: [AtomicU32; FaultCategory::ALL.len()] = [ZERO; FaultCategory::ALL.len()];
+
+    /// One source raised `c` (pair with [`clear`]).
+    pub fn raise(c: FaultCategory) {
+        ACTIVE[usize::from(c.code())].fetch_add(1, Ordering::Relaxed);
+    }
+
+    /// One source cleared `c`.
+    pub fn clear(c: FaultCategory) {
+        let _ =
+            ACTIVE[usize::from(c.code())]
+                .fetch_update(Ordering::Relaxed, Ordering::Relaxed, |n| n.checked_sub(1));
+    }
+
+    /// The active field faults as a fault word. Allocation-free.
+    pub fn word() -> u32 {
+        let mut f = FaultSet::NONE;
+        for c in FaultCategory::ALL {
+            if ACTIVE[usize::from(c.code())].load(Ordering::Relaxed) > 0 {
+                f.set(c);
+            }
+        }
+        f.0
+    }
+}
+
 /// The DBC `VAL_` entries of a `Faults` signal: one value per single-bit word
 /// (`1 "sensor_timeout" 2 "sensor_alive_error" …`), for message `id` and `signal`.
 pub fn dbc_value_table(id: u32, signal: &str) -> String {
@@ -215,6 +251,19 @@ mod tests {
                 c.name()
             );
         }
+    }
+
+    #[test]
+    fn field_faults_count_their_sources() {
+        // (a category no other test raises)
+        let c = FaultCategory::CycleOverrun;
+        field::raise(c);
+        field::raise(c);
+        field::clear(c);
+        assert_ne!(field::word() & c.bit(), 0, "one source still active");
+        field::clear(c);
+        field::clear(c);
+        assert_eq!(field::word() & c.bit(), 0);
     }
 
     #[test]

@@ -23,6 +23,18 @@ pub struct FieldLinkReporter {
     last: Option<BusState>,
     faults: Arc<AtomicU32>,
     causes: [Option<String>; FaultCategory::ALL.len()],
+    /// Whether active faults go into the fault word on the wire ([`crate::faults::field`]).
+    on_wire: bool,
+}
+
+impl Drop for FieldLinkReporter {
+    fn drop(&mut self) {
+        if self.on_wire {
+            for c in FaultSet(self.faults.load(Ordering::Relaxed)).categories() {
+                crate::faults::field::clear(c);
+            }
+        }
+    }
 }
 
 impl std::fmt::Debug for FieldLinkReporter {
@@ -44,7 +56,15 @@ impl FieldLinkReporter {
             last: None,
             faults: Arc::new(AtomicU32::new(0)),
             causes: Default::default(),
+            on_wire: true,
         }
+    }
+
+    /// A reporter whose faults stay out of the fault word on the wire (tests, tools).
+    pub fn detached(link: impl Into<String>, sink: EventSink) -> FieldLinkReporter {
+        let mut r = FieldLinkReporter::new(link, sink);
+        r.on_wire = false;
+        r
     }
 
     /// The link's name.
@@ -95,10 +115,16 @@ impl FieldLinkReporter {
             return;
         }
         if active {
+            if !was && self.on_wire {
+                crate::faults::field::raise(fault);
+            }
             self.faults.fetch_or(fault.bit(), Ordering::Relaxed);
             self.causes[i] = Some(cause.to_string());
             tracing::error!(target: "field", link = %self.link, fault = fault.name(), "{}: {cause}", fault.describe());
         } else {
+            if self.on_wire {
+                crate::faults::field::clear(fault);
+            }
             self.faults.fetch_and(!fault.bit(), Ordering::Relaxed);
             self.causes[i] = None;
             tracing::info!(target: "field", link = %self.link, fault = fault.name(), "cleared: {cause}");
@@ -120,7 +146,8 @@ mod tests {
     fn reporter() -> (FieldLinkReporter, Arc<Mutex<Vec<Event>>>) {
         let seen = Arc::new(Mutex::new(Vec::new()));
         let s = Arc::clone(&seen);
-        let r = FieldLinkReporter::new("modbus:x", Arc::new(move |e| s.lock().unwrap().push(e)));
+        let r =
+            FieldLinkReporter::detached("modbus:x", Arc::new(move |e| s.lock().unwrap().push(e)));
         (r, seen)
     }
 

@@ -913,7 +913,7 @@ impl Controller {
                 wd,
                 o.mode,
                 o.law,
-                o.faults,
+                o.faults | crate::faults::field::word(),
                 !withheld,
                 &mut self.write_values[at..],
             );
