@@ -15,6 +15,7 @@ pub mod config;
 pub mod control;
 pub mod daemon;
 pub mod events;
+pub mod faults;
 pub mod io;
 pub mod machine;
 pub mod physics;

@@ -1112,17 +1112,23 @@ fn target_key(t: SignalTarget) -> String {
 fn check_map(l: &Loaded) -> Vec<Problem> {
     let map = &l.signal_map;
     let mut out = Vec::new();
-    let push = |out: &mut Vec<Problem>, e: FileError, hint: Option<&str>| {
+    let push_w = |out: &mut Vec<Problem>, e: FileError, hint: Option<&str>, warning: bool| {
         out.push(Problem {
             error: FileError {
                 hint: hint.map(str::to_string),
                 ..e
             },
-            warning: false,
+            warning,
         })
     };
+    let push =
+        |out: &mut Vec<Problem>, e: FileError, hint: Option<&str>| push_w(out, e, hint, false);
     for p in map.check() {
-        push(&mut out, map_error(l, &p.key, p.message), None);
+        let hint = p
+            .key
+            .ends_with(".unit")
+            .then_some("declare the unit the device uses (e.g. \"%\", \"bar\", \"rpm\", \"degC\"); it must measure what the signal is");
+        push_w(&mut out, map_error(l, &p.key, p.message), hint, p.warning);
     }
     let mut seen: Vec<(String, &str, &str)> = Vec::new();
     let can = map
@@ -1155,7 +1161,7 @@ fn check_map(l: &Loaded) -> Vec<Problem> {
             seen.push((key, message, signal));
         }
     }
-    if out.is_empty() {
+    if out.iter().all(|p| p.warning) {
         if let Some(hb) = l
             .config
             .bus
@@ -1186,6 +1192,7 @@ fn check_dbc(l: &Loaded, can: &CanBusConfig) -> Option<FileError> {
                 BindingError::UnknownMessage { target, .. }
                 | BindingError::UnknownSignal { target, .. }
                 | BindingError::ProtectionSignal { target, .. }
+                | BindingError::Unit { target, .. }
                 | BindingError::DuplicateTarget { target, .. } => Some(*target),
                 BindingError::SignalBoundTwice { second, .. } => Some(*second),
                 _ => None,
@@ -1202,6 +1209,32 @@ fn check_dbc(l: &Loaded, can: &CanBusConfig) -> Option<FileError> {
             format!("cannot use the DBC file: {e}"),
         )),
     }
+}
+
+/// The worst-case bus load of the DBC's periodic messages at `bus.can.bitrate_bps`, refused
+/// above `bus.can.max_load_pct`.
+fn check_bus_load(l: &Loaded, can: &CanBusConfig) -> Option<FileError> {
+    let bitrate = can.bitrate_bps?;
+    let db = crate::io::can::CanDatabase::from_file(resolve(&l.main_path, &can.dbc)).ok()?;
+    let load = crate::io::can::busload::BusLoad::of(&db, bitrate);
+    (load.percent() > f64::from(can.max_load_pct)).then(|| {
+        FileError {
+            hint: Some(format!(
+                "the DBC's periodic messages need {:.0} kbit/s with worst-case bit stuffing: raise the bit rate on every node (deploy/80-can0.network BitRate=) and here, or lengthen cycle times in the DBC",
+                load.bits_per_s / 1000.0
+            )),
+            ..locate(
+                &l.layers,
+                "bus.can.bitrate_bps",
+                format!(
+                    "worst-case bus load {:.1} % at {} kbit/s exceeds the limit of {} % (bus.can.max_load_pct)",
+                    load.percent(),
+                    bitrate / 1000,
+                    can.max_load_pct
+                ),
+            )
+        }
+    })
 }
 
 /// The cross-field rules. Returns errors and warnings, located.
@@ -1451,6 +1484,12 @@ pub fn check(l: &Loaded) -> Vec<Problem> {
                 Some(can) => {
                     if can.validate().is_ok() && map_problems.is_empty() {
                         if let Some(e) = check_dbc(l, can) {
+                            map_problems.push(Problem {
+                                error: e,
+                                warning: false,
+                            });
+                        }
+                        if let Some(e) = check_bus_load(l, can) {
                             map_problems.push(Problem {
                                 error: e,
                                 warning: false,

@@ -80,7 +80,13 @@ pub fn run(opts: &PlantOptions) -> Result<()> {
     // the plant thread
     let desc = l.sim_plant().map_err(|e| anyhow!("{e}"))?.clone();
     let desc_map = desc.map;
-    let hb_ms = l.config.simulation.heartbeat_timeout_ms;
+    // the device watchdog time: the map's Modbus watchdog contract, else the simulation's
+    let hb_ms = l
+        .signal_map
+        .watchdog
+        .modbus
+        .and_then(|w| w.timeout_ms)
+        .unwrap_or(l.config.simulation.heartbeat_timeout_ms);
     let hold = l.config.simulation.hold_after_end;
     let rt_settings = l.config.cycle;
     let (st, stp, lk) = (Arc::clone(&status), Arc::clone(&stop), links.clone());
