@@ -15,6 +15,7 @@ pub mod control;
 pub mod daemon;
 pub mod events;
 pub mod io;
+pub mod live;
 pub mod physics;
 pub mod plant;
 pub mod plot;

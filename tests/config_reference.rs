@@ -109,6 +109,11 @@ fn populated() -> DaemonConfig {
         status: StatusSection {
             log_interval_s: 10.0,
             stats_file: Some(PathBuf::from("cycle_stats.json")),
+            socket: Some(PathBuf::from("status.sock")),
+            state_dir: Some(PathBuf::from("/var/lib/antisurge")),
+            metrics_listen: Some("127.0.0.1:9650".into()),
+            metrics_allow_remote: false,
+            operator_token_file: Some(PathBuf::from("/etc/antisurge/operator.token")),
         },
     }
 }

@@ -256,6 +256,7 @@ mod tests {
         let (mut tx, mut rx) = rt_channel(2);
         let ev = RecycleTrip {
             reason: TripReason::Operator,
+            cause: None,
         };
         assert!(tx.try_push(ev));
         assert!(tx.try_push(ev));
@@ -279,6 +280,7 @@ mod tests {
             let ev = ModeChanged {
                 from: Mode::Init,
                 to,
+                cause: None,
             };
             assert!(tx.try_push_at(Timestamp::from_unix_micros(i as i64), ev.into()));
         }
