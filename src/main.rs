@@ -26,6 +26,10 @@ enum Command {
     CheckConfig(cli::daemon::CheckArgs),
     /// Print the event log readably.
     Events(cli::daemon::EventsArgs),
+    /// Show the running controller's live status (mode, cause, deviation, valve, surges).
+    Status(cli::status::StatusArgs),
+    /// Operator action on the running controller (needs the operator token).
+    Operate(cli::status::OperateArgs),
 }
 
 fn main() -> std::process::ExitCode {
@@ -40,6 +44,8 @@ fn main() -> std::process::ExitCode {
             Err(e) => Err(e),
         },
         Some(Command::Events(args)) => cli::daemon::events(&args),
+        Some(Command::Status(args)) => cli::status::status(&args),
+        Some(Command::Operate(args)) => cli::status::operate(&args),
         None => {
             // a bare `antisurge` runs the default simulation
             let args = cli::sim::SimArgs {

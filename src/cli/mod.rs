@@ -4,4 +4,5 @@ pub mod daemon;
 pub mod locate;
 pub mod pictures;
 pub mod sim;
+pub mod status;
 pub mod table;

@@ -97,6 +97,8 @@ pub struct ControlNode {
     commands: Option<rtrb::Consumer<crate::live::commands::OperatorCommand>>,
     /// Cause of the last mode change (kept current while in fail-safe).
     cause: Option<Cause>,
+    /// Sensors that ever delivered a value (a fault lamp is lit for those and the needed ones).
+    seen: u32,
 }
 
 fn ev_mode(m: Mode) -> EvMode {
@@ -161,6 +163,7 @@ impl ControlNode {
             live: None,
             commands: None,
             cause: None,
+            seen: 0,
         }
     }
 
@@ -236,8 +239,24 @@ impl ControlNode {
         }
     }
 
-    fn publish_live(&self, out: &CycleOutput, cycle: u64, t_ns: u64) {
+    fn publish_live(&mut self, out: &CycleOutput, raw: &RawSensors, cycle: u64, t_ns: u64) {
         use crate::live::snapshot::{FlowSourceNow, LiveSnapshot};
+        if self.live.is_none() {
+            return;
+        }
+        for id in SensorId::ALL {
+            if raw.age_s[id.index()].is_finite() {
+                self.seen |= 1 << id.index();
+            }
+        }
+        let needed = [
+            SensorId::PSuction,
+            SensorId::PDischarge,
+            SensorId::ShaftSpeed,
+            SensorId::OrificeDp,
+        ]
+        .iter()
+        .fold(self.seen, |b, id| b | 1 << id.index());
         let Some(live) = &self.live else {
             return;
         };
@@ -270,7 +289,7 @@ impl ControlNode {
             mode: out.mode,
             law: out.law,
             flow_source,
-            fault_bits: fault_bits(&out.validity),
+            fault_bits: fault_bits(&out.validity) & needed,
             cause: self.cause,
             flow_map: q,
             pressure_ratio: r,
@@ -442,7 +461,7 @@ impl ControlNode {
             }),
             None => {}
         }
-        self.publish_live(&out, tick.cycle, now);
+        self.publish_live(&out, &raw, tick.cycle, now);
         let lateness = tick.wake_ns.saturating_sub(tick.deadline_ns);
         let instant = Instant::now();
         let ev = if lateness > self.period_ns / 2 {

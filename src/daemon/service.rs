@@ -311,6 +311,13 @@ async fn serve(loaded: Loaded, opts: RunOptions) -> Result<()> {
         },
         cfg.cycle.period_ns(),
     );
+    let mut node = node;
+    let mut live = crate::live::prepare(&cfg.status);
+    if let Some(rx) = live.rx.take() {
+        node.attach_live(Arc::clone(&live.board), rx);
+    }
+    node.restore(&live.kept);
+    let live_board = Arc::clone(&live.board);
     let control = spawn_control(node, cfg.cycle, Arc::clone(&stop), Arc::clone(&stats))?;
 
     let (shutdown_tx, shutdown_rx) = tokio::sync::watch::channel(false);
@@ -344,6 +351,9 @@ async fn serve(loaded: Loaded, opts: RunOptions) -> Result<()> {
         }
     }
 
+    let links = link_counters.clone();
+    let _live = crate::live::spawn(live, Arc::clone(&stats), Arc::new(move || links.to_json()),
+        events.clone(), shutdown_rx.clone(), &mut tasks);
     // signals, reload, watchdog, status
     let mut sigterm = tokio::signal::unix::signal(tokio::signal::unix::SignalKind::terminate())?;
     let mut sigint = tokio::signal::unix::signal(tokio::signal::unix::SignalKind::interrupt())?;
@@ -381,8 +391,9 @@ async fn serve(loaded: Loaded, opts: RunOptions) -> Result<()> {
                 if every > 0.0 && last_status.elapsed().as_secs_f64() >= every {
                     last_status = std::time::Instant::now();
                     let r = stats.report();
-                    tracing::info!(target: "status", "mode {} · {} cycles · jitter p99 {:.0} µs · compute p99 {:.1} µs · overruns {} · surges {}",
-                        health.mode().name(), r.cycles, r.wake_jitter.p99_us, r.compute.p99_us, r.overruns, health.surges.load(Ordering::Relaxed));
+                    let live = live_board.latest().map(|s| crate::live::report::status_line(&s)).unwrap_or_else(|| health.mode().name().into());
+                    tracing::info!(target: "status", "{live} · {} cycles · jitter p99 {:.0} µs · compute p99 {:.1} µs · overruns {}",
+                        r.cycles, r.wake_jitter.p99_us, r.compute.p99_us, r.overruns);
                 }
                 if let Some(p) = &plant {
                     if p.status.finished.load(Ordering::Relaxed) && opts.duration_s.is_none() && opts.out_dir.is_some() {
