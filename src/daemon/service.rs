@@ -352,7 +352,7 @@ async fn serve(loaded: Loaded, opts: RunOptions) -> Result<()> {
     }
 
     let links = link_counters.clone();
-    let _live = crate::live::spawn(live, Arc::clone(&stats), Arc::new(move || links.to_json()),
+    let _live = crate::live::spawn(&cfg.status, live, Arc::clone(&stats), Arc::new(move || links.to_json()),
         events.clone(), shutdown_rx.clone(), &mut tasks);
     // signals, reload, watchdog, status
     let mut sigterm = tokio::signal::unix::signal(tokio::signal::unix::SignalKind::terminate())?;

@@ -7,6 +7,7 @@
 //! - [`metrics`]: the Prometheus/OpenMetrics endpoint.
 
 pub mod commands;
+pub mod metrics;
 pub mod persist;
 pub mod snapshot;
 pub mod report;
@@ -110,8 +111,10 @@ pub fn prepare(status: &StatusSection) -> LiveSetup {
     }
 }
 
-/// Start the status socket and the persistence task on `tasks`; returns the shared context.
+/// Start the status socket, the metrics endpoint and the persistence task on `tasks`;
+/// returns the shared context.
 pub fn spawn(
+    status: &StatusSection,
     setup: LiveSetup,
     stats: Arc<crate::runtime::rt_loop::CycleStats>,
     links: Arc<dyn Fn() -> serde_json::Value + Send + Sync>,
@@ -135,6 +138,20 @@ pub fn spawn(
         }
         Err(e) => tracing::error!(target: "status",
             "no status socket at {}: {e}; `antisurge status` will not answer", setup.socket.display()),
+    }
+    match metrics::listen_addr(status.metrics_listen.as_deref(), status.metrics_allow_remote) {
+        Ok(Some(addr)) => match std::net::TcpListener::bind(addr)
+            .and_then(|l| l.set_nonblocking(true).map(|()| l))
+            .and_then(tokio::net::TcpListener::from_std)
+        {
+            Ok(l) => {
+                tracing::info!(target: "status", "metrics on http://{addr}/metrics");
+                tasks.spawn(metrics::serve(l, Arc::clone(&ctx.live), Arc::clone(&ctx.stats), shutdown.clone()));
+            }
+            Err(e) => tracing::error!(target: "status", "no metrics endpoint on {addr}: {e}"),
+        },
+        Ok(None) => {}
+        Err(e) => tracing::error!(target: "status", "no metrics endpoint: {e}"),
     }
     tasks.spawn(server::keep_state(ctx.clone(), setup.state, setup.kept, shutdown));
     ctx
