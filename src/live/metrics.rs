@@ -175,6 +175,37 @@ pub fn render(live: &Arc<LiveBoard>, stats: &Arc<CycleStats>) -> String {
     out
 }
 
+/// The same exposition in the classic Prometheus text format 0.0.4 (for clients that do not
+/// ask for OpenMetrics, and `promtool check metrics`): counter families are named with their
+/// `_total` suffix, and the `# EOF` marker is left out.
+pub fn render_classic(live: &Arc<LiveBoard>, stats: &Arc<CycleStats>) -> String {
+    let om = render(live, stats);
+    let counters: Vec<&str> = om
+        .lines()
+        .filter_map(|l| l.strip_prefix("# TYPE "))
+        .filter_map(|l| l.strip_suffix(" counter"))
+        .collect();
+    let mut out = String::with_capacity(om.len());
+    for line in om.lines() {
+        if line == "# EOF" || line.starts_with("# UNIT ") {
+            continue;
+        }
+        let mut rewritten = None;
+        for c in &counters {
+            for tag in ["# HELP ", "# TYPE "] {
+                if let Some(rest) = line.strip_prefix(tag).and_then(|r| r.strip_prefix(c)) {
+                    if rest.starts_with(' ') {
+                        rewritten = Some(format!("{tag}{c}_total{rest}"));
+                    }
+                }
+            }
+        }
+        out += rewritten.as_deref().unwrap_or(line);
+        out.push('\n');
+    }
+    out
+}
+
 /// Serve `GET /metrics` on `listener` until `shutdown`.
 pub async fn serve(
     listener: tokio::net::TcpListener,
@@ -210,9 +241,17 @@ pub async fn serve(
             let head = String::from_utf8_lossy(&buf[..n]);
             let first = head.lines().next().unwrap_or("");
             let resp = if first.starts_with("GET /metrics ") || first.starts_with("GET /metrics?") {
-                let body = render(&live, &stats);
+                let om = head.lines().any(|l| {
+                    l.to_ascii_lowercase().starts_with("accept:")
+                        && l.contains("application/openmetrics-text")
+                });
+                let (body, ctype) = if om {
+                    (render(&live, &stats), "application/openmetrics-text; version=1.0.0; charset=utf-8")
+                } else {
+                    (render_classic(&live, &stats), "text/plain; version=0.0.4; charset=utf-8")
+                };
                 format!(
-                    "HTTP/1.1 200 OK\r\nContent-Type: application/openmetrics-text; version=1.0.0; charset=utf-8\r\nContent-Length: {}\r\nConnection: close\r\n\r\n{body}",
+                    "HTTP/1.1 200 OK\r\nContent-Type: {ctype}\r\nContent-Length: {}\r\nConnection: close\r\n\r\n{body}",
                     body.len()
                 )
             } else if first.starts_with("GET ") {
@@ -266,5 +305,9 @@ mod tests {
             "{text}"
         );
         assert!(text.ends_with("# EOF\n"), "{text}");
+        let classic = render_classic(&live, &stats);
+        assert!(classic.contains("# HELP antisurge_surges_total Surge counter"), "{classic}");
+        assert!(classic.contains("# TYPE antisurge_surges_total counter"), "{classic}");
+        assert!(!classic.contains("# EOF"), "{classic}");
     }
 }
