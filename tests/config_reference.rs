@@ -113,6 +113,7 @@ fn populated() -> DaemonConfig {
             state_dir: Some(PathBuf::from("/var/lib/antisurge")),
             metrics_listen: Some("127.0.0.1:9650".into()),
             metrics_allow_remote: false,
+            hmi_listen: Some("127.0.0.1:9651".into()),
             operator_token_file: Some(PathBuf::from("/etc/antisurge/operator.token")),
         },
     }

@@ -33,6 +33,7 @@ scenario = "{dir}/{scenario}"
 socket = "{dir}/status.sock"
 state_dir = "{dir}/state"
 metrics_listen = ""
+hmi_listen = ""
 operator_token_file = "{dir}/operator.token"
 {extra}
 "#,

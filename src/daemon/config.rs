@@ -200,6 +200,10 @@ pub struct StatusSection {
     /// Allow the metrics endpoint on a non-loopback address (read-only data).
     #[serde(default)]
     pub metrics_allow_remote: bool,
+    /// Web HMI `host:port` (default `127.0.0.1:9651`; empty: off). Loopback only: this build
+    /// does not terminate TLS.
+    #[serde(default)]
+    pub hmi_listen: Option<String>,
     /// File holding the operator token (root-owned, mode 0640 root:antisurge); without it
     /// operator actions are refused. Default `/etc/antisurge/operator.token`.
     #[serde(default)]
@@ -219,6 +223,7 @@ impl Default for StatusSection {
             state_dir: None,
             metrics_listen: None,
             metrics_allow_remote: false,
+            hmi_listen: None,
             operator_token_file: None,
         }
     }

@@ -245,7 +245,7 @@ impl ControlNode {
             return;
         }
         for id in SensorId::ALL {
-            if raw.age_s[id.index()].is_finite() {
+            if raw.values.get(id).is_finite() {
                 self.seen |= 1 << id.index();
             }
         }

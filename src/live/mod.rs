@@ -7,6 +7,7 @@
 //! - [`metrics`]: the Prometheus/OpenMetrics endpoint.
 
 pub mod commands;
+pub mod hmi;
 pub mod metrics;
 pub mod persist;
 pub mod snapshot;
@@ -113,8 +114,11 @@ pub fn prepare(status: &StatusSection) -> LiveSetup {
 
 /// Start the status socket, the metrics endpoint and the persistence task on `tasks`;
 /// returns the shared context.
+#[allow(clippy::too_many_arguments)]
 pub fn spawn(
     status: &StatusSection,
+    map: hmi::MapLines,
+    events_path: PathBuf,
     setup: LiveSetup,
     stats: Arc<crate::runtime::rt_loop::CycleStats>,
     links: Arc<dyn Fn() -> serde_json::Value + Send + Sync>,
@@ -152,6 +156,25 @@ pub fn spawn(
         },
         Ok(None) => {}
         Err(e) => tracing::error!(target: "status", "no metrics endpoint: {e}"),
+    }
+    match hmi::listen_addr(status.hmi_listen.as_deref()) {
+        Ok(Some(addr)) => match std::net::TcpListener::bind(addr)
+            .and_then(|l| l.set_nonblocking(true).map(|()| l))
+            .and_then(tokio::net::TcpListener::from_std)
+        {
+            Ok(l) => {
+                tracing::info!(target: "status", "web HMI on http://{addr}/");
+                let h = hmi::Hmi {
+                    ctx: ctx.clone(),
+                    map_json: serde_json::to_string(&map).unwrap_or_default(),
+                    events_path,
+                };
+                tasks.spawn(hmi::serve(l, h, shutdown.clone()));
+            }
+            Err(e) => tracing::error!(target: "status", "no web HMI on {addr}: {e}"),
+        },
+        Ok(None) => {}
+        Err(e) => tracing::error!(target: "status", "no web HMI: {e}"),
     }
     tasks.spawn(server::keep_state(ctx.clone(), setup.state, setup.kept, shutdown));
     ctx
