@@ -233,3 +233,90 @@ fn surge_counter_and_safety_on_survive_kill_9() {
         "{events}"
     );
 }
+
+fn http(port: u16, req: &str) -> (u16, String) {
+    use std::io::{Read, Write};
+    let mut s = std::net::TcpStream::connect(("127.0.0.1", port)).expect("connect");
+    s.write_all(req.as_bytes()).expect("write");
+    let mut out = String::new();
+    s.read_to_string(&mut out).expect("read");
+    let code = out
+        .split_whitespace()
+        .nth(1)
+        .and_then(|c| c.parse().ok())
+        .unwrap_or(0);
+    (code, out)
+}
+
+fn post_op(port: u16, auth: Option<&str>, body: &str) -> (u16, String) {
+    let auth = auth
+        .map(|t| format!("Authorization: Bearer {t}\r\n"))
+        .unwrap_or_default();
+    http(
+        port,
+        &format!(
+            "POST /api/op HTTP/1.1\r\nHost: x\r\n{auth}Content-Length: {}\r\n\r\n{body}",
+            body.len()
+        ),
+    )
+}
+
+#[test]
+fn hmi_is_read_only_without_the_token() {
+    let tmp = tempfile::tempdir().expect("tmp");
+    let dir = tmp.path();
+    std::fs::write(
+        dir.join("hold.toml"),
+        "name = \"hold\"\ndescription = \"hold\"\nduration_s = 60.0\n",
+    )
+    .expect("scenario");
+    let port = common::daemon::free_port();
+    let cfg = config(dir, "hold.toml", "");
+    let text = std::fs::read_to_string(&cfg)
+        .expect("cfg")
+        .replace("hmi_listen = \"\"", &format!("hmi_listen = \"127.0.0.1:{port}\""));
+    std::fs::write(&cfg, text).expect("cfg");
+    let token = dir.join("operator.token");
+    std::fs::write(&token, "s3cret\n").expect("token");
+    use std::os::unix::fs::PermissionsExt;
+    std::fs::set_permissions(&token, std::fs::Permissions::from_mode(0o640)).expect("chmod");
+    let mut d = start(dir, "run", &cfg);
+    until(dir, Duration::from_secs(10), "auto", |v| v["mode"] == "auto");
+
+    let (code, page) = http(port, "GET / HTTP/1.1\r\nHost: x\r\n\r\n");
+    assert_eq!(code, 200);
+    assert!(page.contains("<canvas id=\"map\""), "{page}");
+    let (code, body) = http(port, "GET /api/status HTTP/1.1\r\nHost: x\r\n\r\n");
+    assert_eq!(code, 200, "{body}");
+    assert!(body.contains("\"mode\":\"auto\""), "{body}");
+
+    for auth in [None, Some("guess"), Some("")] {
+        let (code, body) = post_op(port, auth, "manual 10");
+        assert_eq!(code, 401, "{auth:?}: {body}");
+    }
+    let (code, _) = http(port, "PUT /api/op HTTP/1.1\r\nHost: x\r\nContent-Length: 4\r\n\r\nauto");
+    assert_eq!(code, 405);
+    std::thread::sleep(Duration::from_millis(300));
+    let v = status_json(dir).expect("status");
+    assert_eq!(v["mode"], "auto", "an unauthenticated write changed the mode");
+    assert_eq!(v["auto_requested"], true);
+
+    let (code, body) = post_op(port, Some("s3cret"), "manual 10");
+    assert_eq!(code, 200, "{body}");
+    assert!(body.contains("manual output"), "{body}");
+    let v = until(dir, Duration::from_secs(3), "manual", |v| v["mode"] == "manual");
+    assert_eq!(v["manual_output_pct"], 10.0, "{v:#}");
+    stop(&mut d, dir);
+    let events = std::fs::read_to_string(dir.join("events.jsonl")).expect("events");
+    let actions: Vec<&str> = events
+        .lines()
+        .filter(|l| l.contains("operator action (HMI 127.0.0.1"))
+        .collect();
+    assert_eq!(actions.len(), 1, "{events}");
+    assert!(actions[0].contains("mode auto → manual"), "{}", actions[0]);
+    let manual = events
+        .lines()
+        .find(|l| l.contains(r#""to":"manual""#))
+        .unwrap_or_else(|| panic!("{events}"));
+    assert!(manual.contains(r#""kind":"operator""#), "{manual}");
+}

@@ -33,9 +33,10 @@ impl OperatorCommand {
         match words {
             ["auto"] => Ok(vec![OperatorCommand::SetAuto(true)]),
             ["manual"] => Ok(vec![OperatorCommand::SetAuto(false)]),
+            // manual first (the station starts from the current output), then the new output
             ["manual", p] => Ok(vec![
-                OperatorCommand::ManualOutput(pct(p)?),
                 OperatorCommand::SetAuto(false),
+                OperatorCommand::ManualOutput(pct(p)?),
             ]),
             ["output", p] => Ok(vec![OperatorCommand::ManualOutput(pct(p)?)]),
             ["reset-surge-counter"] => Ok(vec![OperatorCommand::ResetSurgeCounter]),
@@ -57,8 +58,8 @@ mod tests {
         assert_eq!(
             OperatorCommand::parse(&["manual", "20"]),
             Ok(vec![
-                OperatorCommand::ManualOutput(0.2),
-                OperatorCommand::SetAuto(false)
+                OperatorCommand::SetAuto(false),
+                OperatorCommand::ManualOutput(0.2)
             ])
         );
         assert_eq!(
