@@ -30,6 +30,8 @@ enum Command {
     Status(cli::status::StatusArgs),
     /// Operator action on the running controller (needs the operator token).
     Operate(cli::status::OperateArgs),
+    /// Draw the map and time-series pictures of a trace.csv from `run`, `plant` or HIL.
+    Plot(cli::plot::PlotArgs),
 }
 
 fn main() -> std::process::ExitCode {
@@ -46,6 +48,7 @@ fn main() -> std::process::ExitCode {
         Some(Command::Events(args)) => cli::daemon::events(&args),
         Some(Command::Status(args)) => cli::status::status(&args),
         Some(Command::Operate(args)) => cli::status::operate(&args),
+        Some(Command::Plot(args)) => cli::plot::run(&args),
         None => {
             // a bare `antisurge` runs the default simulation
             let args = cli::sim::SimArgs {

@@ -3,6 +3,7 @@
 pub mod daemon;
 pub mod locate;
 pub mod pictures;
+pub mod plot;
 pub mod sim;
 pub mod status;
 pub mod table;
