@@ -114,6 +114,7 @@ fn populated() -> DaemonConfig {
             metrics_listen: Some("127.0.0.1:9650".into()),
             metrics_allow_remote: false,
             hmi_listen: Some("127.0.0.1:9651".into()),
+            modbus_listen: Some("0.0.0.0:502".into()),
             operator_token_file: Some(PathBuf::from("/etc/antisurge/operator.token")),
         },
     }

@@ -60,8 +60,14 @@ fn control_node_cycle_with_live_snapshot_allocates_nothing_while_polled() {
     let model = ControlModel::from_plant(&desc);
     let settings = CoreSettings::defaults_for(&model);
     let cfg = model.controller.clone();
-    let core = ControlCore::new(model, cfg, settings, LawId::RecyclePi, plant.truth().load_torque_nm)
-        .expect("core");
+    let core = ControlCore::new(
+        model,
+        cfg,
+        settings,
+        LawId::RecyclePi,
+        plant.truth().load_torque_nm,
+    )
+    .expect("core");
     let sensors = Arc::new(SensorBoard::default());
     let outputs = Arc::new(OutputBoard::default());
     let stats = Arc::new(CycleStats::default());

@@ -61,8 +61,16 @@ fn low_manual_output_still_trips_on_a_throttle_step() {
         .fold(0.0, f64::max);
     assert!(opened > 0.3, "protection opened only to {opened}");
     // bumpless: switching to manual and back to auto moves the output by less than 1 %
-    assert!(largest_step(&r, 1.9, 2.2) < 0.01, "{}", largest_step(&r, 1.9, 2.2));
-    assert!(largest_step(&r, 11.9, 12.2) < 0.01, "{}", largest_step(&r, 11.9, 12.2));
+    assert!(
+        largest_step(&r, 1.9, 2.2) < 0.01,
+        "{}",
+        largest_step(&r, 1.9, 2.2)
+    );
+    assert!(
+        largest_step(&r, 11.9, 12.2) < 0.01,
+        "{}",
+        largest_step(&r, 11.9, 12.2)
+    );
 }
 
 #[test]

@@ -124,7 +124,9 @@ fn each_input_fault_is_named_in_events_journal_and_status() {
         .expect("scenario");
         let cfg = config(dir, "fault.toml", "");
         let mut d = start(dir, "run", &cfg);
-        until(dir, Duration::from_secs(10), "auto", |v| v["mode"] == "auto");
+        until(dir, Duration::from_secs(10), "auto", |v| {
+            v["mode"] == "auto"
+        });
         let v = until(dir, Duration::from_secs(10), "fail-safe", |v| {
             v["mode"] == "fail_safe"
         });
@@ -197,7 +199,9 @@ fn surge_counter_and_safety_on_survive_kill_9() {
     assert_eq!(before.0, 3, "{seen:?}");
     assert!(before.1.as_u64().unwrap_or(0) >= 1, "{seen:?}");
     let mut d = start(dir, "after", &cfg);
-    let v = until(dir, Duration::from_secs(10), "restored", |v| v["mode"] == "auto");
+    let v = until(dir, Duration::from_secs(10), "restored", |v| {
+        v["mode"] == "auto"
+    });
     assert_eq!(v["surge_count"], before.0, "{v:#}");
     assert_eq!(v["safety_on_count"], before.1, "{v:#}");
 
@@ -225,7 +229,9 @@ fn surge_counter_and_safety_on_survive_kill_9() {
     let out = op(&token, &["reset-surge-counter"]);
     assert!(out.status.success(), "{out:?}");
     assert!(String::from_utf8_lossy(&out.stdout).contains("surge counter 3 → 0"));
-    until(dir, Duration::from_secs(3), "reset", |v| v["surge_count"] == 0);
+    until(dir, Duration::from_secs(3), "reset", |v| {
+        v["surge_count"] == 0
+    });
     stop(&mut d, dir);
     let events = std::fs::read_to_string(dir.join("events.jsonl")).expect("events");
     assert!(
@@ -246,6 +252,21 @@ fn http(port: u16, req: &str) -> (u16, String) {
         .and_then(|c| c.parse().ok())
         .unwrap_or(0);
     (code, out)
+}
+
+/// One Modbus TCP request to unit 1 (`pdu`: function code and data); returns the raw
+/// response (MBAP header, then the function code at byte 7).
+fn modbus(port: u16, pdu: &[u8]) -> Vec<u8> {
+    use std::io::{Read, Write};
+    let mut s = std::net::TcpStream::connect(("127.0.0.1", port)).expect("connect modbus");
+    s.set_read_timeout(Some(Duration::from_secs(3)))
+        .expect("timeout");
+    let mut req = vec![0, 1, 0, 0, 0, (pdu.len() + 1) as u8, 1];
+    req.extend_from_slice(pdu);
+    s.write_all(&req).expect("write");
+    let mut buf = [0u8; 64];
+    let n = s.read(&mut buf).expect("read");
+    buf[..n].to_vec()
 }
 
 fn post_op(port: u16, auth: Option<&str>, body: &str) -> (u16, String) {
@@ -271,17 +292,33 @@ fn hmi_is_read_only_without_the_token() {
     )
     .expect("scenario");
     let port = common::daemon::free_port();
+    let mb_port = common::daemon::free_port();
     let cfg = config(dir, "hold.toml", "");
-    let text = std::fs::read_to_string(&cfg)
-        .expect("cfg")
-        .replace("hmi_listen = \"\"", &format!("hmi_listen = \"127.0.0.1:{port}\""));
+    let text = std::fs::read_to_string(&cfg).expect("cfg").replace(
+        "hmi_listen = \"\"",
+        &format!("hmi_listen = \"127.0.0.1:{port}\"\nmodbus_listen = \"127.0.0.1:{mb_port}\""),
+    );
     std::fs::write(&cfg, text).expect("cfg");
     let token = dir.join("operator.token");
     std::fs::write(&token, "s3cret\n").expect("token");
     use std::os::unix::fs::PermissionsExt;
     std::fs::set_permissions(&token, std::fs::Permissions::from_mode(0o640)).expect("chmod");
     let mut d = start(dir, "run", &cfg);
-    until(dir, Duration::from_secs(10), "auto", |v| v["mode"] == "auto");
+    until(dir, Duration::from_secs(10), "auto", |v| {
+        v["mode"] == "auto"
+    });
+
+    // the DCS block: input registers 0-15 of unit 1 (mode 2 = auto); a write is refused
+    std::thread::sleep(Duration::from_millis(300));
+    let regs = modbus(mb_port, &[4, 0, 0, 0, 16]);
+    assert_eq!(regs[7], 4, "{regs:?}");
+    assert_eq!(
+        u16::from_be_bytes([regs[9], regs[10]]),
+        2,
+        "mode word: {regs:?}"
+    );
+    let write = modbus(mb_port, &[6, 0, 0, 0, 1]);
+    assert_eq!(write[7], 0x86, "a write must get an exception: {write:?}");
 
     let (code, page) = http(port, "GET / HTTP/1.1\r\nHost: x\r\n\r\n");
     assert_eq!(code, 200);
@@ -294,17 +331,25 @@ fn hmi_is_read_only_without_the_token() {
         let (code, body) = post_op(port, auth, "manual 10");
         assert_eq!(code, 401, "{auth:?}: {body}");
     }
-    let (code, _) = http(port, "PUT /api/op HTTP/1.1\r\nHost: x\r\nContent-Length: 4\r\n\r\nauto");
+    let (code, _) = http(
+        port,
+        "PUT /api/op HTTP/1.1\r\nHost: x\r\nContent-Length: 4\r\n\r\nauto",
+    );
     assert_eq!(code, 405);
     std::thread::sleep(Duration::from_millis(300));
     let v = status_json(dir).expect("status");
-    assert_eq!(v["mode"], "auto", "an unauthenticated write changed the mode");
+    assert_eq!(
+        v["mode"], "auto",
+        "an unauthenticated write changed the mode"
+    );
     assert_eq!(v["auto_requested"], true);
 
     let (code, body) = post_op(port, Some("s3cret"), "manual 10");
     assert_eq!(code, 200, "{body}");
     assert!(body.contains("manual output"), "{body}");
-    let v = until(dir, Duration::from_secs(3), "manual", |v| v["mode"] == "manual");
+    let v = until(dir, Duration::from_secs(3), "manual", |v| {
+        v["mode"] == "manual"
+    });
     assert_eq!(v["manual_output_pct"], 10.0, "{v:#}");
     stop(&mut d, dir);
     let events = std::fs::read_to_string(dir.join("events.jsonl")).expect("events");

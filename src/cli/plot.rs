@@ -64,7 +64,8 @@ fn field<'a>(r: &'a mut TraceRow, name: &str) -> Option<&'a mut f64> {
 
 /// Read a trace CSV (empty fields are NaN; unknown columns are ignored, missing ones NaN).
 pub fn read_trace(path: &std::path::Path) -> Result<Vec<TraceRow>> {
-    let mut rd = csv::Reader::from_path(path).with_context(|| format!("reading {}", path.display()))?;
+    let mut rd =
+        csv::Reader::from_path(path).with_context(|| format!("reading {}", path.display()))?;
     let header: Vec<String> = rd.headers()?.iter().map(str::to_string).collect();
     if !header.iter().any(|h| h == "t_s") || !header.iter().any(|h| h == "flow_map") {
         return Err(anyhow!(
@@ -101,8 +102,8 @@ pub fn run(args: &PlotArgs) -> Result<()> {
     let trace = read_trace(&args.trace)?;
     let cfg = locate::config_dir(args.config_dir.as_deref());
     let plant_path = locate::resolve(&cfg, "plants", &args.plant)?;
-    let desc = antisurge::plant::file::PlantDescription::load(&plant_path)
-        .map_err(|e| anyhow!("{e}"))?;
+    let desc =
+        antisurge::plant::file::PlantDescription::load(&plant_path).map_err(|e| anyhow!("{e}"))?;
     let dir = args.out.clone().unwrap_or_else(|| {
         args.trace
             .parent()

@@ -51,7 +51,10 @@ pub fn status(args: &StatusArgs) -> Result<()> {
     let sock = socket(&args.socket);
     let v = ask(&sock, "status")?;
     if let Some(e) = v.get("error") {
-        return Err(anyhow!("the daemon says: {}", e.as_str().unwrap_or_default()));
+        return Err(anyhow!(
+            "the daemon says: {}",
+            e.as_str().unwrap_or_default()
+        ));
     }
     if args.json {
         println!("{}", serde_json::to_string_pretty(&v)?);
@@ -65,8 +68,12 @@ pub fn status(args: &StatusArgs) -> Result<()> {
 
 /// Send an operator action.
 pub fn operate(args: &OperateArgs) -> Result<()> {
-    let token = std::fs::read_to_string(&args.token_file)
-        .with_context(|| format!("cannot read the operator token {}", args.token_file.display()))?;
+    let token = std::fs::read_to_string(&args.token_file).with_context(|| {
+        format!(
+            "cannot read the operator token {}",
+            args.token_file.display()
+        )
+    })?;
     let token = token.lines().next().unwrap_or("").trim().to_string();
     let sock = socket(&args.socket);
     let v = ask(&sock, &format!("op {token} {}", args.action.join(" ")))?;

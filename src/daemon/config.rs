@@ -204,6 +204,10 @@ pub struct StatusSection {
     /// does not terminate TLS.
     #[serde(default)]
     pub hmi_listen: Option<String>,
+    /// Modbus TCP server block for the DCS, `host:port` (default: off). Read-only input
+    /// registers; register map in README.md.
+    #[serde(default)]
+    pub modbus_listen: Option<String>,
     /// File holding the operator token (root-owned, mode 0640 root:antisurge); without it
     /// operator actions are refused. Default `/etc/antisurge/operator.token`.
     #[serde(default)]
@@ -224,6 +228,7 @@ impl Default for StatusSection {
             metrics_listen: None,
             metrics_allow_remote: false,
             hmi_listen: None,
+            modbus_listen: None,
             operator_token_file: None,
         }
     }

@@ -352,11 +352,23 @@ async fn serve(loaded: Loaded, opts: RunOptions) -> Result<()> {
     }
 
     let links = link_counters.clone();
-    let (current_model, current_controller, current_law) = (loaded.model.clone(), loaded.controller.clone(), loaded.law);
-    let _live = crate::live::spawn(&cfg.status,
-        crate::live::hmi::MapLines::new(&current_model, &current_controller, current_law == crate::control::LawId::RecyclePi),
-        cfg.event_log.path.clone(), live, Arc::clone(&stats), Arc::new(move || links.to_json()),
-        events.clone(), shutdown_rx.clone(), &mut tasks);
+    let (current_model, current_controller, current_law) =
+        (loaded.model.clone(), loaded.controller.clone(), loaded.law);
+    let _live = crate::live::spawn(
+        &cfg.status,
+        crate::live::hmi::MapLines::new(
+            &current_model,
+            &current_controller,
+            current_law == crate::control::LawId::RecyclePi,
+        ),
+        cfg.event_log.path.clone(),
+        live,
+        Arc::clone(&stats),
+        Arc::new(move || links.to_json()),
+        events.clone(),
+        shutdown_rx.clone(),
+        &mut tasks,
+    );
     // signals, reload, watchdog, status
     let mut sigterm = tokio::signal::unix::signal(tokio::signal::unix::SignalKind::terminate())?;
     let mut sigint = tokio::signal::unix::signal(tokio::signal::unix::SignalKind::interrupt())?;

@@ -159,7 +159,11 @@ impl Hmi {
                     json,
                     &serde_json::to_string(&r).unwrap_or_default(),
                 ),
-                None => response("503 Service Unavailable", json, r#"{"error":"no cycle yet"}"#),
+                None => response(
+                    "503 Service Unavailable",
+                    json,
+                    r#"{"error":"no cycle yet"}"#,
+                ),
             },
             ("GET", "/api/map") => response("200 OK", json, &self.map_json),
             ("GET", "/api/events") => response("200 OK", json, &tail_events(&self.events_path, 30)),
@@ -175,7 +179,9 @@ impl Hmi {
                     .unwrap_or_default();
                 let words: Vec<&str> = body.split_whitespace().collect();
                 match self.ctx.operate(&token, &words, who) {
-                    Ok(what) => response("200 OK", json, &serde_json::json!({"ok": what}).to_string()),
+                    Ok(what) => {
+                        response("200 OK", json, &serde_json::json!({"ok": what}).to_string())
+                    }
                     Err(e @ OpError::Unauthorized(_)) => response(
                         "401 Unauthorized",
                         json,
@@ -189,7 +195,11 @@ impl Hmi {
                 }
             }
             ("GET", _) => response("404 Not Found", "text/plain", "not found\n"),
-            _ => response("405 Method Not Allowed", "text/plain", "read-only; operator actions: POST /api/op\n"),
+            _ => response(
+                "405 Method Not Allowed",
+                "text/plain",
+                "read-only; operator actions: POST /api/op\n",
+            ),
         }
     }
 }

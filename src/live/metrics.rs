@@ -246,9 +246,15 @@ pub async fn serve(
                         && l.contains("application/openmetrics-text")
                 });
                 let (body, ctype) = if om {
-                    (render(&live, &stats), "application/openmetrics-text; version=1.0.0; charset=utf-8")
+                    (
+                        render(&live, &stats),
+                        "application/openmetrics-text; version=1.0.0; charset=utf-8",
+                    )
                 } else {
-                    (render_classic(&live, &stats), "text/plain; version=0.0.4; charset=utf-8")
+                    (
+                        render_classic(&live, &stats),
+                        "text/plain; version=0.0.4; charset=utf-8",
+                    )
                 };
                 format!(
                     "HTTP/1.1 200 OK\r\nContent-Type: {ctype}\r\nContent-Length: {}\r\nConnection: close\r\n\r\n{body}",
@@ -306,8 +312,14 @@ mod tests {
         );
         assert!(text.ends_with("# EOF\n"), "{text}");
         let classic = render_classic(&live, &stats);
-        assert!(classic.contains("# HELP antisurge_surges_total Surge counter"), "{classic}");
-        assert!(classic.contains("# TYPE antisurge_surges_total counter"), "{classic}");
+        assert!(
+            classic.contains("# HELP antisurge_surges_total Surge counter"),
+            "{classic}"
+        );
+        assert!(
+            classic.contains("# TYPE antisurge_surges_total counter"),
+            "{classic}"
+        );
         assert!(!classic.contains("# EOF"), "{classic}");
     }
 }

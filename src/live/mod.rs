@@ -7,12 +7,13 @@
 //! - [`metrics`]: the Prometheus/OpenMetrics endpoint.
 
 pub mod commands;
+pub mod dcs;
 pub mod hmi;
 pub mod metrics;
 pub mod persist;
-pub mod snapshot;
 pub mod report;
 pub mod server;
+pub mod snapshot;
 
 use std::path::{Path, PathBuf};
 use std::sync::{Arc, Mutex};
@@ -138,19 +139,31 @@ pub fn spawn(
     match server::bind_status_socket(&setup.socket) {
         Ok(l) => {
             tracing::info!(target: "status", "status socket {}", setup.socket.display());
-            tasks.spawn(server::serve_status_socket(ctx.clone(), l, shutdown.clone()));
+            tasks.spawn(server::serve_status_socket(
+                ctx.clone(),
+                l,
+                shutdown.clone(),
+            ));
         }
         Err(e) => tracing::error!(target: "status",
             "no status socket at {}: {e}; `antisurge status` will not answer", setup.socket.display()),
     }
-    match metrics::listen_addr(status.metrics_listen.as_deref(), status.metrics_allow_remote) {
+    match metrics::listen_addr(
+        status.metrics_listen.as_deref(),
+        status.metrics_allow_remote,
+    ) {
         Ok(Some(addr)) => match std::net::TcpListener::bind(addr)
             .and_then(|l| l.set_nonblocking(true).map(|()| l))
             .and_then(tokio::net::TcpListener::from_std)
         {
             Ok(l) => {
                 tracing::info!(target: "status", "metrics on http://{addr}/metrics");
-                tasks.spawn(metrics::serve(l, Arc::clone(&ctx.live), Arc::clone(&ctx.stats), shutdown.clone()));
+                tasks.spawn(metrics::serve(
+                    l,
+                    Arc::clone(&ctx.live),
+                    Arc::clone(&ctx.stats),
+                    shutdown.clone(),
+                ));
             }
             Err(e) => tracing::error!(target: "status", "no metrics endpoint on {addr}: {e}"),
         },
@@ -176,6 +189,37 @@ pub fn spawn(
         Ok(None) => {}
         Err(e) => tracing::error!(target: "status", "no web HMI: {e}"),
     }
-    tasks.spawn(server::keep_state(ctx.clone(), setup.state, setup.kept, shutdown));
+    if let Some(text) = status
+        .modbus_listen
+        .as_deref()
+        .filter(|t| !t.trim().is_empty())
+    {
+        match text
+            .trim()
+            .parse::<std::net::SocketAddr>()
+            .map_err(|e| e.to_string())
+            .and_then(|a| std::net::TcpListener::bind(a).map_err(|e| e.to_string()))
+            .and_then(|l| {
+                l.set_nonblocking(true)
+                    .map(|()| l)
+                    .map_err(|e| e.to_string())
+            })
+            .and_then(|l| tokio::net::TcpListener::from_std(l).map_err(|e| e.to_string()))
+        {
+            Ok(l) => {
+                tracing::info!(target: "status", "Modbus block for the DCS on {text} (unit 1, input registers 0-15)");
+                tasks.spawn(dcs::serve(l, Arc::clone(&ctx.live), shutdown.clone()));
+            }
+            Err(e) => {
+                tracing::error!(target: "status", "no Modbus block for the DCS on {text}: {e}")
+            }
+        }
+    }
+    tasks.spawn(server::keep_state(
+        ctx.clone(),
+        setup.state,
+        setup.kept,
+        shutdown,
+    ));
     ctx
 }

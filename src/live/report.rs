@@ -162,7 +162,11 @@ pub fn status_line(s: &LiveSnapshot) -> String {
 pub fn human(r: &StatusReport) -> String {
     let mut o = String::new();
     let mode = if r.mode == "manual" || (!r.auto_requested && r.mode == "auto") {
-        format!("{} (manual station, output {})", r.mode, pct(r.manual_output_pct))
+        format!(
+            "{} (manual station, output {})",
+            r.mode,
+            pct(r.manual_output_pct)
+        )
     } else {
         r.mode.clone()
     };
@@ -210,14 +214,19 @@ pub fn human(r: &StatusReport) -> String {
     if let Some(j) = r.cycle_stats.get("wake_jitter_us") {
         o += &format!(
             "cycle         {} cycles, jitter p99 {} µs, overruns {}\n",
-            r.cycle_stats.get("cycles").unwrap_or(&serde_json::Value::Null),
+            r.cycle_stats
+                .get("cycles")
+                .unwrap_or(&serde_json::Value::Null),
             j.get("p99_us").unwrap_or(&serde_json::Value::Null),
             r.cycle_stats
                 .get("overruns")
                 .unwrap_or(&serde_json::Value::Null)
         );
     }
-    o += &format!("uptime        {:.0} s (antisurge {})\n", r.uptime_s, r.version);
+    o += &format!(
+        "uptime        {:.0} s (antisurge {})\n",
+        r.uptime_s, r.version
+    );
     o
 }
 
@@ -249,10 +258,16 @@ mod tests {
         let line = status_line(&s);
         assert!(line.starts_with("fail_safe"), "{line}");
         assert!(line.contains("faults: p_discharge"), "{line}");
-        assert!(line.contains("p_discharge out of range: 2.100e7 Pa"), "{line}");
+        assert!(
+            line.contains("p_discharge out of range: 2.100e7 Pa"),
+            "{line}"
+        );
         let r = StatusReport::new(&s, 1.0, serde_json::Value::Null, serde_json::Value::Null);
         let text = human(&r);
-        assert!(text.contains("cause         p_discharge out of range"), "{text}");
+        assert!(
+            text.contains("cause         p_discharge out of range"),
+            "{text}"
+        );
         assert!(text.contains("surges        3"), "{text}");
         let back: StatusReport =
             serde_json::from_str(&serde_json::to_string(&r).expect("json")).expect("parse");

@@ -108,9 +108,8 @@ pub fn check_token(file: &Path, given: &str) -> Result<(), OpError> {
             file.display()
         )));
     }
-    let text = std::fs::read_to_string(file).map_err(|e| {
-        OpError::Unauthorized(format!("cannot read {}: {e}", file.display()))
-    })?;
+    let text = std::fs::read_to_string(file)
+        .map_err(|e| OpError::Unauthorized(format!("cannot read {}: {e}", file.display())))?;
     let want = text.lines().next().unwrap_or("").trim();
     if want.is_empty() {
         return Err(OpError::Unauthorized(format!(
@@ -143,18 +142,24 @@ fn describe_action(cmds: &[OperatorCommand], before: &LiveSnapshot) -> String {
         .map(|c| match c {
             OperatorCommand::SetAuto(true) => format!(
                 "mode {} → auto",
-                if before.auto_requested { "auto" } else { "manual" }
+                if before.auto_requested {
+                    "auto"
+                } else {
+                    "manual"
+                }
             ),
             OperatorCommand::SetAuto(false) => format!(
                 "mode {} → manual (output {})",
-                if before.auto_requested { "auto" } else { "manual" },
+                if before.auto_requested {
+                    "auto"
+                } else {
+                    "manual"
+                },
                 pct(before.valve_output)
             ),
-            OperatorCommand::ManualOutput(u) => format!(
-                "manual output {} → {}",
-                pct(before.manual_output),
-                pct(*u)
-            ),
+            OperatorCommand::ManualOutput(u) => {
+                format!("manual output {} → {}", pct(before.manual_output), pct(*u))
+            }
             OperatorCommand::ResetSurgeCounter => {
                 format!("surge counter {} → 0", before.surge_count)
             }
@@ -291,8 +296,7 @@ pub fn request(socket: &Path, request: &str) -> std::io::Result<serde_json::Valu
     s.write_all(format!("{request}\n").as_bytes())?;
     let mut line = String::new();
     std::io::BufReader::new(s).read_line(&mut line)?;
-    serde_json::from_str(&line)
-        .map_err(|e| std::io::Error::new(std::io::ErrorKind::InvalidData, e))
+    serde_json::from_str(&line).map_err(|e| std::io::Error::new(std::io::ErrorKind::InvalidData, e))
 }
 
 #[cfg(test)]
