@@ -11,7 +11,7 @@ mod common;
 
 use antisurge::daemon::config::{
     load_with_env, BusSection, ControlSection, DaemonConfig, InputSection, PlantSection,
-    SimulationSection, StartMode, StatusSection, Transport,
+    ReloadSection, SimulationSection, StartMode, StatusSection, Transport,
 };
 use antisurge::events::{EventLogConfig, FsyncPolicy};
 use antisurge::io::can::bus::CanBusConfig;
@@ -116,6 +116,10 @@ fn populated() -> DaemonConfig {
             hmi_listen: Some("127.0.0.1:9651".into()),
             modbus_listen: Some("0.0.0.0:502".into()),
             operator_token_file: Some(PathBuf::from("/etc/antisurge/operator.token")),
+        },
+        reload: ReloadSection {
+            watch_files: false,
+            settle_ms: 1000.0,
         },
     }
 }

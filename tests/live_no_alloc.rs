@@ -72,6 +72,7 @@ fn control_node_cycle_with_live_snapshot_allocates_nothing_while_polled() {
     let outputs = Arc::new(OutputBoard::default());
     let stats = Arc::new(CycleStats::default());
     let (_tx, updates) = rtrb::RingBuffer::new(4);
+    let (retired, _retired_rx) = rtrb::RingBuffer::new(4);
     let op = antisurge::control::measurements::OperatorInputs {
         speed_setpoint_rad_s: desc.file.drive.nominal_speed_rad_s,
         throttle_demand: f64::NAN,
@@ -86,6 +87,7 @@ fn control_node_cycle_with_live_snapshot_allocates_nothing_while_polled() {
             outputs: Arc::clone(&outputs),
             wake: Arc::new(Wakeup::new().expect("eventfd")),
             updates,
+            retired,
             events: None,
             health: Arc::new(Health::default()),
             stats: Arc::clone(&stats),
