@@ -697,7 +697,7 @@ impl ControlCore {
                         diagnostic = out.diagnostic;
                         law_event = out.event;
                         let floor = out.commands.get(ActuatorId::RecycleValve);
-                        if floor.is_finite() && !(u >= floor) {
+                        if floor.is_finite() && (u.is_nan() || u < floor) {
                             u = floor;
                         }
                     }
