@@ -42,9 +42,12 @@ fn populated() -> DaemonConfig {
         address: 300,
     };
     DaemonConfig {
-        plant: PlantSection {
+        plant: Some(PlantSection {
             file: PathBuf::from("plants/kvangardsnes2009_recycle.toml"),
-        },
+        }),
+        machine: Some(antisurge::daemon::config_machine::MachineSection {
+            file: PathBuf::from("machines/vendor_example.toml"),
+        }),
         control: ControlSection {
             law: "recycle-pi".into(),
             mode: StartMode::Auto,

@@ -6,7 +6,6 @@
 mod common;
 
 use antisurge::control::core::{ControlCore, CoreSettings};
-use antisurge::control::model::ControlModel;
 use antisurge::control::LawId;
 use antisurge::daemon::control_node::{ControlNode, ControlWiring, Health};
 use antisurge::live::snapshot::LiveBoard;
@@ -57,7 +56,7 @@ fn control_node_cycle_with_live_snapshot_allocates_nothing_while_polled() {
         ..PlantInputs::default()
     };
     let mut plant = SimPlant::new(&desc, &inputs).expect("plant");
-    let model = ControlModel::from_plant(&desc);
+    let model = antisurge::sim::control_model(&desc);
     let settings = CoreSettings::defaults_for(&model);
     let cfg = model.controller.clone();
     let core = ControlCore::new(

@@ -272,7 +272,10 @@ impl ControlNode {
                 (j, scl.flow_at_ratio(r), (1.0 + trip) * j, scl.shift)
             }
             None => {
-                let j = model.map.surge_line.flow_at_ratio(r);
+                let j = model
+                    .map
+                    .as_ref()
+                    .map_or(f64::NAN, |m| m.surge_line.flow_at_ratio(r));
                 (j, f64::NAN, f64::NAN, 0.0)
             }
         };

@@ -48,7 +48,17 @@ pub struct MapLines {
 impl MapLines {
     /// Lines of a machine under a controller configuration (the control line of recycle-pi).
     pub fn new(model: &ControlModel, cfg: &ControllerConfig, has_control_line: bool) -> MapLines {
-        let map = &model.map;
+        let Some(map) = &model.map else {
+            // a machine described without a map: the HMI shows the live values only
+            return MapLines {
+                flow_label: String::new(),
+                speed_lines: Vec::new(),
+                ratios: Vec::new(),
+                surge: Vec::new(),
+                control: Vec::new(),
+                trip_margin: f64::NAN,
+            };
+        };
         let (w_lo, w_hi) = map.surge_line.omega_range();
         let mut speed_lines = Vec::new();
         for k in 0..5 {
