@@ -17,6 +17,7 @@ pub mod daemon;
 pub mod events;
 pub mod faults;
 pub mod io;
+pub mod live;
 pub mod machine;
 pub mod physics;
 pub mod plant;

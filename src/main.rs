@@ -28,6 +28,12 @@ enum Command {
     CheckConfig(cli::daemon::CheckArgs),
     /// Print the event log readably.
     Events(cli::daemon::EventsArgs),
+    /// Show the running controller's live status (mode, cause, deviation, valve, surges).
+    Status(cli::status::StatusArgs),
+    /// Operator action on the running controller (needs the operator token).
+    Operate(cli::status::OperateArgs),
+    /// Draw the map and time-series pictures of a trace.csv from `run`, `plant` or HIL.
+    Plot(cli::plot::PlotArgs),
 }
 
 fn main() -> std::process::ExitCode {
@@ -43,6 +49,9 @@ fn main() -> std::process::ExitCode {
             Err(e) => Err(e),
         },
         Some(Command::Events(args)) => cli::daemon::events(&args),
+        Some(Command::Status(args)) => cli::status::status(&args),
+        Some(Command::Operate(args)) => cli::status::operate(&args),
+        Some(Command::Plot(args)) => cli::plot::run(&args),
         None => {
             // a bare `antisurge` runs the default simulation
             let args = cli::sim::SimArgs {

@@ -116,6 +116,13 @@ fn populated() -> DaemonConfig {
         status: StatusSection {
             log_interval_s: 10.0,
             stats_file: Some(PathBuf::from("cycle_stats.json")),
+            socket: Some(PathBuf::from("status.sock")),
+            state_dir: Some(PathBuf::from("/var/lib/antisurge")),
+            metrics_listen: Some("127.0.0.1:9650".into()),
+            metrics_allow_remote: false,
+            hmi_listen: Some("127.0.0.1:9651".into()),
+            modbus_listen: Some("0.0.0.0:502".into()),
+            operator_token_file: Some(PathBuf::from("/etc/antisurge/operator.token")),
         },
         reload: ReloadSection {
             watch_files: false,

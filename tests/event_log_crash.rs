@@ -78,6 +78,7 @@ fn crash_child() {
         }) && rt.try_push(ModeChanged {
             from: Mode::Auto,
             to: Mode::Manual,
+            cause: None,
         }) && rt.try_push(FallbackEntered {
             input: SensorId::OrificeDp,
             reason: FallbackReason::Stale,

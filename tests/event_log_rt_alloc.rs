@@ -90,6 +90,7 @@ fn all_rt_events(i: u64) -> [RtEvent; 9] {
         ModeChanged {
             from: Mode::Auto,
             to: Mode::FailSafe,
+            cause: None,
         }
         .into(),
         LawChanged {
@@ -117,6 +118,7 @@ fn all_rt_events(i: u64) -> [RtEvent; 9] {
         .into(),
         RecycleTrip {
             reason: TripReason::SurgeDetected,
+            cause: None,
         }
         .into(),
     ]

@@ -5,7 +5,6 @@ mod common;
 
 use antisurge::control::law::{Law, LawId, LawInputs, LoopHistory};
 use antisurge::control::measurements::{Measurements, OperatorInputs};
-use antisurge::control::model::ControlModel;
 use antisurge::control::recycle_pi::RecyclePiConfig;
 use antisurge::control::surge_control_line::{ControlLineForm, SurgeControlLine};
 use antisurge::plant::file::PlantDescription;
@@ -23,7 +22,10 @@ fn run(plant: &str, right_of_line: f64, noise: f64) -> (f64, f64) {
         ..RecyclePiConfig::default()
     };
     let mut law = Law::new(LawId::RecyclePi, &cfg, &model).unwrap();
-    let scl = SurgeControlLine::new(model.map.surge_line, cfg.recycle_pi.control_line);
+    let scl = SurgeControlLine::new(
+        model.map.as_ref().expect("map").surge_line,
+        cfg.recycle_pi.control_line,
+    );
     let op = OperatorInputs {
         speed_setpoint_rad_s: model.drive.nominal_speed_rad_s,
         throttle_demand: f64::NAN,

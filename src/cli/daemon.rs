@@ -170,14 +170,27 @@ pub struct EventsArgs {
     pub utc: bool,
 }
 
+/// Where the installed service writes its event log (systemd `LogsDirectory=antisurge`).
+const INSTALLED_LOG_DIR: &str = "/var/log/antisurge";
+
 /// Print the event log.
 pub fn events(args: &EventsArgs) -> Result<()> {
     let path = match &args.file {
         Some(p) => p.clone(),
         None => {
             let cfg = args.config.clone().unwrap_or_else(default_config);
+            // an operator's shell has no $LOGS_DIRECTORY: the installed service's log is
+            // /var/log/antisurge/<name>, not ./out/<name>
+            let installed = |p: PathBuf| match p.file_name() {
+                Some(name) if !p.exists() && Path::new(INSTALLED_LOG_DIR).join(name).exists() => {
+                    Path::new(INSTALLED_LOG_DIR).join(name)
+                }
+                _ => p,
+            };
+            let fallback = Path::new(INSTALLED_LOG_DIR).join("events.jsonl");
             match config::load(&cfg) {
-                Ok(l) => l.config.event_log.path.clone(),
+                Ok(l) => installed(l.config.event_log.path.clone()),
+                Err(_) if args.config.is_none() && fallback.exists() => fallback,
                 Err(p) => {
                     return Err(anyhow!(
                         "cannot find the event log from {} (use --file):\n{}",

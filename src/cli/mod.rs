@@ -4,5 +4,7 @@ pub mod bench_matrix;
 pub mod daemon;
 pub mod locate;
 pub mod pictures;
+pub mod plot;
 pub mod sim;
+pub mod status;
 pub mod table;

@@ -9,6 +9,7 @@ use super::model::ControlModel;
 use super::observer::{LowPass, MassFlowObserver};
 use super::speed_loop::SpeedLoop;
 use super::supervisor::{InputLimits, Supervisor, Validity};
+use super::surge_control_line::SurgeControlLine;
 use crate::signals::{ActuatorCommands, ActuatorId, SensorId};
 use crate::surge::{Detection, SurgeDetector};
 
@@ -431,6 +432,51 @@ impl ControlCore {
         self.auto_requested = auto;
     }
 
+    /// Whether automatic mode is requested (false: the manual station is in charge).
+    pub fn auto_requested(&self) -> bool {
+        self.auto_requested
+    }
+
+    /// The manual station's valve output, fraction (NaN until manual was first entered).
+    pub fn manual_output(&self) -> f64 {
+        self.manual_recycle
+    }
+
+    /// Set the manual station's valve output, fraction 0..1 (takes effect in manual; the
+    /// law's protection still opens further when the operating point needs it).
+    pub fn set_manual_output(&mut self, opening: f64) {
+        if opening.is_finite() {
+            self.manual_recycle = opening.clamp(0.0, 1.0);
+        }
+    }
+
+    /// The active law's surge control line (with its safety-on shift) and trip-line margin
+    /// (fraction of surge-line flow), for the operator's map; `None` for laws without one.
+    pub fn control_line(&self) -> Option<(SurgeControlLine, f64)> {
+        match &self.law {
+            Law::RecyclePi(l) => Some((
+                *l.control_line(),
+                0.01 * self.config.recycle_pi.trip_margin_pct,
+            )),
+            _ => None,
+        }
+    }
+
+    /// Safety-on steps and recycle trips of the active law so far.
+    pub fn safety_on_and_trips(&self) -> (u32, u32) {
+        match &self.law {
+            Law::RecyclePi(l) => (l.safety_on_count(), l.trip_count()),
+            _ => (0, 0),
+        }
+    }
+
+    /// Restore the safety-on steps kept across a restart (persistent state).
+    pub fn restore_safety_on(&mut self, count: u32) {
+        if let Law::RecyclePi(l) = &mut self.law {
+            l.restore_safety_on(count);
+        }
+    }
+
     /// Build measurements from validated inputs.
     fn measurements(&mut self, t_s: f64, dt: f64, raw: &RawSensors, v: &Validity) -> Measurements {
         let get = |id: SensorId| {
@@ -720,7 +766,23 @@ impl ControlCore {
                     {
                         self.manual_recycle = op.recycle_manual;
                     }
-                    cmd.set(ActuatorId::RecycleValve, self.manual_recycle);
+                    // protection stays active in manual: the law (control line, recycle trip)
+                    // runs on and its valve opening is a floor under the manual output
+                    let mut u = self.manual_recycle;
+                    if meas.m_kg_s.is_finite() && self.law.id() != LawId::None {
+                        if !self.law_started {
+                            self.law.start(&inputs, &current);
+                            self.law_started = true;
+                        }
+                        let out = self.law.update(&inputs, dt);
+                        diagnostic = out.diagnostic;
+                        law_event = out.event;
+                        let floor = out.commands.get(ActuatorId::RecycleValve);
+                        if floor.is_finite() && (u.is_nan() || u < floor) {
+                            u = floor;
+                        }
+                    }
+                    cmd.set(ActuatorId::RecycleValve, u);
                 }
             }
             Mode::Init | Mode::FailSafe => {}

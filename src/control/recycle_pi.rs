@@ -470,6 +470,14 @@ impl RecyclePi {
         self.shifts
     }
 
+    /// Restore `count` safety-on steps kept across a restart (the operator's surge history
+    /// outlives the process); the shift is capped at `safety_on_max_pct`.
+    pub fn restore_safety_on(&mut self, count: u32) {
+        self.shifts = count;
+        self.scl.shift = (0.01 * self.cfg.safety_on_step_pct * f64::from(count))
+            .min(0.01 * self.cfg.safety_on_max_pct);
+    }
+
     /// Recycle trips so far.
     pub fn trip_count(&self) -> u32 {
         self.trips

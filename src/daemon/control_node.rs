@@ -11,12 +11,13 @@
 //! 5. queue what changed (mode, fallback, surge, recycle trip, overruns) on the event ring and
 //!    update the [`Health`] the watchdog task reads.
 
-use crate::control::core::{ControlCore, CoreSettings, Mode, Reconfiguration};
+use crate::control::core::{ControlCore, CoreSettings, CycleOutput, Mode, Reconfiguration};
 use crate::control::law::{LawEvent, LawId};
 use crate::control::measurements::{OperatorInputs, RawSensors};
+use crate::events::cause::{Cause, CauseKind};
 use crate::events::event::{
     FallbackEntered, FallbackLeft, FallbackReason, LawChanged, Mode as EvMode, ModeChanged,
-    RecycleTrip, Replacement, SafetyOnShift, SurgeDetected, TripReason,
+    RecycleTrip, Replacement, SafetyOnShift, SurgeCounter, SurgeDetected, TripReason,
 };
 use crate::events::{OverrunReporter, RtSender};
 use crate::runtime::handoff::{OutputBoard, Outputs, SensorBoard, Wakeup};
@@ -92,6 +93,12 @@ pub struct ControlNode {
     prev_law: LawId,
     fallback_since_ns: Option<u64>,
     surges: u64,
+    live: Option<Arc<crate::live::snapshot::LiveBoard>>,
+    commands: Option<rtrb::Consumer<crate::live::commands::OperatorCommand>>,
+    /// Cause of the last mode change (kept current while in fail-safe).
+    cause: Option<Cause>,
+    /// Sensors that ever delivered a value (a fault lamp is lit for those and the needed ones).
+    seen: u32,
 }
 
 fn ev_mode(m: Mode) -> EvMode {
@@ -154,7 +161,159 @@ impl ControlNode {
             prev_law,
             fallback_since_ns: None,
             surges: 0,
+            live: None,
+            commands: None,
+            cause: None,
+            seen: 0,
         }
+    }
+
+    /// Publish the live snapshot on `live` every cycle and take operator actions from
+    /// `commands` (status socket, HMI).
+    pub fn attach_live(
+        &mut self,
+        live: Arc<crate::live::snapshot::LiveBoard>,
+        commands: rtrb::Consumer<crate::live::commands::OperatorCommand>,
+    ) {
+        self.live = Some(live);
+        self.commands = Some(commands);
+    }
+
+    /// Restore the state kept across restarts (before the first cycle): surge counter,
+    /// safety-on steps, and manual mode if the operator had chosen it (the manual station
+    /// then starts from the valve's measured position).
+    pub fn restore(&mut self, s: &crate::live::persist::PersistentState) {
+        self.surges = s.surge_count;
+        self.health.surges.store(s.surge_count, Ordering::Relaxed);
+        self.core.restore_safety_on(s.safety_on_count);
+        if !s.auto {
+            self.core.request_auto(false);
+        }
+    }
+
+    fn apply_operator_commands(&mut self) {
+        use crate::live::commands::OperatorCommand as C;
+        let Some(rx) = &mut self.commands else {
+            return;
+        };
+        while let Ok(c) = rx.pop() {
+            match c {
+                C::SetAuto(a) => self.core.request_auto(a),
+                C::ManualOutput(u) => self.core.set_manual_output(u),
+                C::ResetSurgeCounter => {
+                    let previous = self.surges;
+                    self.surges = 0;
+                    self.health.surges.store(0, Ordering::Relaxed);
+                    if let Some(tx) = &mut self.events {
+                        tx.try_push(SurgeCounter {
+                            previous_count: previous,
+                            count: 0,
+                        });
+                    }
+                }
+                C::Acknowledge => {
+                    if matches!(self.prev_mode, Mode::Auto | Mode::Manual) {
+                        self.cause = None;
+                    }
+                }
+            }
+        }
+    }
+
+    /// Why the mode is what it is after this cycle.
+    fn cause_now(&self, out: &CycleOutput, raw: &RawSensors, from: Mode) -> Cause {
+        match out.mode {
+            Mode::FailSafe | Mode::Init => {
+                let sup = &self.core.settings().supervisor;
+                let v = &out.validity;
+                let needs_flow = self.core.law() != LawId::None && self.core.auto_requested();
+                Cause::of_unusable_inputs(v, &raw.values.values, &raw.age_s, sup, needs_flow)
+                    .or_else(|| {
+                        Cause::of_unusable_inputs(v, &raw.values.values, &raw.age_s, sup, true)
+                    })
+                    .unwrap_or(Cause::of(CauseKind::InputFault))
+            }
+            Mode::Auto | Mode::Manual if matches!(from, Mode::Init | Mode::FailSafe) => {
+                Cause::of(CauseKind::InputsHealthy)
+            }
+            Mode::Auto | Mode::Manual => Cause::of(CauseKind::Operator),
+        }
+    }
+
+    fn publish_live(&mut self, out: &CycleOutput, raw: &RawSensors, cycle: u64, t_ns: u64) {
+        use crate::live::snapshot::{FlowSourceNow, LiveSnapshot};
+        if self.live.is_none() {
+            return;
+        }
+        for id in SensorId::ALL {
+            if raw.values.get(id).is_finite() {
+                self.seen |= 1 << id.index();
+            }
+        }
+        let needed = [
+            SensorId::PSuction,
+            SensorId::PDischarge,
+            SensorId::ShaftSpeed,
+            SensorId::OrificeDp,
+        ]
+        .iter()
+        .fold(self.seen, |b, id| b | 1 << id.index());
+        let Some(live) = &self.live else {
+            return;
+        };
+        let m = &out.measurements;
+        let (q, r) = (m.flow_map, m.pressure_ratio);
+        let model = self.core.model();
+        let (surge_line, control_line, trip_line, shift) = match self.core.control_line() {
+            Some((scl, trip)) => {
+                let j = scl.surge_line().flow_at_ratio(r);
+                (j, scl.flow_at_ratio(r), (1.0 + trip) * j, scl.shift)
+            }
+            None => {
+                let j = model
+                    .map
+                    .as_ref()
+                    .map_or(f64::NAN, |m| m.surge_line.flow_at_ratio(r));
+                (j, f64::NAN, f64::NAN, 0.0)
+            }
+        };
+        let (safety_on, trips) = self.core.safety_on_and_trips();
+        let flow_source = if !m.m_kg_s.is_finite() {
+            FlowSourceNow::None
+        } else if m.flow_fallback {
+            FlowSourceNow::ObserverFallback
+        } else if self.core.config().flow_source == crate::control::config::FlowSource::Observer {
+            FlowSourceNow::Observer
+        } else {
+            FlowSourceNow::Orifice
+        };
+        live.publish(&LiveSnapshot {
+            cycle,
+            t_ns,
+            mode: out.mode,
+            law: out.law,
+            flow_source,
+            fault_bits: fault_bits(&out.validity) & needed,
+            cause: self.cause,
+            flow_map: q,
+            pressure_ratio: r,
+            m_kg_s: m.m_kg_s,
+            omega_rad_s: m.omega_rad_s,
+            surge_line_flow: surge_line,
+            control_line_flow: control_line,
+            trip_line_flow: trip_line,
+            // the one definition of the deviation: % of control-line flow, positive = safe
+            deviation_pct: 100.0 * (q - control_line) / control_line,
+            surge_margin_pct: 100.0 * model.surge_margin(q, r),
+            safety_on_shift_pct: 100.0 * shift,
+            safety_on_count: safety_on,
+            surge_count: self.surges,
+            trip_count: u64::from(trips),
+            valve_output: out.commands.get(crate::signals::ActuatorId::RecycleValve),
+            valve_position: m.recycle_position,
+            manual_output: self.core.manual_output(),
+            auto_requested: self.core.auto_requested(),
+        });
     }
 
     /// The core (tests, reports).
@@ -191,6 +350,7 @@ impl ControlNode {
     /// One cycle at `tick`.
     pub fn cycle(&mut self, tick: Tick) {
         self.apply_updates();
+        self.apply_operator_commands();
         let now = tick.wake_ns;
         let (values, age_s) = self.sensors.snapshot(now);
         let raw = RawSensors { values, age_s };
@@ -226,11 +386,17 @@ impl ControlNode {
             self.health.healthy_cycles.fetch_add(1, Ordering::Relaxed);
         }
         if out.mode != self.prev_mode {
+            let cause = self.cause_now(&out, &raw, self.prev_mode);
+            self.cause = Some(cause);
             self.push(ModeChanged {
                 from: ev_mode(self.prev_mode),
                 to: ev_mode(out.mode),
+                cause: Some(cause),
             });
             self.prev_mode = out.mode;
+        } else if out.mode == Mode::FailSafe {
+            // keep the shown cause current (another input may fail, the value moves)
+            self.cause = Some(self.cause_now(&out, &raw, out.mode));
         }
         if out.law != self.prev_law {
             self.push(LawChanged {
@@ -281,9 +447,18 @@ impl ControlNode {
             });
         }
         match out.law_event {
-            Some(LawEvent::RecycleTrip { .. }) => self.push(RecycleTrip {
-                reason: TripReason::FastApproach,
-            }),
+            Some(LawEvent::RecycleTrip { .. }) => {
+                let m = &out.measurements;
+                let margin = self.core.model().surge_margin(m.flow_map, m.pressure_ratio);
+                let trip = self.core.control_line().map(|(_, t)| 100.0 * t);
+                let mut cause = Cause::of(CauseKind::SurgeMargin);
+                cause.value = Some(100.0 * margin).filter(|v| v.is_finite());
+                cause.min = trip;
+                self.push(RecycleTrip {
+                    reason: TripReason::FastApproach,
+                    cause: Some(cause),
+                })
+            }
             Some(LawEvent::SafetyOnShift {
                 total_margin,
                 count,
@@ -294,6 +469,7 @@ impl ControlNode {
             }),
             None => {}
         }
+        self.publish_live(&out, &raw, tick.cycle, now);
         let lateness = tick.wake_ns.saturating_sub(tick.deadline_ns);
         let instant = Instant::now();
         let ev = if lateness > self.period_ns / 2 {
@@ -321,6 +497,7 @@ impl ControlNode {
         self.push(ModeChanged {
             from: ev_mode(self.prev_mode),
             to: EvMode::Shutdown,
+            cause: Some(Cause::of(CauseKind::Shutdown)),
         });
         cmd
     }

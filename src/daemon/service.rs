@@ -449,6 +449,13 @@ async fn serve(loaded: Loaded, opts: RunOptions) -> Result<()> {
         },
         cfg.cycle.period_ns(),
     );
+    let mut node = node;
+    let mut live = crate::live::prepare(&cfg.status);
+    if let Some(rx) = live.rx.take() {
+        node.attach_live(Arc::clone(&live.board), rx);
+    }
+    node.restore(&live.kept);
+    let live_board = Arc::clone(&live.board);
     let control = spawn_control(node, cfg.cycle, Arc::clone(&stop), Arc::clone(&stats))?;
     // systemd READY/WATCHDOG from the control loop's health only, on their own thread
     let wd_stop = Arc::new(AtomicBool::new(false));
@@ -486,6 +493,24 @@ async fn serve(loaded: Loaded, opts: RunOptions) -> Result<()> {
         }
     }
 
+    let links = link_counters.clone();
+    let (current_model, current_controller, current_law) =
+        (loaded.model.clone(), loaded.controller.clone(), loaded.law);
+    let _live = crate::live::spawn(
+        &cfg.status,
+        crate::live::hmi::MapLines::new(
+            &current_model,
+            &current_controller,
+            current_law == crate::control::LawId::RecyclePi,
+        ),
+        cfg.event_log.path.clone(),
+        live,
+        Arc::clone(&stats),
+        Arc::new(move || links.to_json()),
+        events.clone(),
+        shutdown_rx.clone(),
+        &mut tasks,
+    );
     // signals, reload, watchdog, status
     let mut sigterm = tokio::signal::unix::signal(tokio::signal::unix::SignalKind::terminate())?;
     let mut sigint = tokio::signal::unix::signal(tokio::signal::unix::SignalKind::interrupt())?;
@@ -568,8 +593,9 @@ async fn serve(loaded: Loaded, opts: RunOptions) -> Result<()> {
                 if every > 0.0 && last_status.elapsed().as_secs_f64() >= every {
                     last_status = std::time::Instant::now();
                     let r = stats.report();
-                    tracing::info!(target: "status", "mode {} · {} cycles · jitter p99 {:.0} µs · compute p99 {:.1} µs · overruns {} · surges {}{}",
-                        health.mode().name(), r.cycles, r.wake_jitter.p99_us, r.compute.p99_us, r.overruns, health.surges.load(Ordering::Relaxed),
+                    let live = live_board.latest().map(|s| crate::live::report::status_line(&s)).unwrap_or_else(|| health.mode().name().into());
+                    tracing::info!(target: "status", "{live} · {} cycles · jitter p99 {:.0} µs · compute p99 {:.1} µs · overruns {}{}",
+                        r.cycles, r.wake_jitter.p99_us, r.compute.p99_us, r.overruns,
                         if log.writable() { "" } else { " · event log DEGRADED (not writable, retrying)" });
                 }
                 if let Some(p) = &plant {

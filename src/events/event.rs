@@ -10,6 +10,7 @@ use std::path::Path;
 
 use serde::{Deserialize, Deserializer, Serialize};
 
+pub use super::cause::{Cause, CauseKind};
 use super::timestamp::Timestamp;
 use crate::signals::SensorId;
 
@@ -149,12 +150,15 @@ pub struct SafetyOnShift {
 }
 
 /// Operating mode changed.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
 pub struct ModeChanged {
     /// Mode before.
     pub from: Mode,
     /// Mode after.
     pub to: Mode,
+    /// Why (which input, which fault, the value; or the operator).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub cause: Option<Cause>,
 }
 
 /// Control law changed.
@@ -201,10 +205,13 @@ pub struct DeadlineOverrun {
 }
 
 /// The recycle valve was tripped fully open.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
 pub struct RecycleTrip {
     /// Why.
     pub reason: TripReason,
+    /// Detail: the surge margin and trip line, %.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub cause: Option<Cause>,
 }
 
 /// One changed configuration key. Values are rendered as TOML/text; `None` means absent.
@@ -546,6 +553,7 @@ pub(crate) mod tests {
                 Event::ModeChanged(ModeChanged {
                     from: Mode::Auto,
                     to: Mode::FailSafe,
+                    cause: None,
                 }),
                 r#"{"ts":"2024-05-01T12:34:56.123456Z","seq":42,"event":"mode_changed","from":"auto","to":"fail_safe"}"#,
             ),
@@ -623,6 +631,7 @@ pub(crate) mod tests {
             (
                 Event::RecycleTrip(RecycleTrip {
                     reason: TripReason::SurgeDetected,
+                    cause: None,
                 }),
                 r#"{"ts":"2024-05-01T12:34:56.123456Z","seq":42,"event":"recycle_trip","reason":"surge_detected"}"#,
             ),

@@ -12,9 +12,11 @@
 //! - [`config`]: [`EventLogConfig`], the `[event_log]` table.
 //! - [`timestamp`]: [`Timestamp`], hand-written RFC 3339 UTC formatting and parsing.
 
+pub mod cause;
 pub mod config;
 pub mod error;
 pub mod event;
+pub mod journal;
 pub mod print;
 pub mod reader;
 pub mod rt_channel;

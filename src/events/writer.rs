@@ -500,6 +500,7 @@ impl Writer {
     }
 
     fn log(&mut self, ts: Timestamp, event: &Event) {
+        super::journal::record(event);
         if self.lost_to_errors > 0 && self.ensure_open() {
             let notice = Event::EventsDropped {
                 count: self.lost_to_errors,
@@ -939,6 +940,7 @@ mod tests {
             if rt.try_push(ModeChanged {
                 from: Mode::Auto,
                 to: Mode::Manual,
+                cause: None,
             }) {
                 accepted += 1;
             }
@@ -981,7 +983,8 @@ mod tests {
         assert!(rt.try_push_at(
             t(2),
             RtEvent::RecycleTrip(crate::events::RecycleTrip {
-                reason: TripReason::External
+                reason: TripReason::External,
+                cause: None
             })
         ));
         let s = log.sender();

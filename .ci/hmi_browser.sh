@@ -1,0 +1,33 @@
+#!/usr/bin/env bash
+# Web HMI in real headless Chromium (Debian package) with playwright-core from npm.
+# Needs: target/release/antisurge; apt-get install chromium; node + npm.
+set -euo pipefail
+cd "$(dirname "$0")/.."
+root=$PWD
+bin=$root/target/release/antisurge
+work=$(mktemp -d)
+trap 'kill $(jobs -p) 2>/dev/null || true; rm -rf "$work"' EXIT
+mkdir -p out
+( cd .ci/hmi && [ -d node_modules/playwright-core ] || npm install --silent --no-audit --no-fund playwright-core@1 )
+port=$(python3 -c 'import socket; s=socket.socket(); s.bind(("127.0.0.1",0)); print(s.getsockname()[1])')
+cd "$work"
+# the throttle closure from an operating point right of the control line (recycle valve
+# 60 % open at start: the law closes it, rate-limited, while the throttle closes)
+cat >closure.toml <<TOML
+name = "hmi-throttle-closure"
+description = "Recycle valve 60 % at start; throttle 60 % -> 20 % over 2 s at t = 4 s"
+duration_s = 30.0
+[initial]
+throttle = 0.6
+recycle_valve = 0.6
+[[event]]
+at_s = 4.0
+ramp = { signal = "throttle", to = 0.2, over_s = 2.0 }
+TOML
+ANTISURGE_STATUS__HMI_LISTEN="127.0.0.1:$port" ANTISURGE_STATUS__METRICS_LISTEN="" \
+ANTISURGE_STATUS__SOCKET="$work/status.sock" ANTISURGE_STATUS__STATE_DIR="$work/state" \
+ANTISURGE_EVENT_LOG__PATH="$work/events.jsonl" ANTISURGE_SIMULATION__SCENARIO="$work/closure.toml" \
+    "$bin" run --config "$root/config/antisurge.toml" >daemon.log 2>&1 &
+for _ in $(seq 50); do curl -sf "http://127.0.0.1:$port/api/status" >/dev/null && break; sleep 0.1; done
+node "$root/.ci/hmi/browser_test.mjs" "http://127.0.0.1:$port/" "$bin" "$work/status.sock" "$root/out/hmi.png" \
+    || { tail -20 daemon.log; exit 1; }

@@ -1,0 +1,325 @@
+//! The Prometheus/OpenMetrics endpoint (`GET /metrics`), encoded by the `prometheus-client`
+//! crate from the live snapshot at scrape time. Loopback by default (`status.metrics_listen`,
+//! default `127.0.0.1:9650`); a non-loopback address needs `status.metrics_allow_remote`.
+//! Read-only: the endpoint accepts no writes.
+
+use std::net::SocketAddr;
+use std::sync::Arc;
+use std::time::Duration;
+
+use prometheus_client::collector::Collector;
+use prometheus_client::encoding::{DescriptorEncoder, EncodeMetric};
+use prometheus_client::metrics::counter::ConstCounter;
+use prometheus_client::metrics::gauge::ConstGauge;
+use prometheus_client::registry::Registry;
+use tokio::io::{AsyncReadExt, AsyncWriteExt};
+
+use super::snapshot::LiveBoard;
+use crate::control::core::Mode;
+use crate::runtime::rt_loop::CycleStats;
+use crate::signals::SensorId;
+
+/// Default endpoint.
+pub const DEFAULT_LISTEN: &str = "127.0.0.1:9650";
+
+#[derive(Debug)]
+struct LiveCollector {
+    live: Arc<LiveBoard>,
+    stats: Arc<CycleStats>,
+}
+
+fn gauge(e: &mut DescriptorEncoder, name: &str, help: &str, v: f64) -> std::fmt::Result {
+    let g = ConstGauge::new(v);
+    let m = e.encode_descriptor(name, help, None, g.metric_type())?;
+    g.encode(m)
+}
+
+fn counter(e: &mut DescriptorEncoder, name: &str, help: &str, v: u64) -> std::fmt::Result {
+    let c = ConstCounter::new(v);
+    let m = e.encode_descriptor(name, help, None, c.metric_type())?;
+    c.encode(m)
+}
+
+impl Collector for LiveCollector {
+    fn encode(&self, mut e: DescriptorEncoder) -> Result<(), std::fmt::Error> {
+        let r = self.stats.report();
+        counter(&mut e, "antisurge_cycles", "Control cycles run", r.cycles)?;
+        counter(
+            &mut e,
+            "antisurge_overruns",
+            "Control cycles that ended after the next deadline",
+            r.overruns,
+        )?;
+        gauge(
+            &mut e,
+            "antisurge_cycle_jitter_p99_seconds",
+            "99th percentile of the control loop's wake-up lateness",
+            r.wake_jitter.p99_us * 1e-6,
+        )?;
+        gauge(
+            &mut e,
+            "antisurge_cycle_compute_p99_seconds",
+            "99th percentile of the control cycle's compute time",
+            r.compute.p99_us * 1e-6,
+        )?;
+        let Some(s) = self.live.latest() else {
+            return Ok(());
+        };
+        gauge(
+            &mut e,
+            "antisurge_deviation_ratio",
+            "Deviation of the operating point from the surge control line, fraction of the control-line flow (positive = safe)",
+            0.01 * s.deviation_pct,
+        )?;
+        gauge(
+            &mut e,
+            "antisurge_surge_margin_ratio",
+            "Surge margin (q - surge-line flow)/surge-line flow",
+            0.01 * s.surge_margin_pct,
+        )?;
+        gauge(
+            &mut e,
+            "antisurge_flow_map",
+            "Operating point: flow in the compressor map's flow coordinate",
+            s.flow_map,
+        )?;
+        gauge(
+            &mut e,
+            "antisurge_pressure_ratio",
+            "Operating point: pressure ratio p_discharge/p_suction",
+            s.pressure_ratio,
+        )?;
+        gauge(
+            &mut e,
+            "antisurge_valve_output_ratio",
+            "Recycle valve opening commanded, fraction",
+            s.valve_output,
+        )?;
+        gauge(
+            &mut e,
+            "antisurge_valve_position_ratio",
+            "Recycle valve opening measured, fraction",
+            s.valve_position,
+        )?;
+        counter(
+            &mut e,
+            "antisurge_surges",
+            "Surge counter (kept across restarts; reset by the operator)",
+            s.surge_count,
+        )?;
+        gauge(
+            &mut e,
+            "antisurge_safety_on_steps",
+            "Safety-on steps of the control line in force",
+            f64::from(s.safety_on_count),
+        )?;
+        {
+            let g = ConstGauge::new(1i64);
+            let mut fam = e.encode_descriptor(
+                "antisurge_mode",
+                "Controller mode (1 for the current one)",
+                None,
+                g.metric_type(),
+            )?;
+            for m in [Mode::Init, Mode::Manual, Mode::Auto, Mode::FailSafe] {
+                let labels = [("mode", m.name()), ("law", s.law.name())];
+                let g = ConstGauge::new(i64::from(m == s.mode));
+                g.encode(fam.encode_family(&labels)?)?;
+            }
+        }
+        {
+            let g = ConstGauge::new(0i64);
+            let mut fam = e.encode_descriptor(
+                "antisurge_input_fault",
+                "Fault lamp per input (1: not usable)",
+                None,
+                g.metric_type(),
+            )?;
+            for id in SensorId::ALL {
+                let on = s.fault_bits & (1 << id.index()) != 0;
+                let labels = [("input", id.name())];
+                ConstGauge::new(i64::from(on)).encode(fam.encode_family(&labels)?)?;
+            }
+        }
+        Ok(())
+    }
+}
+
+/// Where the endpoint binds: `listen` (None: the default; empty: off). A non-loopback
+/// address is refused unless `allow_remote`.
+pub fn listen_addr(listen: Option<&str>, allow_remote: bool) -> Result<Option<SocketAddr>, String> {
+    let text = listen.unwrap_or(DEFAULT_LISTEN).trim();
+    if text.is_empty() {
+        return Ok(None);
+    }
+    let addr: SocketAddr = text
+        .parse()
+        .map_err(|e| format!("status.metrics_listen `{text}`: {e} (expected host:port)"))?;
+    if !addr.ip().is_loopback() && !allow_remote {
+        return Err(format!(
+            "status.metrics_listen `{text}` is not a loopback address; set status.metrics_allow_remote = true to serve it there"
+        ));
+    }
+    Ok(Some(addr))
+}
+
+/// The exposition text now.
+pub fn render(live: &Arc<LiveBoard>, stats: &Arc<CycleStats>) -> String {
+    let mut reg = Registry::default();
+    reg.register_collector(Box::new(LiveCollector {
+        live: Arc::clone(live),
+        stats: Arc::clone(stats),
+    }));
+    let mut out = String::new();
+    let _ = prometheus_client::encoding::text::encode(&mut out, &reg);
+    out
+}
+
+/// The same exposition in the classic Prometheus text format 0.0.4 (for clients that do not
+/// ask for OpenMetrics, and `promtool check metrics`): counter families are named with their
+/// `_total` suffix, and the `# EOF` marker is left out.
+pub fn render_classic(live: &Arc<LiveBoard>, stats: &Arc<CycleStats>) -> String {
+    let om = render(live, stats);
+    let counters: Vec<&str> = om
+        .lines()
+        .filter_map(|l| l.strip_prefix("# TYPE "))
+        .filter_map(|l| l.strip_suffix(" counter"))
+        .collect();
+    let mut out = String::with_capacity(om.len());
+    for line in om.lines() {
+        if line == "# EOF" || line.starts_with("# UNIT ") {
+            continue;
+        }
+        let mut rewritten = None;
+        for c in &counters {
+            for tag in ["# HELP ", "# TYPE "] {
+                if let Some(rest) = line.strip_prefix(tag).and_then(|r| r.strip_prefix(c)) {
+                    if rest.starts_with(' ') {
+                        rewritten = Some(format!("{tag}{c}_total{rest}"));
+                    }
+                }
+            }
+        }
+        out += rewritten.as_deref().unwrap_or(line);
+        out.push('\n');
+    }
+    out
+}
+
+/// Serve `GET /metrics` on `listener` until `shutdown`.
+pub async fn serve(
+    listener: tokio::net::TcpListener,
+    live: Arc<LiveBoard>,
+    stats: Arc<CycleStats>,
+    mut shutdown: tokio::sync::watch::Receiver<bool>,
+) {
+    loop {
+        let (mut sock, _) = tokio::select! {
+            r = listener.accept() => match r {
+                Ok(s) => s,
+                Err(_) => { tokio::time::sleep(Duration::from_millis(100)).await; continue; }
+            },
+            _ = shutdown.changed() => break,
+        };
+        let (live, stats) = (Arc::clone(&live), Arc::clone(&stats));
+        tokio::spawn(async move {
+            let mut buf = [0u8; 2048];
+            let mut n = 0;
+            // read the request head (at most 2 KiB, 2 s)
+            let _ = tokio::time::timeout(Duration::from_secs(2), async {
+                while n < buf.len() {
+                    match sock.read(&mut buf[n..]).await {
+                        Ok(0) | Err(_) => break,
+                        Ok(k) => n += k,
+                    }
+                    if buf[..n].windows(4).any(|w| w == b"\r\n\r\n") {
+                        break;
+                    }
+                }
+            })
+            .await;
+            let head = String::from_utf8_lossy(&buf[..n]);
+            let first = head.lines().next().unwrap_or("");
+            let resp = if first.starts_with("GET /metrics ") || first.starts_with("GET /metrics?") {
+                let om = head.lines().any(|l| {
+                    l.to_ascii_lowercase().starts_with("accept:")
+                        && l.contains("application/openmetrics-text")
+                });
+                let (body, ctype) = if om {
+                    (
+                        render(&live, &stats),
+                        "application/openmetrics-text; version=1.0.0; charset=utf-8",
+                    )
+                } else {
+                    (
+                        render_classic(&live, &stats),
+                        "text/plain; version=0.0.4; charset=utf-8",
+                    )
+                };
+                format!(
+                    "HTTP/1.1 200 OK\r\nContent-Type: {ctype}\r\nContent-Length: {}\r\nConnection: close\r\n\r\n{body}",
+                    body.len()
+                )
+            } else if first.starts_with("GET ") {
+                "HTTP/1.1 404 Not Found\r\nContent-Length: 0\r\nConnection: close\r\n\r\n".into()
+            } else {
+                "HTTP/1.1 405 Method Not Allowed\r\nAllow: GET\r\nContent-Length: 0\r\nConnection: close\r\n\r\n".into()
+            };
+            let _ = sock.write_all(resp.as_bytes()).await;
+            let _ = sock.shutdown().await;
+        });
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::live::snapshot::LiveSnapshot;
+
+    #[test]
+    fn loopback_by_default_and_remote_only_when_allowed() {
+        assert_eq!(
+            listen_addr(None, false).expect("default"),
+            Some(DEFAULT_LISTEN.parse().expect("addr"))
+        );
+        assert_eq!(listen_addr(Some(""), false).expect("off"), None);
+        let e = listen_addr(Some("0.0.0.0:9650"), false).unwrap_err();
+        assert!(e.contains("metrics_allow_remote"), "{e}");
+        assert!(listen_addr(Some("0.0.0.0:9650"), true).is_ok());
+    }
+
+    #[test]
+    fn exposition_carries_the_deviation_and_mode() {
+        let live = Arc::new(LiveBoard::default());
+        let stats = Arc::new(CycleStats::default());
+        live.publish(&LiveSnapshot {
+            mode: Mode::Auto,
+            deviation_pct: 12.5,
+            surge_count: 3,
+            fault_bits: 1 << SensorId::OrificeDp.index(),
+            ..LiveSnapshot::default()
+        });
+        let text = render(&live, &stats);
+        assert!(text.contains("antisurge_deviation_ratio 0.125"), "{text}");
+        assert!(text.contains("antisurge_surges_total 3"), "{text}");
+        assert!(
+            text.contains(r#"antisurge_mode{mode="auto",law="none"} 1"#),
+            "{text}"
+        );
+        assert!(
+            text.contains(r#"antisurge_input_fault{input="orifice_dp"} 1"#),
+            "{text}"
+        );
+        assert!(text.ends_with("# EOF\n"), "{text}");
+        let classic = render_classic(&live, &stats);
+        assert!(
+            classic.contains("# HELP antisurge_surges_total Surge counter"),
+            "{classic}"
+        );
+        assert!(
+            classic.contains("# TYPE antisurge_surges_total counter"),
+            "{classic}"
+        );
+        assert!(!classic.contains("# EOF"), "{classic}");
+    }
+}

@@ -1,0 +1,276 @@
+//! The status report: the live snapshot plus cycle statistics and links, as served on the
+//! status socket (`antisurge status --json`), summarised in one line for `sd_notify STATUS=`
+//! and the periodic journal line, and printed for a terminal (`antisurge status`).
+
+use serde::{Deserialize, Serialize};
+
+use super::snapshot::{FlowSourceNow, LiveSnapshot};
+use crate::events::cause::Cause;
+use crate::signals::SensorId;
+
+/// One fault lamp: an input that is not usable now.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct FaultLamp {
+    /// The input.
+    pub input: SensorId,
+}
+
+/// What `antisurge status --json` prints. Floats are `null` when unknown.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct StatusReport {
+    /// antisurge version.
+    pub version: String,
+    /// Seconds since the daemon started.
+    pub uptime_s: f64,
+    /// Control cycle number of the snapshot.
+    pub cycle: u64,
+    /// Mode: init | manual | auto | fail_safe.
+    pub mode: String,
+    /// Active law.
+    pub law: String,
+    /// Whether auto is requested (false: manual station).
+    pub auto_requested: bool,
+    /// Where the flow comes from.
+    pub flow_source: FlowSourceNow,
+    /// Cause of the last mode change (null once acknowledged while healthy).
+    pub cause: Option<Cause>,
+    /// The cause in words.
+    pub cause_text: Option<String>,
+    /// Inputs not usable now.
+    pub faults: Vec<FaultLamp>,
+    /// Deviation from the control line, % of control-line flow (positive = safe).
+    pub deviation_pct: Option<f64>,
+    /// Surge margin to the surge line, %.
+    pub surge_margin_pct: Option<f64>,
+    /// Operating point: flow in map coordinates.
+    pub flow_map: Option<f64>,
+    /// Operating point: pressure ratio.
+    pub pressure_ratio: Option<f64>,
+    /// Mass flow used by the law, kg/s.
+    pub m_kg_s: Option<f64>,
+    /// Shaft speed, rad/s.
+    pub omega_rad_s: Option<f64>,
+    /// Surge, control and trip line flows at the current ratio (map flow units).
+    pub surge_line_flow: Option<f64>,
+    /// Control-line flow (with safety-on) at the current ratio.
+    pub control_line_flow: Option<f64>,
+    /// Trip-line flow at the current ratio.
+    pub trip_line_flow: Option<f64>,
+    /// Recycle valve output commanded, %.
+    pub valve_output_pct: Option<f64>,
+    /// Recycle valve position measured, %.
+    pub valve_position_pct: Option<f64>,
+    /// Manual-station output, %.
+    pub manual_output_pct: Option<f64>,
+    /// Surge counter (kept across restarts).
+    pub surge_count: u64,
+    /// Safety-on steps in force and the shift they add, % of surge-line flow.
+    pub safety_on_count: u32,
+    /// Safety-on shift, %.
+    pub safety_on_shift_pct: f64,
+    /// Recycle trips since start.
+    pub trip_count: u64,
+    /// Cycle statistics (jitter, compute time, overruns).
+    pub cycle_stats: serde_json::Value,
+    /// Field links (CAN, Modbus counters).
+    pub links: serde_json::Value,
+}
+
+fn f(x: f64) -> Option<f64> {
+    x.is_finite().then_some(x)
+}
+
+impl StatusReport {
+    /// Build from a snapshot.
+    pub fn new(
+        s: &LiveSnapshot,
+        uptime_s: f64,
+        cycle_stats: serde_json::Value,
+        links: serde_json::Value,
+    ) -> StatusReport {
+        StatusReport {
+            version: env!("CARGO_PKG_VERSION").into(),
+            uptime_s,
+            cycle: s.cycle,
+            mode: s.mode.name().into(),
+            law: s.law.name().into(),
+            auto_requested: s.auto_requested,
+            flow_source: s.flow_source,
+            cause: s.cause,
+            cause_text: s.cause.map(|c| c.describe()),
+            faults: SensorId::ALL
+                .into_iter()
+                .filter(|id| s.fault_bits & (1 << id.index()) != 0)
+                .map(|input| FaultLamp { input })
+                .collect(),
+            deviation_pct: f(s.deviation_pct),
+            surge_margin_pct: f(s.surge_margin_pct),
+            flow_map: f(s.flow_map),
+            pressure_ratio: f(s.pressure_ratio),
+            m_kg_s: f(s.m_kg_s),
+            omega_rad_s: f(s.omega_rad_s),
+            surge_line_flow: f(s.surge_line_flow),
+            control_line_flow: f(s.control_line_flow),
+            trip_line_flow: f(s.trip_line_flow),
+            valve_output_pct: f(100.0 * s.valve_output),
+            valve_position_pct: f(100.0 * s.valve_position),
+            manual_output_pct: f(100.0 * s.manual_output),
+            surge_count: s.surge_count,
+            safety_on_count: s.safety_on_count,
+            safety_on_shift_pct: s.safety_on_shift_pct,
+            trip_count: s.trip_count,
+            cycle_stats,
+            links,
+        }
+    }
+}
+
+fn pct(x: Option<f64>) -> String {
+    x.map(|v| format!("{v:.1} %")).unwrap_or_else(|| "–".into())
+}
+
+/// One line: mode, law, deviation, valve, surges, flow source, and the cause when not
+/// healthy. Used for `STATUS=` and the periodic journal line.
+pub fn status_line(s: &LiveSnapshot) -> String {
+    let r = StatusReport::new(s, 0.0, serde_json::Value::Null, serde_json::Value::Null);
+    let mut line = format!(
+        "{} · {} · deviation {} · valve {} (at {}) · surges {} · safety-on {} · flow {:?}",
+        r.mode,
+        r.law,
+        r.deviation_pct
+            .map(|v| format!("{v:+.1} %"))
+            .unwrap_or_else(|| "–".into()),
+        pct(r.valve_output_pct),
+        pct(r.valve_position_pct),
+        r.surge_count,
+        r.safety_on_count,
+        r.flow_source,
+    );
+    if !r.faults.is_empty() {
+        let names: Vec<&str> = r.faults.iter().map(|l| l.input.name()).collect();
+        line += &format!(" · faults: {}", names.join(", "));
+    }
+    if matches!(r.mode.as_str(), "fail_safe" | "init") {
+        if let Some(t) = r.cause_text {
+            line = format!("{} — {t}", line);
+        }
+    }
+    line
+}
+
+/// The report for a terminal.
+pub fn human(r: &StatusReport) -> String {
+    let mut o = String::new();
+    let mode = if r.mode == "manual" || (!r.auto_requested && r.mode == "auto") {
+        format!(
+            "{} (manual station, output {})",
+            r.mode,
+            pct(r.manual_output_pct)
+        )
+    } else {
+        r.mode.clone()
+    };
+    o += &format!("mode          {mode}\n");
+    o += &format!("law           {}\n", r.law);
+    if let Some(c) = &r.cause_text {
+        o += &format!("cause         {c}\n");
+    }
+    o += &format!(
+        "deviation     {}  (from the control line; positive = safe)\n",
+        r.deviation_pct
+            .map(|v| format!("{v:+.2} %"))
+            .unwrap_or_else(|| "–".into())
+    );
+    o += &format!("surge margin  {}\n", pct(r.surge_margin_pct));
+    o += &format!(
+        "operating pt  flow {}  ratio {}  ({:?})\n",
+        r.flow_map
+            .map(|v| format!("{v:.4}"))
+            .unwrap_or_else(|| "–".into()),
+        r.pressure_ratio
+            .map(|v| format!("{v:.4}"))
+            .unwrap_or_else(|| "–".into()),
+        r.flow_source
+    );
+    o += &format!(
+        "valve         output {}  position {}\n",
+        pct(r.valve_output_pct),
+        pct(r.valve_position_pct)
+    );
+    o += &format!(
+        "surges        {}   safety-on {} step(s), +{:.1} %   trips {}\n",
+        r.surge_count, r.safety_on_count, r.safety_on_shift_pct, r.trip_count
+    );
+    let lamps = if r.faults.is_empty() {
+        "none".to_string()
+    } else {
+        r.faults
+            .iter()
+            .map(|l| l.input.name())
+            .collect::<Vec<_>>()
+            .join(", ")
+    };
+    o += &format!("faults        {lamps}\n");
+    if let Some(j) = r.cycle_stats.get("wake_jitter_us") {
+        o += &format!(
+            "cycle         {} cycles, jitter p99 {} µs, overruns {}\n",
+            r.cycle_stats
+                .get("cycles")
+                .unwrap_or(&serde_json::Value::Null),
+            j.get("p99_us").unwrap_or(&serde_json::Value::Null),
+            r.cycle_stats
+                .get("overruns")
+                .unwrap_or(&serde_json::Value::Null)
+        );
+    }
+    o += &format!(
+        "uptime        {:.0} s (antisurge {})\n",
+        r.uptime_s, r.version
+    );
+    o
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::control::core::Mode;
+    use crate::events::cause::CauseKind;
+    use crate::events::FallbackReason;
+
+    #[test]
+    fn fail_safe_line_and_text_name_the_input_and_fault() {
+        let s = LiveSnapshot {
+            mode: Mode::FailSafe,
+            fault_bits: 1 << SensorId::PDischarge.index(),
+            cause: Some(Cause {
+                kind: CauseKind::InputFault,
+                input: Some(SensorId::PDischarge),
+                fault: Some(FallbackReason::OutOfRange),
+                value: Some(2.1e7),
+                min: Some(1e4),
+                max: Some(1.2e7),
+                age_ms: Some(0.0),
+                timeout_ms: Some(50.0),
+            }),
+            surge_count: 3,
+            ..LiveSnapshot::default()
+        };
+        let line = status_line(&s);
+        assert!(line.starts_with("fail_safe"), "{line}");
+        assert!(line.contains("faults: p_discharge"), "{line}");
+        assert!(
+            line.contains("p_discharge out of range: 2.100e7 Pa"),
+            "{line}"
+        );
+        let r = StatusReport::new(&s, 1.0, serde_json::Value::Null, serde_json::Value::Null);
+        let text = human(&r);
+        assert!(
+            text.contains("cause         p_discharge out of range"),
+            "{text}"
+        );
+        assert!(text.contains("surges        3"), "{text}");
+        let back: StatusReport =
+            serde_json::from_str(&serde_json::to_string(&r).expect("json")).expect("parse");
+        assert_eq!(back, r);
+    }
+}
