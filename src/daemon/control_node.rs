@@ -119,6 +119,18 @@ fn fault_bits(
     crate::faults::FaultSet::from_validity(v, s).0
 }
 
+/// Fault lamps of the live snapshot: bit i set when sensor i is not usable (the wire's fault
+/// word is [`fault_bits`], by category).
+fn sensor_lamp_bits(v: &crate::control::supervisor::Validity) -> u32 {
+    let mut bits = 0u32;
+    for id in SensorId::ALL {
+        if !v.ok(id) {
+            bits |= 1 << id.index();
+        }
+    }
+    bits
+}
+
 /// Boards and channels a control node is wired to.
 pub struct ControlWiring {
     /// Inputs from the bus tasks (or the in-process plant).
@@ -293,7 +305,7 @@ impl ControlNode {
             mode: out.mode,
             law: out.law,
             flow_source,
-            fault_bits: fault_bits(&out.validity) & needed,
+            fault_bits: sensor_lamp_bits(&out.validity) & needed,
             cause: self.cause,
             flow_map: q,
             pressure_ratio: r,
