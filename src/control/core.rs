@@ -122,6 +122,10 @@ pub struct CycleOutput {
     pub surge: Detection,
     /// An event the law reported this cycle.
     pub law_event: Option<LawEvent>,
+    /// The law's own drive-torque command this cycle (τ̄d on top of the speed loop), N·m;
+    /// NaN when the law does not drive the torque or no law ran. Actuator peaks of a run are
+    /// measured on this, not on the total (which includes the load torque the speed loop holds).
+    pub law_torque_nm: f64,
 }
 
 /// Filtered derivative: low-pass then difference.
@@ -182,6 +186,8 @@ pub struct ControlCore {
     /// Measurements of the last processed sample (repeated by a holding cycle).
     last_meas: Measurements,
     law_started: bool,
+    /// The law's own torque of the last computing cycle (repeated by a holding cycle), N·m.
+    last_law_torque_nm: f64,
 }
 
 impl ControlCore {
@@ -223,6 +229,7 @@ impl ControlCore {
             last_sample_s: f64::NAN,
             last_meas: Measurements::unavailable(f64::NAN),
             law_started: false,
+            last_law_torque_nm: f64::NAN,
             model,
             config,
             settings,
@@ -417,6 +424,11 @@ impl ControlCore {
             law_diagnostic: f64::NAN,
             surge: Detection::None,
             law_event: None,
+            law_torque_nm: if matches!(self.mode, Mode::Auto) {
+                self.last_law_torque_nm
+            } else {
+                f64::NAN
+            },
         }
     }
 
@@ -539,6 +551,7 @@ impl ControlCore {
         }
         let mut cmd = ActuatorCommands::default();
         let mut extra_torque = 0.0;
+        let mut law_torque = f64::NAN;
         let mut diagnostic = f64::NAN;
         let mut law_event = None;
         let inputs = LawInputs {
@@ -563,6 +576,7 @@ impl ControlCore {
                 let t = cmd.get(ActuatorId::DriveTorque);
                 if t.is_finite() {
                     extra_torque = t;
+                    law_torque = t;
                 }
             }
             Mode::Manual => {
@@ -593,6 +607,7 @@ impl ControlCore {
             self.law.surge_detected();
         }
         self.last = cmd;
+        self.last_law_torque_nm = law_torque;
         CycleOutput {
             commands: cmd,
             measurements: meas,
@@ -602,6 +617,7 @@ impl ControlCore {
             law_diagnostic: diagnostic,
             surge,
             law_event,
+            law_torque_nm: law_torque,
         }
     }
 }
