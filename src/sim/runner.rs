@@ -198,6 +198,11 @@ struct HealthRecord {
     flow_source: FlowSourceReport,
     drive_tripped: bool,
     torque_limits_nm: (f64, f64),
+    /// Surge cycles and reversals counted before the last event started (or, if a surge was
+    /// running then, before it stopped).
+    surge_before: Option<(u32, u32)>,
+    /// When surge counting for the verdict started, s.
+    counted_from_s: f64,
 }
 
 impl HealthRecord {
@@ -224,6 +229,8 @@ impl HealthRecord {
             },
             drive_tripped: false,
             torque_limits_nm,
+            surge_before: None,
+            counted_from_s: f64::NAN,
         }
     }
 
@@ -276,7 +283,8 @@ impl HealthRecord {
         // saturation of the law's torque: the total command at a drive limit while the law
         // drives the torque (a tripped drive ignores commands)
         let tq = c.get(ActuatorId::DriveTorque);
-        if view.law_torque_nm.is_finite() && tq.is_finite() && !self.drive_tripped {
+        let law_drives_torque = view.law_torque_nm.is_finite() && view.law_torque_nm != 0.0;
+        if law_drives_torque && tq.is_finite() && !self.drive_tripped {
             let (lo, hi) = self.torque_limits_nm;
             let tol = 1e-6 * hi.abs().max(1.0);
             if tq >= hi - tol || tq <= lo + tol {
@@ -527,6 +535,15 @@ impl<'a> PlantRun<'a> {
         view: &ControllerView,
     ) {
         let truth = self.plant.truth();
+        // surge counts from the last event on; a surge already running then (a rescue
+        // scenario) counts from the moment it stopped
+        if self.health.surge_before.is_none()
+            && t_s >= self.health.approach.from_s
+            && !self.detector.in_surge()
+        {
+            self.health.surge_before = Some((self.detector.surge_cycles, self.detector.reversals));
+            self.health.counted_from_s = t_s;
+        }
         self.detector.update(t_s, dt_s, truth.m_kg_s);
         self.min_flow = self.min_flow.min(truth.m_kg_s);
         let margin = (self.surge_margin)(truth.flow_map, truth.pressure_ratio());
@@ -647,15 +664,30 @@ impl<'a> PlantRun<'a> {
             .frequency_hz
             .is_finite()
             .then_some(self.detector.frequency_hz);
-        let (stable, verdict_words) = verdict(&Health {
-            surge_cycles: self.detector.surge_cycles,
+        let (cycles_before, reversals_before) = h.surge_before.unwrap_or((0, 0));
+        let (stable, mut verdict_words) = verdict(&Health {
+            surge_cycles: self.detector.surge_cycles - cycles_before,
             surge_frequency_hz,
-            flow_reversals: self.detector.reversals,
+            flow_reversals: self.detector.reversals - reversals_before,
             steady,
             failsafe_fraction,
             torque_saturation_fraction,
             implausible: &implausible,
         });
+        if stable && (cycles_before > 0 || reversals_before > 0) {
+            verdict_words = if h.counted_from_s > h.approach.from_s + 1e-9 {
+                format!(
+                    "STABLE — the surge running at the last event ({:.2} s) stopped at {:.2} s, \
+                     none after ({} cycles in all)",
+                    h.approach.from_s, h.counted_from_s, cycles_before
+                )
+            } else {
+                format!(
+                    "STABLE — no surge from {:.2} s (the last event); {} surge cycles before",
+                    h.approach.from_s, cycles_before
+                )
+            };
+        }
         let mut peaks = self.peaks;
         if !peaks.drive_torque_cmd_range_nm.0.is_finite() {
             peaks.drive_torque_cmd_range_nm = (f64::NAN, f64::NAN);

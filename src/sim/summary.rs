@@ -60,7 +60,7 @@ pub struct LawEventCounts {
 pub const MAX_FAILSAFE_FRACTION: f64 = 0.01;
 /// … and its drive torque command sat at a limit (rating or floor) in less than this fraction
 /// of the cycles.
-pub const MAX_SATURATION_FRACTION: f64 = 0.10;
+pub const MAX_SATURATION_FRACTION: f64 = 0.20;
 
 /// The closest approach to surge, measured from the start of the scenario's last event to the
 /// end of the run (the t = 0 operating point does not count).
@@ -126,7 +126,8 @@ pub struct Summary {
     pub law: String,
     /// Simulated duration, s.
     pub duration_s: f64,
-    /// Whether the run is stable: no surge, steady at the end (no oscillation above threshold
+    /// Whether the run is stable: no surge during or after the last scenario event (a rescue
+    /// scenario may surge before its law switches in; the verdict then says so), steady at the end (no oscillation above threshold
     /// and no flow reversal in the final window), every state bounded and plausible, fail-safe
     /// below [`MAX_FAILSAFE_FRACTION`] and torque saturation below [`MAX_SATURATION_FRACTION`]
     /// of the cycles. [`Summary::verdict`] says which condition failed.
@@ -189,7 +190,7 @@ pub struct Summary {
 /// What a run's record says about its health, for [`verdict`].
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct Health<'a> {
-    /// Surge cycles counted.
+    /// Surge cycles counted during and after the last event.
     pub surge_cycles: u32,
     /// Surge frequency, Hz.
     pub surge_frequency_hz: Option<f64>,
