@@ -10,6 +10,7 @@
 //! - [`io`]: CAN (DBC) and Modbus adapters; [`events`]: the append-only event log.
 #![forbid(unsafe_op_in_unsafe_fn)]
 
+pub mod blackbox;
 pub mod config;
 pub mod control;
 pub mod daemon;

@@ -26,6 +26,9 @@ enum Command {
     CheckConfig(cli::daemon::CheckArgs),
     /// Print the event log readably.
     Events(cli::daemon::EventsArgs),
+    /// Run the control core over a black-box recording (bit-exact with the recorded
+    /// settings; with `--config`/`--law`, what another setting would have commanded).
+    Replay(cli::replay::ReplayArgs),
 }
 
 fn main() -> std::process::ExitCode {
@@ -40,20 +43,16 @@ fn main() -> std::process::ExitCode {
             Err(e) => Err(e),
         },
         Some(Command::Events(args)) => cli::daemon::events(&args),
+        Some(Command::Replay(args)) => match cli::replay::run(&args) {
+            Ok(code) => return code,
+            Err(e) => Err(e),
+        },
         None => {
-            // a bare `antisurge` runs the default simulation
-            let args = cli::sim::SimArgs {
-                plant: cli::sim::DEFAULT_PLANT.into(),
-                scenario: cli::sim::DEFAULT_SCENARIO.into(),
-                law: cli::sim::DEFAULT_LAW.into(),
-                out: None,
-                config_dir: None,
-                no_plots: false,
-                json: false,
-                loop_delay_periods: 0,
-                loop_delay_jitter_periods: 0,
-            };
-            cli::sim::run(&args)
+            // a bare `antisurge` explains itself instead of running anything
+            use clap::CommandFactory;
+            let _ = Cli::command().print_help();
+            println!();
+            return std::process::ExitCode::SUCCESS;
         }
     };
     match result {
