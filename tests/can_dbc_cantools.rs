@@ -7,7 +7,10 @@
 //! (b) Rust encodes frames (codec, heartbeat, raw edge cases); cantools must decode what Rust
 //!     meant, and the CRCs must check out with crccheck's CRC-8/SAE-J1850.
 //!
-//! The test fails (never skips) when Python or cantools is missing: CI installs cantools.
+//! The two cross-check tests are `#[ignore]`d in a plain `cargo test` (a fresh machine has no
+//! cantools): they show as "ignored" with the reason. `.ci/run` installs cantools and runs
+//! them with `--include-ignored`; run that way they fail (never skip) when Python or cantools
+//! is missing.
 //! Set `PYTHON` to choose the interpreter (default `python3`).
 
 use std::collections::BTreeSet;
@@ -235,6 +238,7 @@ fn check_cantools_frames(db: &CanDatabase, codec: Option<&CanCodec>, out: &Value
 }
 
 #[test]
+#[ignore = "needs Python 3 with cantools (pip install cantools); .ci/run installs it and runs these with --include-ignored"]
 fn cantools_frames_decode_identically_in_rust() {
     let db = CanDatabase::from_file(skid_path()).expect("skid.dbc");
     let codec = CanCodec::new(&db, &skid_bindings()).expect("codec");
@@ -519,6 +523,7 @@ fn check_rust_frames(db: &CanDatabase, dbc: &Path, sent: &[Sent]) {
 }
 
 #[test]
+#[ignore = "needs Python 3 with cantools (pip install cantools); .ci/run installs it and runs these with --include-ignored"]
 fn rust_frames_decode_identically_in_cantools() {
     let db = CanDatabase::from_file(skid_path()).expect("skid.dbc");
     let mut sent = codec_frames(&db);

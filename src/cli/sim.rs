@@ -80,12 +80,14 @@ pub fn run(args: &SimArgs) -> Result<()> {
         })?;
     }
     let out_dir = args.out.clone().unwrap_or_else(|| {
-        PathBuf::from("out").join(format!(
-            "{}-{}-{}",
-            desc.name(),
-            scenario.name(),
-            law.name()
-        ))
+        let name = format!("{}-{}-{}", desc.name(), scenario.name(), law.name());
+        let local = PathBuf::from("out");
+        if std::fs::create_dir_all(&local).is_ok() {
+            local.join(name)
+        } else {
+            // e.g. run from `/` by an ordinary user: the temporary directory instead
+            std::env::temp_dir().join("antisurge-out").join(name)
+        }
     });
 
     let started = Instant::now();
