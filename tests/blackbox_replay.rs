@@ -78,6 +78,10 @@ scenario = "throttle-closure"
         r.report
     );
     assert!(r.report.updates_at_cycles.is_empty());
+    eprintln!(
+        "replayed {} cycles, {} identical",
+        r.report.cycles, r.report.identical_cycles
+    );
 
     // a different gain commands something else over the same inputs
     let mut other = rec.header.controller.clone();

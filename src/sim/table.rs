@@ -39,11 +39,16 @@ impl TableRow {
     pub fn effort(&self) -> String {
         let p = &self.closure.actuator_peaks;
         match self.law {
-            LawId::None | LawId::DriveTorque => format!(
+            LawId::None => format!(
                 "torque {:.0} N·m ({:.1}× nominal, rating {:.0})",
                 p.drive_torque_cmd_nm,
                 p.drive_torque_cmd_nm / p.nominal_load_torque_nm,
                 p.drive_torque_rating_nm
+            ),
+            // the law's own torque, not the total (which carries the load torque at t = 0)
+            LawId::DriveTorque => format!(
+                "law torque ±{:.0} N·m on {:.0} nominal (rating {:.0})",
+                p.law_drive_torque_nm, p.nominal_load_torque_nm, p.drive_torque_rating_nm
             ),
             LawId::RecyclePi | LawId::RecycleFl => {
                 format!(
@@ -166,7 +171,10 @@ pub fn markdown(rows: &[TableRow]) -> String {
     s.push_str("|---|---|---|---|---|---|---|---|---|\n");
     for r in rows {
         let c = &r.closure;
-        let closure = if c.surge_cycles == 0 && !c.flow_reversal {
+        let closure = if c.surge_cycles == 0 && !c.flow_reversal && !c.stable {
+            // no surge, but fail-safe, saturation or implausible states: say which
+            c.verdict.clone()
+        } else if c.surge_cycles == 0 && !c.flow_reversal {
             match c.settle_time_s {
                 Some(t) => format!("no surge, settles in {t:.2} s"),
                 None => "no surge, not settled".to_string(),
