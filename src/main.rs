@@ -29,7 +29,7 @@ enum Command {
     Run(cli::daemon::RunArgs),
     /// Run the simulated skid as a node on the field buses (hardware-in-the-loop).
     Plant(cli::daemon::PlantArgs),
-    /// Check a configuration (the same checks as start-up and reload); exit status 1 on errors.
+    /// Check a configuration (the same checks as start-up and reload); exit status 78 (EX_CONFIG) on errors.
     CheckConfig(cli::daemon::CheckArgs),
     /// Print the event log readably.
     Events(cli::daemon::EventsArgs),
@@ -89,7 +89,14 @@ fn main() -> std::process::ExitCode {
         Ok(()) => std::process::ExitCode::SUCCESS,
         Err(e) => {
             eprintln!("error: {e:#}");
-            std::process::ExitCode::from(2)
+            // a configuration error is not a crash: 78 (EX_CONFIG) stops systemd's restart loop
+            if e.chain()
+                .any(|c| c.is::<antisurge::config::ConfigInvalid>())
+            {
+                std::process::ExitCode::from(antisurge::config::EX_CONFIG)
+            } else {
+                std::process::ExitCode::from(2)
+            }
         }
     }
 }

@@ -297,13 +297,13 @@ fn check_config(file: &Path) -> std::process::Output {
 }
 
 #[test]
-fn check_config_prints_file_line_and_key_and_exits_1() {
+fn check_config_prints_file_line_and_key_and_exits_78() {
     for name in ["rate_hz_string", "unit_typo_rate_khz", "failsafe_150"] {
         let path = bad_dir().join(format!("{name}.toml"));
         let c = case(&path);
         let out = check_config(&path);
         let stderr = String::from_utf8_lossy(&out.stderr);
-        assert_eq!(out.status.code(), Some(1), "{name}: {stderr}");
+        assert_eq!(out.status.code(), Some(78), "{name}: {stderr}");
         let text = std::fs::read_to_string(&path).expect("read");
         let (line, col) = locate_key(&text, &c.key).expect("key in file");
         let located = format!("{}:{line}:{col}: key `{}`", path.display(), c.key);

@@ -11,7 +11,7 @@ mod common;
 
 use antisurge::daemon::config::{
     load_with_env, BusSection, ControlSection, DaemonConfig, InputSection, PlantSection,
-    SimulationSection, StartMode, StatusSection, Transport,
+    ReloadSection, SimulationSection, StartMode, StatusSection, Transport,
 };
 use antisurge::events::{EventLogConfig, FsyncPolicy};
 use antisurge::io::can::bus::CanBusConfig;
@@ -109,6 +109,10 @@ fn populated() -> DaemonConfig {
         status: StatusSection {
             log_interval_s: 10.0,
             stats_file: Some(PathBuf::from("cycle_stats.json")),
+        },
+        reload: ReloadSection {
+            watch_files: false,
+            settle_ms: 1000.0,
         },
     }
 }

@@ -185,6 +185,9 @@ path = "{events}"
 fsync = "always"
 [simulation]
 scenario = "throttle-closure"
+[reload]
+watch_files = true
+settle_ms = 300.0
 [controller.recycle_pi]
 kp_per_map_flow = KP
 "#,

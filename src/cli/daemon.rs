@@ -104,7 +104,7 @@ pub struct CheckArgs {
     pub file: Option<PathBuf>,
 }
 
-/// Check a config; exit status 1 on errors.
+/// Check a config; exit status 78 (EX_CONFIG) on errors.
 pub fn check(args: &CheckArgs) -> Result<std::process::ExitCode> {
     let file = args.file.clone().unwrap_or_else(default_config);
     match config::load(&file) {
@@ -137,7 +137,7 @@ pub fn check(args: &CheckArgs) -> Result<std::process::ExitCode> {
                 "{}: {n} error(s); the configuration was not accepted",
                 file.display()
             );
-            Ok(std::process::ExitCode::from(1))
+            Ok(std::process::ExitCode::from(antisurge::config::EX_CONFIG))
         }
     }
 }

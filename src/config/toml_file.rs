@@ -66,7 +66,7 @@ impl FileError {
 
 /// Read and deserialize a TOML file.
 pub fn load<T: DeserializeOwned>(path: &Path) -> Result<(T, String), FileError> {
-    let text = std::fs::read_to_string(path).map_err(|e| FileError {
+    let text = super::bounded::read_config_text(path).map_err(|e| FileError {
         file: path.to_path_buf(),
         key: String::new(),
         line: 0,

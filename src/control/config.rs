@@ -59,3 +59,151 @@ pub struct ControllerConfig {
 fn default_derivative_hz() -> f64 {
     50.0
 }
+
+/// Gains whose plausible range is `0 ..= GAIN_HEADROOM × the seed default` (the defaults
+/// of [`ControllerConfig::default`], from the seeds): a value outside is refused by
+/// `check-config`, at start and on reload, before it can reach a running law.
+pub const BOUNDED_GAINS: &[&str] = &[
+    "recycle_pi.kp_per_map_flow",
+    "recycle_pi.ki_per_map_flow_s",
+    "recycle_fl.k_flow_per_s2",
+    "recycle_fl.k_flow_rate_per_s",
+    "recycle_fl.k_integral_per_s3",
+    "drive_torque.k1_nm_s_rad",
+    "ccv.x2_gain_nd",
+    "ccv.speed_trim_kp_nm_s_per_rad",
+    "ccv.speed_trim_ki_nm_per_rad",
+    "throttle_backstep.x2_gain_nd",
+    "throttle_backstep.xi_gain_nd",
+    "throttle_backstep.speed_trim_kp_nm_s_per_rad",
+    "throttle_backstep.speed_trim_ki_nm_per_rad",
+    "robust.x2_gain_nd",
+    "robust.speed_trim_kp_nm_s_per_rad",
+    "robust.speed_trim_ki_nm_per_rad",
+    "tip_sliding.reaching_gain_per_s",
+];
+
+/// Upper bound of a [`BOUNDED_GAINS`] entry, as a multiple of its seed default.
+pub const GAIN_HEADROOM: f64 = 100.0;
+
+/// Largest magnitude any other number of `[controller]` may have: no setting of this
+/// controller is meaningful at 1e9 in its SI unit, and such values overflow the laws' arithmetic.
+pub const ABSURD_MAGNITUDE: f64 = 1.0e9;
+
+fn number_at<'a>(t: &'a toml::Table, dotted: &str) -> Option<f64> {
+    let mut cur = t;
+    let mut parts = dotted.split('.').peekable();
+    while let Some(p) = parts.next() {
+        let v: &'a toml::Value = cur.get(p)?;
+        if parts.peek().is_none() {
+            return v.as_float().or_else(|| v.as_integer().map(|i| i as f64));
+        }
+        cur = v.as_table()?;
+    }
+    None
+}
+
+fn walk_numbers(prefix: &str, v: &toml::Value, out: &mut Vec<(String, f64)>) {
+    match v {
+        toml::Value::Float(x) => out.push((prefix.to_string(), *x)),
+        toml::Value::Integer(i) => out.push((prefix.to_string(), *i as f64)),
+        toml::Value::Table(t) => {
+            for (k, v) in t {
+                let key = if prefix.is_empty() {
+                    k.clone()
+                } else {
+                    format!("{prefix}.{k}")
+                };
+                walk_numbers(&key, v, out);
+            }
+        }
+        toml::Value::Array(a) => {
+            for (i, v) in a.iter().enumerate() {
+                walk_numbers(&format!("{prefix}[{i}]"), v, out);
+            }
+        }
+        _ => {}
+    }
+}
+
+impl ControllerConfig {
+    /// Plausibility of the settings (issue 12, item 4): every [`BOUNDED_GAINS`] entry within
+    /// `0 ..= GAIN_HEADROOM × default`, no number beyond [`ABSURD_MAGNITUDE`], and recycle-pi
+    /// not with both gains 0 (a law that never moves the valve). Returns `(key, message)`
+    /// with the key relative to `[controller]`.
+    pub fn plausibility_problems(&self) -> Vec<(String, String)> {
+        let mut out = Vec::new();
+        let (Ok(mine), Ok(defaults)) = (
+            toml::Table::try_from(self),
+            toml::Table::try_from(ControllerConfig::default()),
+        ) else {
+            return out;
+        };
+        for key in BOUNDED_GAINS {
+            let (Some(v), Some(d)) = (number_at(&mine, key), number_at(&defaults, key)) else {
+                continue;
+            };
+            let max = GAIN_HEADROOM * d.abs();
+            if !(v.is_finite() && v >= 0.0 && (d == 0.0 || v <= max)) {
+                out.push((
+                    key.to_string(),
+                    format!(
+                        "{v} is outside the plausible range 0 … {max} ({GAIN_HEADROOM} × the seed default {d})"
+                    ),
+                ));
+            }
+        }
+        let mut numbers = Vec::new();
+        walk_numbers("", &toml::Value::Table(mine), &mut numbers);
+        for (key, v) in numbers {
+            if v.abs() > ABSURD_MAGNITUDE && !out.iter().any(|(k, _)| *k == key) {
+                out.push((
+                    key,
+                    format!("{v} is beyond ±{ABSURD_MAGNITUDE:e}: not a plausible setting"),
+                ));
+            }
+        }
+        if self.recycle_pi.kp_per_map_flow == 0.0 && self.recycle_pi.ki_per_map_flow_s == 0.0 {
+            out.push((
+                "recycle_pi.kp_per_map_flow".into(),
+                "kp and ki are both 0: recycle-pi would never move the valve".into(),
+            ));
+        }
+        out
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn seed_defaults_are_plausible() {
+        assert!(ControllerConfig::default()
+            .plausibility_problems()
+            .is_empty());
+    }
+
+    #[test]
+    fn absurd_and_zero_gains_are_refused() {
+        let mut c = ControllerConfig::default();
+        c.recycle_pi.kp_per_map_flow = 1e308;
+        let p = c.plausibility_problems();
+        assert_eq!(p.len(), 1, "{p:?}");
+        assert_eq!(p[0].0, "recycle_pi.kp_per_map_flow");
+        assert!(p[0].1.contains("plausible range"), "{p:?}");
+
+        let mut c = ControllerConfig::default();
+        c.recycle_pi.kp_per_map_flow = 0.0;
+        c.recycle_pi.ki_per_map_flow_s = 0.0;
+        let p = c.plausibility_problems();
+        assert!(p.iter().any(|(_, m)| m.contains("both 0")), "{p:?}");
+
+        let c = ControllerConfig {
+            derivative_filter_hz: 1e12,
+            ..ControllerConfig::default()
+        };
+        let p = c.plausibility_problems();
+        assert_eq!(p[0].0, "derivative_filter_hz", "{p:?}");
+    }
+}

@@ -158,6 +158,24 @@ impl Differentiator {
     }
 }
 
+/// A reconfiguration of the core built off the real-time thread by
+/// [`ControlCore::prepare`]; after [`ControlCore::commit`] it holds the replaced parts.
+#[derive(Debug)]
+pub struct Reconfiguration {
+    config: ControllerConfig,
+    law: Law,
+    detector: SurgeDetector,
+    d_suction: Differentiator,
+    d_discharge: Differentiator,
+}
+
+impl Reconfiguration {
+    /// The law it carries.
+    pub fn law(&self) -> LawId {
+        self.law.id()
+    }
+}
+
 /// The control core.
 #[derive(Debug, Clone)]
 pub struct ControlCore {
@@ -297,6 +315,51 @@ impl ControlCore {
         self.config = config;
         self.law_started = carried;
         Ok(())
+    }
+
+    /// Build a reconfiguration off the real-time thread (this allocates): the law `law` with
+    /// `config` for `model` (the model the core was built with), a fresh surge detector and
+    /// derivative filters in case their settings changed. Fails, and nothing reaches the
+    /// control thread, if the law does not apply. [`commit`](Self::commit) swaps it in.
+    pub fn prepare(
+        model: &ControlModel,
+        config: ControllerConfig,
+        law: LawId,
+    ) -> Result<Reconfiguration, LawError> {
+        Ok(Reconfiguration {
+            law: Law::new(law, &config, model)?,
+            detector: SurgeDetector::new(config.detector),
+            d_suction: Differentiator::new(config.derivative_filter_hz),
+            d_discharge: Differentiator::new(config.derivative_filter_hz),
+            config,
+        })
+    }
+
+    /// Swap a prepared reconfiguration in at this cycle boundary, without allocating or
+    /// freeing (ros2_control's controller switch is the model): the same law takes over the
+    /// running one's state (recycle-pi: integrator re-based, trip and safety-on kept), another
+    /// law starts bumplessly from the current outputs; the observer keeps its estimate; the
+    /// detector and derivative filters keep their history unless their settings changed.
+    /// Returns the replaced parts, to be dropped off the real-time thread.
+    pub fn commit(&mut self, mut r: Reconfiguration) -> Reconfiguration {
+        let same_law = r.law.id() == self.law.id();
+        let carried = same_law && self.law_started && r.law.take_over_from(&self.law);
+        self.observer = self.model.observer_plant().map(|p| match &self.observer {
+            Some(running) => running.retuned(&r.config.observer, p),
+            None => MassFlowObserver::new(&r.config.observer, p),
+        });
+        if r.config.detector != self.config.detector {
+            std::mem::swap(&mut self.detector, &mut r.detector);
+        }
+        if r.config.derivative_filter_hz != self.config.derivative_filter_hz {
+            std::mem::swap(&mut self.d_suction, &mut r.d_suction);
+            std::mem::swap(&mut self.d_discharge, &mut r.d_discharge);
+        }
+        std::mem::swap(&mut self.law, &mut r.law);
+        std::mem::swap(&mut self.config, &mut r.config);
+        self.requested_law = self.law.id();
+        self.law_started = same_law && carried;
+        r
     }
 
     /// Replace the input limits and fail-safe opening (hot reload); takes effect next cycle.

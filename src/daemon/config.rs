@@ -200,6 +200,36 @@ impl Default for StatusSection {
     }
 }
 
+/// `[reload]`: how a changed configuration reaches the running daemon.
+///
+/// `systemctl reload antisurge` (check-config, then SIGHUP) is the default and the one way
+/// that can report a rejected file. Watching the files is opt-in: an editor's half-written
+/// file must never be applied, so a watched change is applied only once every config file has
+/// stayed unchanged for `settle_ms` and did not change while it was read.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct ReloadSection {
+    /// Reload by itself when the main file or `conf.d/*.toml` changes.
+    #[serde(default)]
+    pub watch_files: bool,
+    /// A watched change is applied after the files stayed unchanged this long, ms (100–60000).
+    #[serde(default = "d_settle_ms")]
+    pub settle_ms: f64,
+}
+
+fn d_settle_ms() -> f64 {
+    1000.0
+}
+
+impl Default for ReloadSection {
+    fn default() -> Self {
+        ReloadSection {
+            watch_files: false,
+            settle_ms: d_settle_ms(),
+        }
+    }
+}
+
 /// The whole configuration file (`config/antisurge.toml` documents every key).
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
@@ -229,6 +259,9 @@ pub struct DaemonConfig {
     /// Status reporting.
     #[serde(default)]
     pub status: StatusSection,
+    /// How configuration changes are picked up.
+    #[serde(default)]
+    pub reload: ReloadSection,
 }
 
 fn d_bus() -> BusSection {
@@ -315,7 +348,7 @@ pub fn resolve(main: &Path, p: &Path) -> PathBuf {
 }
 
 fn read_layer(path: &Path) -> Result<Layer, FileError> {
-    let text = std::fs::read_to_string(path).map_err(|e| FileError {
+    let text = crate::config::read_config_text(path).map_err(|e| FileError {
         file: path.to_path_buf(),
         key: String::new(),
         line: 0,
@@ -337,6 +370,10 @@ pub fn conf_d(main: &Path) -> PathBuf {
     base_dir(main).join("conf.d")
 }
 
+/// Deepest key an environment variable may set (`ANTISURGE_A__B__…`): the schema's deepest key
+/// has 6 levels (`controller.recycle_pi.control_line.margin.margin_pct`).
+pub const MAX_ENV_DEPTH: usize = 8;
+
 /// Environment overrides (`ANTISURGE_A__B=v` → `a.b`), sorted, from `vars`.
 fn env_layer(vars: &[(String, String)]) -> Option<Layer> {
     let mut lines = Vec::new();
@@ -349,6 +386,11 @@ fn env_layer(vars: &[(String, String)]) -> Option<Layer> {
             continue;
         }
         let key = rest.to_ascii_lowercase().replace("__", ".");
+        if key.split('.').count() > MAX_ENV_DEPTH {
+            // deeper than any key of the schema; a very deep one overflowed the stack
+            tracing::warn!(target: "config", "{k} ignored: more than {MAX_ENV_DEPTH} levels, no config key is that deep");
+            continue;
+        }
         lines.push((key, v.clone()));
     }
     if lines.is_empty() {
@@ -491,7 +533,7 @@ fn with_line_key(mut e: FileError, text: &str) -> FileError {
 
 /// [`with_line_key`] for an error in a file not read here (plant file, signal map).
 fn with_file_line_key(mut e: FileError) -> FileError {
-    if let Ok(text) = std::fs::read_to_string(&e.file) {
+    if let Ok(text) = crate::config::read_config_text(&e.file) {
         if e.key.contains('?') {
             if let Ok(table) = toml::from_str::<toml::Table>(&text) {
                 e.key = name_map_keys(&[&table], &e.key, &e.message);
@@ -999,7 +1041,15 @@ pub fn load_with_env(main: &Path, vars: &[(String, String)]) -> Result<Loaded, V
 }
 
 /// The keys that cannot change while the daemon runs (a reload reports them).
-pub const RESTART_KEYS: &[&str] = &["plant", "cycle", "bus", "event_log", "simulation", "status"];
+pub const RESTART_KEYS: &[&str] = &[
+    "plant",
+    "cycle",
+    "bus",
+    "event_log",
+    "simulation",
+    "status",
+    "reload",
+];
 
 /// Is `key` (dotted) applied live on reload?
 pub fn is_live_key(key: &str) -> bool {
@@ -1014,7 +1064,7 @@ pub fn is_live_key(key: &str) -> bool {
 fn locate_for(l: &Loaded, key: &str, message: String) -> FileError {
     if key.starts_with("controller.") && !layers_set(&l.layers, key) {
         let path = resolve(&l.main_path, &l.config.plant.file);
-        if let Ok(text) = std::fs::read_to_string(&path) {
+        if let Ok(text) = crate::config::read_config_text(&path) {
             let set = toml::from_str::<toml::Table>(&text)
                 .ok()
                 .is_some_and(|t| table_get(&t, key).is_some());
@@ -1031,7 +1081,7 @@ fn map_error(l: &Loaded, key: &str, message: String) -> FileError {
     match &l.config.bus.signal_map {
         Some(p) => {
             let path = resolve(&l.main_path, p);
-            let text = std::fs::read_to_string(&path).unwrap_or_default();
+            let text = crate::config::read_config_text(&path).unwrap_or_default();
             FileError::at_key(&path, &text, key, message)
         }
         None => locate(&l.layers, "bus.signal_map", message),
@@ -1176,6 +1226,36 @@ pub fn check(l: &Loaded) -> Vec<Problem> {
                 "80 is the usual choice; leave it out for normal scheduling",
             );
         }
+    }
+    if let Some(cpu) = c.cycle.cpu {
+        // the index reaches CPU_SET (unsafe) at start: refuse it here, not with an abort there
+        let n = crate::runtime::rt_loop::configured_cpus();
+        if cpu >= n {
+            error(
+                "cycle.cpu",
+                format!(
+                    "CPU {cpu} does not exist: this machine has CPUs 0–{}",
+                    n - 1
+                ),
+                "leave it out for no pinning, or name an isolated CPU (isolcpus=)",
+            );
+        }
+    }
+    // gains: documented plausibility bounds (control/config.rs), before any law sees them
+    for (key, message) in l.controller.plausibility_problems() {
+        error(
+            &format!("controller.{key}"),
+            message,
+            "the seed defaults are in the plant files; change a gain by a factor of 2 at a time",
+        );
+    }
+    let settle = c.reload.settle_ms;
+    if !(settle.is_finite() && (100.0..=60_000.0).contains(&settle)) {
+        error(
+            "reload.settle_ms",
+            format!("{settle} ms is outside 100–60000 ms"),
+            "1000: a change is applied once the files stayed unchanged for a second",
+        );
     }
     // control
     let f = c.control.failsafe_recycle_opening_pct;

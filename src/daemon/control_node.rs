@@ -2,17 +2,18 @@
 //!
 //! Per cycle, without allocating, locking or doing I/O:
 //! 1. take a live update (hot reload, law or mode change) from the lock-free update ring and
-//!    apply it at this cycle boundary (the law restarts bumplessly from the current outputs);
+//!    swap it in at this cycle boundary: the new law and settings were built off this thread
+//!    ([`ControlCore::prepare`]), the swap ([`ControlCore::commit`]) neither allocates nor
+//!    frees, and the replaced parts go back on the retired ring to be dropped elsewhere;
 //! 2. snapshot the [`SensorBoard`] with the age of every input;
 //! 3. run the [`ControlCore`] (supervision, observer fallback, fail-safe, law, speed loop);
 //! 4. publish the setpoints on the [`OutputBoard`] and wake the bus tasks;
 //! 5. queue what changed (mode, fallback, surge, recycle trip, overruns) on the event ring and
 //!    update the [`Health`] the watchdog task reads.
 
-use crate::control::core::{ControlCore, CoreSettings, Mode};
+use crate::control::core::{ControlCore, CoreSettings, Mode, Reconfiguration};
 use crate::control::law::{LawEvent, LawId};
 use crate::control::measurements::{OperatorInputs, RawSensors};
-use crate::control::ControllerConfig;
 use crate::events::event::{
     FallbackEntered, FallbackLeft, FallbackReason, LawChanged, Mode as EvMode, ModeChanged,
     RecycleTrip, Replacement, SafetyOnShift, SurgeDetected, TripReason,
@@ -29,16 +30,14 @@ use std::time::{Duration, Instant};
 /// Heartbeat mode code sent after shutdown (the DBC's `Mode` value 4).
 pub const MODE_SHUTDOWN: u8 = 4;
 
-/// A change the configuration task hands to the control thread. Plain data (no heap), so
-/// moving it through the ring allocates nothing.
-#[derive(Debug, Clone)]
+/// A change the configuration task hands to the control thread, fully built off it:
+/// moving it through the ring and committing it allocate nothing.
+#[derive(Debug)]
 pub struct ControlUpdate {
-    /// Controller settings (law gains, observer, detector).
-    pub config: ControllerConfig,
+    /// The law and controller settings, built by [`ControlCore::prepare`].
+    pub reconf: Reconfiguration,
     /// Input limits and fail-safe opening.
     pub settings: CoreSettings,
-    /// Law to run.
-    pub law: LawId,
     /// Automatic (true) or manual mode.
     pub auto: bool,
     /// Operator setpoints.
@@ -82,6 +81,7 @@ pub struct ControlNode {
     outputs: Arc<OutputBoard>,
     wake: Arc<Wakeup>,
     updates: rtrb::Consumer<ControlUpdate>,
+    retired: rtrb::Producer<Reconfiguration>,
     events: Option<RtSender>,
     overruns: OverrunReporter,
     health: Arc<Health>,
@@ -125,6 +125,8 @@ pub struct ControlWiring {
     pub wake: Arc<Wakeup>,
     /// Live updates from the configuration task.
     pub updates: rtrb::Consumer<ControlUpdate>,
+    /// Replaced parts going back to the configuration task, which drops them.
+    pub retired: rtrb::Producer<Reconfiguration>,
     /// Event ring (None: no event log).
     pub events: Option<RtSender>,
     /// Shared health.
@@ -144,6 +146,7 @@ impl ControlNode {
             outputs: w.outputs,
             wake: w.wake,
             updates: w.updates,
+            retired: w.retired,
             events: w.events,
             overruns: OverrunReporter::new(Duration::from_secs(10), Instant::now()),
             health: w.health,
@@ -177,18 +180,22 @@ impl ControlNode {
     }
 
     fn apply_updates(&mut self) {
-        while let Ok(u) = self.updates.pop() {
-            let ok =
-                self.core.apply_config(u.config).is_ok() && self.core.select_law(u.law).is_ok();
-            if ok {
-                self.core.set_settings(u.settings);
-                self.core.request_auto(u.auto);
-                self.op = u.op;
-                self.health.updates_applied.fetch_add(1, Ordering::Relaxed);
-            } else {
-                self.health.updates_refused.fetch_add(1, Ordering::Relaxed);
+        // one update per cycle, and only with room to hand the old parts back: nothing is
+        // ever freed on this thread (an update waits a cycle otherwise)
+        if self.retired.slots() == 0 {
+            return;
+        }
+        if let Ok(u) = self.updates.pop() {
+            let old = self.core.commit(u.reconf);
+            self.core.set_settings(u.settings);
+            self.core.request_auto(u.auto);
+            self.op = u.op;
+            self.health.updates_applied.fetch_add(1, Ordering::Relaxed);
+            if let Err(rtrb::PushError::Full(old)) = self.retired.push(old) {
+                // unreachable (a slot was checked above); never free on this thread
+                #[allow(clippy::forget_non_drop)]
+                std::mem::forget(old);
             }
-            // the dropped update owns no heap memory (plain data)
         }
     }
 

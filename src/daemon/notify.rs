@@ -1,6 +1,10 @@
 //! systemd notification: READY=1 after the first healthy control cycle, WATCHDOG=1 only
 //! while the control thread keeps running cycles (its [`Health`] counter advances), STOPPING=1
 //! at shutdown. Outside systemd (`NOTIFY_SOCKET` unset) every call is a no-op.
+//!
+//! The watchdog is fed from its own thread ([`spawn_watchdog`]), which reads nothing but the
+//! control loop's [`Health`]: a slow config load, a reload or a busy I/O task can never delay
+//! a `WATCHDOG=1`, and only a stuck control loop stops them (issue 12, item 1).
 
 use super::control_node::Health;
 use sd_notify::NotifyState;
@@ -46,8 +50,9 @@ impl Notifier {
             tracing::info!(target: "antisurge", "first healthy control cycle: ready");
         }
         if let Some(wd) = self.watchdog {
-            // ping at half the watchdog period, and only if the control thread advanced
-            if cycles > self.last_cycles && self.last_ping.elapsed() >= wd / 2 {
+            // ping every quarter of the watchdog period (so the gap between two pings stays
+            // well under half of it), and only if the control thread advanced
+            if cycles > self.last_cycles && self.last_ping.elapsed() >= wd / 4 {
                 let _ = sd_notify::notify(&[NotifyState::Watchdog]);
                 self.last_ping = Instant::now();
             }
@@ -59,6 +64,27 @@ impl Notifier {
     pub fn stopping(&self) {
         let _ = sd_notify::notify(&[NotifyState::Stopping]);
     }
+}
+
+/// Period of the watchdog thread's health check.
+pub const WATCHDOG_TICK: Duration = Duration::from_millis(50);
+
+/// Start the watchdog thread: every [`WATCHDOG_TICK`] it reads `health` and notifies systemd,
+/// until `stop` is set (then it sends STOPPING=1 and ends).
+pub fn spawn_watchdog(
+    health: std::sync::Arc<Health>,
+    stop: std::sync::Arc<std::sync::atomic::AtomicBool>,
+) -> std::io::Result<std::thread::JoinHandle<()>> {
+    std::thread::Builder::new()
+        .name("antisurge-wd".into())
+        .spawn(move || {
+            let mut n = Notifier::new();
+            while !stop.load(Ordering::Relaxed) {
+                n.tick(&health);
+                std::thread::sleep(WATCHDOG_TICK);
+            }
+            n.stopping();
+        })
 }
 
 /// Peak resident memory of this process, KiB (`getrusage`).

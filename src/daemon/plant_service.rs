@@ -29,11 +29,12 @@ pub struct PlantOptions {
 
 /// Run the plant node until the scenario ends (or SIGTERM/SIGINT).
 pub fn run(opts: &PlantOptions) -> Result<()> {
+    super::service::ignore_sigxfsz();
     let l = config::load(&opts.config).map_err(|p| {
-        anyhow!(
+        crate::config::ConfigInvalid(format!(
             "the configuration is invalid:\n{}",
             super::service::format_problems(&p)
-        )
+        ))
     })?;
     if l.config.bus.transport != Transport::Field {
         bail!("`antisurge plant` is a bus node: set [bus] transport = \"field\" with a signal map (the in-process plant runs inside `antisurge run`)");
@@ -42,8 +43,8 @@ pub fn run(opts: &PlantOptions) -> Result<()> {
         .scenario
         .clone()
         .unwrap_or_else(|| l.config.simulation.scenario.clone());
-    let scenario =
-        Scenario::load(&scenario_path(&l, &scenario_name)).map_err(|e| anyhow!("{e}"))?;
+    let scenario = Scenario::load(&scenario_path(&l, &scenario_name))
+        .map_err(|e| crate::config::ConfigInvalid(e.to_string()))?;
     let out_dir = opts
         .out_dir
         .clone()

@@ -5,8 +5,10 @@
 //! - the control thread (fixed deadline, [`ControlNode`]), the only place setpoints are made;
 //! - the CAN task and/or the Modbus task (tokio), or the in-process plant thread;
 //! - the event-log writer thread;
-//! - tokio tasks for signals (SIGTERM/SIGINT stop, SIGHUP reload), the config-directory
-//!   watcher, systemd READY/WATCHDOG from the control thread's [`Health`], and the status log.
+//! - the watchdog thread: systemd READY/WATCHDOG from the control thread's [`Health`] only;
+//! - tokio tasks for signals (SIGTERM/SIGINT stop, SIGHUP reload), the opt-in config-directory
+//!   watcher, and the status log. A reload's load runs on a blocking thread, bounded in size
+//!   and time, and is applied only if no file changed while it was read.
 
 use super::config::{self, Loaded, Transport};
 use super::control_node::{ControlNode, ControlUpdate, ControlWiring, Health};
@@ -70,15 +72,18 @@ pub fn operator_inputs(l: &Loaded) -> OperatorInputs {
     }
 }
 
-/// The live part of a loaded config, for the control thread.
-pub fn update_of(l: &Loaded) -> ControlUpdate {
-    ControlUpdate {
-        config: l.controller.clone(),
+/// The live part of a loaded config, built for the control thread here (off it): the law
+/// for `model`, the model the running core was built with. Fails if the law does not apply.
+pub fn update_of(
+    model: &crate::control::model::ControlModel,
+    l: &Loaded,
+) -> Result<ControlUpdate, crate::control::law::LawError> {
+    Ok(ControlUpdate {
+        reconf: ControlCore::prepare(model, l.controller.clone(), l.law)?,
         settings: l.core,
-        law: l.law,
         auto: l.config.control.mode == config::StartMode::Auto,
         op: operator_inputs(l),
-    }
+    })
 }
 
 /// Format config problems for the terminal and the log.
@@ -131,9 +136,9 @@ fn spawn_in_process_plant(
 ) -> Result<InProcessPlant> {
     let desc = l.plant.clone();
     let scenario_file = scenario_path(l, &l.config.simulation.scenario);
-    let scenario = Scenario::load(&scenario_file)
-        .map_err(|e| anyhow!("{e}"))
-        .context("loading the simulation scenario")?;
+    let scenario = Scenario::load(&scenario_file).map_err(|e| {
+        crate::config::ConfigInvalid(format!("loading the simulation scenario: {e}"))
+    })?;
     let hb_ms = l.config.simulation.heartbeat_timeout_ms;
     let law = l.law.name().to_string();
     let status = Arc::new(PlantStatus::default());
@@ -183,15 +188,18 @@ fn initial_torque_nm(l: &Loaded) -> f64 {
         .unwrap_or(0.0)
 }
 
-/// Apply a reloaded configuration: validate, diff, hand the live part to the control
-/// thread, log. Returns the new loaded config when it was accepted.
+/// Apply a reloaded configuration (`loaded`: the result of [`load_with_time_limit`]): diff,
+/// hand the live part to the control thread, log. Returns the new loaded config when it was
+/// accepted.
 fn reload(
     current: &Loaded,
+    model: &crate::control::model::ControlModel,
+    loaded: Result<Loaded, Vec<config::Problem>>,
     updates: &mut rtrb::Producer<ControlUpdate>,
     events: &EventSender,
 ) -> Option<Loaded> {
     let file = current.main_path.display().to_string();
-    match config::load(&current.main_path) {
+    match loaded {
         Err(problems) => {
             let first = problems.iter().find(|p| !p.warning).or(problems.first());
             tracing::error!(target: "config", "reload rejected, the running configuration stays:\n{}", format_problems(&problems));
@@ -240,7 +248,20 @@ fn reload(
                 });
             }
             if !diff.is_empty() || controller_changed {
-                if updates.push(update_of(&new)).is_err() {
+                let update = match update_of(model, &new) {
+                    Ok(u) => u,
+                    Err(e) => {
+                        tracing::error!(target: "config", "reload rejected, the running configuration stays: {e}");
+                        let _ = events.send(Event::ConfigRejected {
+                            file: file.clone(),
+                            key: Some("control.law".into()),
+                            line: None,
+                            message: e.to_string(),
+                        });
+                        return None;
+                    }
+                };
+                if updates.push(update).is_err() {
                     tracing::error!(target: "config", "reload: the control thread has not taken the previous update yet; try again");
                     return None;
                 }
@@ -252,13 +273,108 @@ fn reload(
     }
 }
 
+/// Longest a configuration load may take (start, reload). Every file is a bounded regular file
+/// ([`crate::config::read_config_text`]), so only a hung file system can reach this.
+pub const CONFIG_LOAD_LIMIT: Duration = Duration::from_secs(5);
+
+/// [`config::load`] on its own thread, given at most [`CONFIG_LOAD_LIMIT`]. A load that does
+/// not finish in time is an error (its thread is abandoned): nothing waits on it longer, and
+/// the watchdog thread never waits on it at all.
+pub fn load_with_time_limit(main: &Path) -> Result<Loaded, Vec<config::Problem>> {
+    let (tx, rx) = std::sync::mpsc::sync_channel(1);
+    let path = main.to_path_buf();
+    let problem = |message: String| {
+        vec![config::Problem {
+            error: crate::config::FileError {
+                file: main.to_path_buf(),
+                key: String::new(),
+                line: 0,
+                column: 0,
+                message,
+                hint: Some("check the file system the configuration is on".into()),
+            },
+            warning: false,
+        }]
+    };
+    let spawned = std::thread::Builder::new()
+        .name("antisurge-cfg".into())
+        .spawn(move || {
+            let _ = tx.send(config::load(&path));
+        });
+    if let Err(e) = spawned {
+        return Err(problem(format!("cannot start the loader thread: {e}")));
+    }
+    match rx.recv_timeout(CONFIG_LOAD_LIMIT) {
+        Ok(r) => r,
+        Err(_) => Err(problem(format!(
+            "loading took longer than {} s; nothing was applied",
+            CONFIG_LOAD_LIMIT.as_secs()
+        ))),
+    }
+}
+
+/// Size and modification time of the main file and every `conf.d/*.toml`: a reload is
+/// applied only when this did not change while the files were read (and, for watched
+/// changes, for `reload.settle_ms` before).
+pub type Fingerprint = Vec<(PathBuf, u64, Option<std::time::SystemTime>)>;
+
+/// The current [`Fingerprint`] of `main`'s configuration files.
+pub fn fingerprint(main: &Path) -> Fingerprint {
+    let mut files = vec![main.to_path_buf()];
+    if let Ok(rd) = std::fs::read_dir(config::conf_d(main)) {
+        let mut more: Vec<PathBuf> = rd
+            .flatten()
+            .map(|e| e.path())
+            .filter(|p| p.extension().is_some_and(|x| x == "toml"))
+            .collect();
+        more.sort();
+        files.extend(more);
+    }
+    files
+        .into_iter()
+        .map(|p| {
+            let m = std::fs::metadata(&p).ok();
+            let len = m.as_ref().map_or(0, |m| m.len());
+            let mtime = m.and_then(|m| m.modified().ok());
+            (p, len, mtime)
+        })
+        .collect()
+}
+
+/// A reload in progress: its load runs on a blocking thread while the service keeps serving
+/// signals.
+struct PendingLoad {
+    before: Fingerprint,
+    task: tokio::task::JoinHandle<Result<Loaded, Vec<config::Problem>>>,
+}
+
+fn start_load(main: &Path) -> PendingLoad {
+    let before = fingerprint(main);
+    let p = main.to_path_buf();
+    PendingLoad {
+        before,
+        task: tokio::task::spawn_blocking(move || load_with_time_limit(&p)),
+    }
+}
+
+/// Ignore SIGXFSZ: with a file-size limit (`ulimit -f`, `LimitFSIZE=`) a write past it would
+/// kill the process; ignored, the write fails with EFBIG, which the event log handles like a
+/// full disk (events counted as lost, retried). Call before any thread starts.
+pub fn ignore_sigxfsz() {
+    // SAFETY: installing SIG_IGN for one signal; no handler code runs.
+    unsafe {
+        libc::signal(libc::SIGXFSZ, libc::SIG_IGN);
+    }
+}
+
 /// Run the service until SIGTERM/SIGINT (or `duration_s`).
 pub fn run(opts: &RunOptions) -> Result<()> {
-    let loaded = config::load(&opts.config).map_err(|p| {
-        anyhow!(
+    ignore_sigxfsz();
+    let loaded = load_with_time_limit(&opts.config).map_err(|p| {
+        crate::config::ConfigInvalid(format!(
             "the configuration is invalid; nothing was started:\n{}",
             format_problems(&p)
-        )
+        ))
     })?;
     for w in &loaded.warnings {
         tracing::warn!(target: "config", "{w}");
@@ -273,9 +389,19 @@ async fn serve(loaded: Loaded, opts: RunOptions) -> Result<()> {
     if let Some(dir) = cfg.event_log.path.parent() {
         let _ = std::fs::create_dir_all(dir);
     }
-    let log = EventLog::start(cfg.event_log.clone())
+    // the event log is an audit trail, never a start dependency of the protection: if it
+    // cannot be opened the controller runs with it degraded and the writer keeps retrying
+    let (log, open_error) = EventLog::start_degraded_ok(cfg.event_log.clone())
         .map_err(|e| anyhow!("{e}"))
-        .with_context(|| format!("cannot open the event log {}", cfg.event_log.path.display()))?;
+        .with_context(|| {
+            format!(
+                "cannot start the event log {}",
+                cfg.event_log.path.display()
+            )
+        })?;
+    if let Some(e) = open_error {
+        tracing::error!(target: "events", "event log DEGRADED: {e}; the controller runs without it, events are counted as lost, and the log is retried every {} s", crate::events::writer::REOPEN_RETRY.as_secs());
+    }
     let events = log.sender();
     let _ = events.send(Event::started(&loaded.main_path, loaded.law));
 
@@ -285,6 +411,10 @@ async fn serve(loaded: Loaded, opts: RunOptions) -> Result<()> {
     let stats = Arc::new(CycleStats::default());
     let health = Arc::new(Health::default());
     let (mut updates_tx, updates_rx) = rtrb::RingBuffer::<ControlUpdate>::new(4);
+    // replaced laws and settings come back here to be dropped off the control thread
+    let (retired_tx, mut retired_rx) =
+        rtrb::RingBuffer::<crate::control::core::Reconfiguration>::new(8);
+    let model0 = loaded.model.clone();
     let stop = Arc::new(AtomicBool::new(false));
 
     let core = ControlCore::new(
@@ -305,6 +435,7 @@ async fn serve(loaded: Loaded, opts: RunOptions) -> Result<()> {
             outputs: Arc::clone(&outputs),
             wake: Arc::clone(&wake),
             updates: updates_rx,
+            retired: retired_tx,
             events: Some(log.rt_sender().map_err(|e| anyhow!("{e}"))?),
             health: Arc::clone(&health),
             stats: Arc::clone(&stats),
@@ -336,6 +467,10 @@ async fn serve(loaded: Loaded, opts: RunOptions) -> Result<()> {
     .context("cannot start the black-box recorder")?;
     let node = node.with_black_box(bb_tx);
     let control = spawn_control(node, cfg.cycle, Arc::clone(&stop), Arc::clone(&stats))?;
+    // systemd READY/WATCHDOG from the control loop's health only, on their own thread
+    let wd_stop = Arc::new(AtomicBool::new(false));
+    let watchdog = super::notify::spawn_watchdog(Arc::clone(&health), Arc::clone(&wd_stop))
+        .context("cannot start the watchdog thread")?;
 
     let (shutdown_tx, shutdown_rx) = tokio::sync::watch::channel(false);
     let mut tasks = tokio::task::JoinSet::new();
@@ -373,31 +508,76 @@ async fn serve(loaded: Loaded, opts: RunOptions) -> Result<()> {
     let mut sigint = tokio::signal::unix::signal(tokio::signal::unix::SignalKind::interrupt())?;
     let mut sighup = tokio::signal::unix::signal(tokio::signal::unix::SignalKind::hangup())?;
     let (watch_tx, mut watch_rx) = tokio::sync::mpsc::channel::<()>(16);
-    let _watcher = super::reload_watch::watch_config_dir(&loaded.main_path, watch_tx)
-        .map_err(|e| tracing::warn!(target: "config", "not watching the config directory ({e}); SIGHUP still reloads"))
-        .ok();
+    let _watcher = if cfg.reload.watch_files {
+        super::reload_watch::watch_config_dir(&loaded.main_path, watch_tx)
+            .map_err(|e| tracing::warn!(target: "config", "not watching the config directory ({e}); SIGHUP still reloads"))
+            .ok()
+    } else {
+        drop(watch_tx);
+        None
+    };
+    let settle = Duration::from_secs_f64(cfg.reload.settle_ms / 1e3);
     let mut current = loaded;
     let mut ticker = tokio::time::interval(Duration::from_millis(100));
-    let mut notifier = super::notify::Notifier::new();
     let started = std::time::Instant::now();
     let mut last_status = std::time::Instant::now();
+    // a watched change waiting for the files to settle: since when, and how they looked
+    let mut settling: Option<(std::time::Instant, Fingerprint)> = None;
+    let mut loading: Option<PendingLoad> = None;
+    let mut reload_again = false;
     let reason: String = loop {
         tokio::select! {
             _ = sigterm.recv() => break "SIGTERM".into(),
             _ = sigint.recv() => break "SIGINT".into(),
             _ = sighup.recv() => {
                 tracing::info!(target: "config", "SIGHUP: reloading {}", current.main_path.display());
-                if let Some(n) = reload(&current, &mut updates_tx, &events) { current = n; }
+                if loading.is_some() { reload_again = true; } else { loading = Some(start_load(&current.main_path)); }
             }
             Some(()) = watch_rx.recv() => {
-                // debounce: editors write a temporary file and rename it
-                tokio::time::sleep(Duration::from_millis(300)).await;
+                // editors write in pieces, or a temporary file renamed over the target:
+                // wait until the files stay unchanged for `settle`
                 while watch_rx.try_recv().is_ok() {}
-                tracing::info!(target: "config", "config directory changed: reloading");
-                if let Some(n) = reload(&current, &mut updates_tx, &events) { current = n; }
+                settling = Some((std::time::Instant::now(), fingerprint(&current.main_path)));
+            }
+            done = async { (&mut loading.as_mut().expect("guarded").task).await }, if loading.is_some() => {
+                let before = loading.take().map(|l| l.before).unwrap_or_default();
+                let result = match done {
+                    Ok(r) if fingerprint(&current.main_path) == before => r,
+                    Ok(_) => Err(vec![config::Problem {
+                        error: crate::config::FileError {
+                            file: current.main_path.clone(),
+                            key: String::new(),
+                            line: 0,
+                            column: 0,
+                            message: "the configuration changed while it was being read (a save in progress?); nothing was applied".into(),
+                            hint: Some("reload again once the file is saved".into()),
+                        },
+                        warning: false,
+                    }]),
+                    Err(e) => {
+                        tracing::error!(target: "config", "reload: the loader failed: {e}");
+                        continue;
+                    }
+                };
+                if let Some(n) = reload(&current, &model0, result, &mut updates_tx, &events) { current = n; }
+                if std::mem::take(&mut reload_again) { loading = Some(start_load(&current.main_path)); }
             }
             _ = ticker.tick() => {
-                notifier.tick(&health);
+                // replaced laws and settings are freed here, off the control thread
+                while retired_rx.pop().is_ok() {}
+                if let Some((since, fp)) = settling.take() {
+                    let now_fp = fingerprint(&current.main_path);
+                    if now_fp != fp {
+                        settling = Some((std::time::Instant::now(), now_fp));
+                    } else if since.elapsed() < settle {
+                        settling = Some((since, fp));
+                    } else if loading.is_some() {
+                        reload_again = true;
+                    } else {
+                        tracing::info!(target: "config", "config files changed and stayed unchanged for {} ms: reloading", settle.as_millis());
+                        loading = Some(start_load(&current.main_path));
+                    }
+                }
                 if let Some(d) = opts.duration_s {
                     if started.elapsed().as_secs_f64() >= d { break "duration elapsed".into(); }
                 }
@@ -405,8 +585,9 @@ async fn serve(loaded: Loaded, opts: RunOptions) -> Result<()> {
                 if every > 0.0 && last_status.elapsed().as_secs_f64() >= every {
                     last_status = std::time::Instant::now();
                     let r = stats.report();
-                    tracing::info!(target: "status", "mode {} · {} cycles · jitter p99 {:.0} µs · compute p99 {:.1} µs · overruns {} · surges {}",
-                        health.mode().name(), r.cycles, r.wake_jitter.p99_us, r.compute.p99_us, r.overruns, health.surges.load(Ordering::Relaxed));
+                    tracing::info!(target: "status", "mode {} · {} cycles · jitter p99 {:.0} µs · compute p99 {:.1} µs · overruns {} · surges {}{}",
+                        health.mode().name(), r.cycles, r.wake_jitter.p99_us, r.compute.p99_us, r.overruns, health.surges.load(Ordering::Relaxed),
+                        if log.writable() { "" } else { " · event log DEGRADED (not writable, retrying)" });
                 }
                 if let Some(p) = &plant {
                     if p.status.finished.load(Ordering::Relaxed) && opts.duration_s.is_none() && opts.out_dir.is_some() {
@@ -417,7 +598,8 @@ async fn serve(loaded: Loaded, opts: RunOptions) -> Result<()> {
         }
     };
     tracing::info!(target: "antisurge", "{reason}: commanding the safe state and stopping");
-    notifier.stopping();
+    wd_stop.store(true, Ordering::Relaxed);
+    let _ = watchdog.join();
     stop.store(true, Ordering::Relaxed);
     let _ = tokio::task::spawn_blocking(move || control.join()).await;
     let _ = tokio::task::spawn_blocking(move || recorder.finish()).await;
@@ -448,6 +630,7 @@ async fn serve(loaded: Loaded, opts: RunOptions) -> Result<()> {
             "links": link_counters.to_json(),
             "surges": health.surges.load(Ordering::Relaxed),
             "updates_applied": health.updates_applied.load(Ordering::Relaxed),
+            "event_log_writable": log.writable(),
         });
         if let Err(e) = std::fs::write(path, serde_json::to_string_pretty(&json)? + "\n") {
             tracing::warn!(target: "antisurge", "cannot write {}: {e}", path.display());

@@ -5,7 +5,7 @@
 
 use std::fmt;
 use std::fs::{self, File};
-use std::io::{BufRead, BufReader, ErrorKind};
+use std::io::{BufRead, BufReader, ErrorKind, Read};
 use std::path::{Path, PathBuf};
 use std::time::Duration;
 
@@ -420,13 +420,27 @@ pub fn read_files(
         let mut line_no = 0u64;
         loop {
             buf.clear();
-            let n = reader
+            // at most MAX_READ_LINE_BYTES per line are kept in memory (a 1 GiB line cost 1 GB)
+            let n = (&mut reader)
+                .take(MAX_READ_LINE_BYTES as u64 + 1)
                 .read_until(b'\n', &mut buf)
                 .map_err(|e| EventLogError::io(path, "read", e))?;
             if n == 0 {
                 break;
             }
             line_no += 1;
+            if n > MAX_READ_LINE_BYTES && buf.last() != Some(&b'\n') {
+                let skipped =
+                    skip_line(&mut reader).map_err(|e| EventLogError::io(path, "read", e))?;
+                let total = n as u64 + skipped;
+                stats.note_invalid(
+                    path,
+                    line_no,
+                    &format!("line of {total} bytes, longer than {MAX_READ_LINE_BYTES}: skipped"),
+                    &buf[..64],
+                );
+                continue;
+            }
             let terminated = buf.last() == Some(&b'\n');
             let content = if terminated { &buf[..n - 1] } else { &buf[..] };
             let last_line = !terminated
@@ -514,6 +528,35 @@ pub fn read_log(
     Ok((out, stats))
 }
 
+/// Longest event-log line the readers keep in memory, bytes (the writer's lines are at most
+/// [`crate::events::MAX_LINE_BYTES`]); longer lines are skipped and reported as invalid.
+pub const MAX_READ_LINE_BYTES: usize = 64 * 1024;
+
+/// The start-up scan looks at most this far back from the end of a file for the last `seq`.
+pub const MAX_SEQ_SCAN_BYTES: u64 = 16 << 20;
+
+/// Consume the rest of a line (through its newline) without keeping it; returns the bytes.
+fn skip_line(reader: &mut impl BufRead) -> std::io::Result<u64> {
+    let mut skipped = 0u64;
+    loop {
+        let chunk = reader.fill_buf()?;
+        if chunk.is_empty() {
+            return Ok(skipped);
+        }
+        match chunk.iter().position(|&b| b == b'\n') {
+            Some(i) => {
+                reader.consume(i + 1);
+                return Ok(skipped + i as u64 + 1);
+            }
+            None => {
+                let n = chunk.len();
+                reader.consume(n);
+                skipped += n as u64;
+            }
+        }
+    }
+}
+
 /// `seq` of the last valid, newline-terminated record in `path`, reading from the end.
 /// `Ok(None)` if the file is missing or holds no valid record.
 pub(crate) fn last_valid_seq(path: &Path) -> Result<Option<u64>, EventLogError> {
@@ -547,10 +590,11 @@ pub(crate) fn last_valid_seq(path: &Path) -> Result<Option<u64>, EventLogError> 
                 }
             }
         }
-        if start == 0 {
+        if start == 0 || window >= MAX_SEQ_SCAN_BYTES {
+            // nothing valid in the last MAX_SEQ_SCAN_BYTES: start a new sequence
             return Ok(None);
         }
-        window = window.saturating_mul(4);
+        window = window.saturating_mul(4).min(MAX_SEQ_SCAN_BYTES);
     }
 }
 

@@ -16,6 +16,7 @@ use std::fs::{self, File, OpenOptions};
 use std::io::{ErrorKind, Write};
 use std::os::unix::fs::FileExt;
 use std::path::{Path, PathBuf};
+use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::mpsc::{self, Receiver, RecvTimeoutError, Sender, SyncSender, TryRecvError};
 use std::sync::Arc;
 use std::thread::JoinHandle;
@@ -35,6 +36,9 @@ pub const MAX_LINE_BYTES: usize = 4096;
 const CLIPPED_FIELD_BYTES: usize = 512;
 /// At most this many non-real-time messages are taken per batch.
 const MAX_BATCH: usize = 4096;
+/// While the file cannot be written (unwritable directory, disk full, file-size limit), the
+/// writer tries to reopen it this often even when no event comes.
+pub const REOPEN_RETRY: Duration = Duration::from_secs(2);
 
 enum Msg {
     Event(Timestamp, Event),
@@ -76,6 +80,7 @@ pub struct EventLog {
     path: Arc<Path>,
     rt_capacity: usize,
     first_seq: u64,
+    writable: Arc<AtomicBool>,
 }
 
 /// Cloneable sender for non-real-time producers (config reload task, start/stop, CLI).
@@ -111,16 +116,53 @@ impl EventLog {
         let path: Arc<Path> = Arc::from(config.path.as_path());
         let dir = parent_dir(&path);
         fs::create_dir_all(&dir).map_err(|e| EventLogError::io(&dir, "create directory", e))?;
-
         let (file, size, torn) = open_live(&path)?;
         sync_dir(&dir)?;
-        let mut next_seq = 1;
-        for f in existing_log_files(&path)?.iter().rev() {
-            if let Some(seq) = last_valid_seq(f)? {
-                next_seq = seq.saturating_add(1);
-                break;
-            }
+        let next_seq = resume_seq(&path)?;
+        Self::spawn(config, path, dir, Some((file, size, torn)), next_seq)
+    }
+
+    /// Like [`start`](Self::start), but a log that cannot be opened (unwritable directory,
+    /// disk full, file-size limit) does not stop the caller: the writer runs degraded, counts
+    /// the events it loses, retries every [`REOPEN_RETRY`] and resumes (with an
+    /// `events_dropped` line) once the file can be written. The audit log is never a start
+    /// dependency of the protection. Returns the open error, if any, for the journal; only an
+    /// invalid configuration or a failed thread start is an `Err`.
+    pub fn start_degraded_ok(
+        config: EventLogConfig,
+    ) -> Result<(EventLog, Option<EventLogError>), EventLogError> {
+        config.validate()?;
+        let path: Arc<Path> = Arc::from(config.path.as_path());
+        let dir = parent_dir(&path);
+        let opened = fs::create_dir_all(&dir)
+            .map_err(|e| EventLogError::io(&dir, "create directory", e))
+            .and_then(|()| open_live(&path))
+            .and_then(|o| sync_dir(&dir).map(|()| o))
+            .and_then(|o| resume_seq(&path).map(|seq| (o, seq)));
+        match opened {
+            Ok((o, seq)) => Ok((Self::spawn(config, path, dir, Some(o), seq)?, None)),
+            Err(e) => Ok((Self::spawn(config, path, dir, None, 1)?, Some(e))),
         }
+    }
+
+    /// Is the log file currently writable (false while degraded)?
+    pub fn writable(&self) -> bool {
+        self.writable.load(Ordering::Relaxed)
+    }
+
+    fn spawn(
+        config: EventLogConfig,
+        path: Arc<Path>,
+        dir: PathBuf,
+        opened: Option<(File, u64, Option<TornRepair>)>,
+        next_seq: u64,
+    ) -> Result<EventLog, EventLogError> {
+        let degraded = opened.is_none();
+        let (file, size, torn) = match opened {
+            Some((f, size, torn)) => (Some(f), size, torn),
+            None => (None, 0, None),
+        };
+        let writable = Arc::new(AtomicBool::new(!degraded));
 
         let (tx, rx) = mpsc::channel();
         if let Some(t) = &torn {
@@ -141,7 +183,7 @@ impl EventLog {
             max_bytes: config.max_bytes,
             keep_files: config.keep_files,
             poll: config.poll_interval(),
-            file: Some(file),
+            file,
             size,
             next_seq,
             rings: Vec::new(),
@@ -150,7 +192,10 @@ impl EventLog {
             dirty: false,
             last_sync: Instant::now(),
             lost_to_errors: 0,
-            failing: false,
+            failing: degraded,
+            seq_unknown: degraded,
+            last_reopen: Instant::now(),
+            writable: Arc::clone(&writable),
             stats: WriterStats {
                 first_seq: next_seq,
                 next_seq,
@@ -168,6 +213,7 @@ impl EventLog {
             path,
             rt_capacity: config.rt_queue_capacity,
             first_seq: next_seq,
+            writable,
         })
     }
 
@@ -253,6 +299,16 @@ struct TornRepair {
     bytes: u64,
 }
 
+/// `seq` after the last valid line of the rotated set (1 for a new log).
+fn resume_seq(path: &Path) -> Result<u64, EventLogError> {
+    for f in existing_log_files(path)?.iter().rev() {
+        if let Some(seq) = last_valid_seq(f)? {
+            return Ok(seq.saturating_add(1));
+        }
+    }
+    Ok(1)
+}
+
 fn parent_dir(path: &Path) -> PathBuf {
     match path.parent() {
         Some(p) if !p.as_os_str().is_empty() => p.to_path_buf(),
@@ -328,6 +384,12 @@ struct Writer {
     lost_to_errors: u64,
     /// In a streak of errors (log the first only).
     failing: bool,
+    /// Started degraded: `seq` is resumed from the existing files once they can be read.
+    seq_unknown: bool,
+    /// Last reopen attempt while no file is open.
+    last_reopen: Instant,
+    /// Shared with [`EventLog::writable`].
+    writable: Arc<AtomicBool>,
     stats: WriterStats,
 }
 
@@ -347,6 +409,15 @@ impl Writer {
                     Err(_) => break,
                 }
                 taken += 1;
+            }
+            if self.file.is_none() && self.last_reopen.elapsed() >= REOPEN_RETRY {
+                // degraded: retry even when nothing is logged, so the status clears
+                self.last_reopen = Instant::now();
+                if self.ensure_open() {
+                    let text =
+                        format!("the event log {} can be written again", self.path.display());
+                    self.batch.push((Timestamp::now(), Event::Note { text }));
+                }
             }
             self.write_pending();
             match control {
@@ -388,6 +459,9 @@ impl Writer {
 
     /// How long to wait for a message: the poll period, or less if a sync falls due.
     fn wait_time(&self) -> Duration {
+        if self.file.is_none() {
+            return self.poll.min(REOPEN_RETRY);
+        }
         match self.fsync {
             FsyncPolicy::Interval { interval_ms } if self.dirty => {
                 let due = Duration::from_millis(interval_ms);
@@ -517,6 +591,10 @@ impl Writer {
                 self.size += len;
                 self.next_seq += 1;
                 self.dirty = true;
+                if self.failing {
+                    tracing::warn!(target: "events", "event log {}: writing works again", self.path.display());
+                    self.writable.store(true, Ordering::Relaxed);
+                }
                 self.failing = false;
                 self.stats.lines_written += 1;
                 self.stats.bytes_written += len;
@@ -539,8 +617,15 @@ impl Writer {
         if self.file.is_some() {
             return true;
         }
+        self.last_reopen = Instant::now();
         match open_live(&self.path) {
             Ok((file, size, _torn)) => {
+                if self.seq_unknown {
+                    if let Ok(seq) = resume_seq(&self.path) {
+                        self.next_seq = self.next_seq.max(seq);
+                        self.seq_unknown = false;
+                    }
+                }
                 self.file = Some(file);
                 self.size = size;
                 true
@@ -558,6 +643,7 @@ impl Writer {
             tracing::error!("{e}; events are lost until writing works again");
         }
         self.failing = true;
+        self.writable.store(false, Ordering::Relaxed);
         self.file = None;
     }
 
@@ -1013,6 +1099,45 @@ mod tests {
             Err(e) => panic!("unexpected error {e}"),
             Ok(_) => panic!("started under a regular file"),
         }
+    }
+
+    #[test]
+    fn degraded_start_runs_counts_losses_and_recovers_by_itself() {
+        let dir = tempfile::tempdir().expect("tempdir");
+        let blocker = dir.path().join("logs");
+        fs::write(&blocker, "").expect("write"); // the log directory is a regular file
+        let c = cfg(&blocker);
+        let path = c.path.clone();
+        let (log, err) = EventLog::start_degraded_ok(c).expect("degraded start is not an error");
+        assert!(err.is_some());
+        assert!(!log.writable());
+        log.send(Event::Note {
+            text: "lost".into(),
+        })
+        .expect("send");
+        std::thread::sleep(Duration::from_millis(100));
+        // the operator fixes the directory; the writer retries without any new event
+        fs::remove_file(&blocker).expect("rm");
+        fs::create_dir(&blocker).expect("mkdir");
+        let t0 = Instant::now();
+        while !log.writable() && t0.elapsed() < REOPEN_RETRY * 3 {
+            std::thread::sleep(Duration::from_millis(50));
+        }
+        assert!(
+            log.writable(),
+            "not writable again after {:?}",
+            t0.elapsed()
+        );
+        log.send(Event::Note {
+            text: "kept".into(),
+        })
+        .expect("send");
+        let stats = log.shutdown().expect("shutdown");
+        assert!(stats.write_errors >= 1);
+        let raw = fs::read_to_string(&path).expect("log");
+        assert!(raw.contains("can be written again"), "{raw}");
+        assert!(raw.contains("\"events_dropped\""), "{raw}");
+        assert!(raw.contains("kept") && !raw.contains("\"lost\""), "{raw}");
     }
 
     #[test]

@@ -138,6 +138,17 @@ impl std::fmt::Display for RtGranted {
     }
 }
 
+/// Number of CPUs a `cpu_set_t` can name (`CPU_SETSIZE`).
+pub const CPU_SET_BITS: usize = 8 * std::mem::size_of::<libc::cpu_set_t>();
+
+/// CPUs configured on this machine (`sysconf(_SC_NPROCESSORS_CONF)`), at most
+/// [`CPU_SET_BITS`]: the valid range of `[cycle] cpu` is `0..configured_cpus()`.
+pub fn configured_cpus() -> usize {
+    // SAFETY: sysconf only reads a system value.
+    let n = unsafe { libc::sysconf(libc::_SC_NPROCESSORS_CONF) };
+    (n.max(1) as usize).min(CPU_SET_BITS)
+}
+
 /// Apply the settings to the calling thread.
 pub fn setup_current_thread(s: &RtSettings) -> RtGranted {
     let mut g = RtGranted::default();
@@ -151,8 +162,14 @@ pub fn setup_current_thread(s: &RtSettings) -> RtGranted {
         });
         prefault_stack();
     }
-    if let Some(cpu) = s.cpu {
-        // SAFETY: a zeroed cpu_set_t is valid; CPU_SET writes within it; sched_setaffinity reads it.
+    if let Some(cpu) = s.cpu.filter(|&c| c >= CPU_SET_BITS) {
+        g.affinity = Some(Err(format!(
+            "CPU {cpu} is beyond the {CPU_SET_BITS} CPUs a cpu_set_t holds; not pinned"
+        )));
+    }
+    if let Some(cpu) = s.cpu.filter(|&c| c < CPU_SET_BITS) {
+        // SAFETY: a zeroed cpu_set_t is valid; CPU_SET writes within it (cpu < CPU_SET_BITS,
+        // checked above: a larger index panics inside CPU_SET); sched_setaffinity reads it.
         let r = unsafe {
             let mut set: libc::cpu_set_t = std::mem::zeroed();
             libc::CPU_SET(cpu, &mut set);

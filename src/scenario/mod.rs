@@ -9,6 +9,10 @@ use crate::signals::SensorId;
 use serde::Deserialize;
 use std::path::{Path, PathBuf};
 
+/// Longest scenario, s (one day). The in-memory trace grows with the duration (1e7 s used to
+/// abort allocating 528 GB); soak tests longer than this run as consecutive scenarios.
+pub const MAX_DURATION_S: f64 = 86_400.0;
+
 /// Process quantities an event can change.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Deserialize)]
 #[serde(rename_all = "snake_case")]
@@ -220,12 +224,17 @@ impl Scenario {
     }
 
     /// Validate a parsed file (`text` is used to locate keys in messages).
+    ///
+    /// `duration_s` is bounded by [`MAX_DURATION_S`]: the trace's memory follows from it.
     pub fn from_file(file: ScenarioFile, path: &Path, text: &str) -> Result<Scenario, FileError> {
         let at = |key: &str, msg: String| FileError::at_key(path, text, key, msg);
-        if file.duration_s.is_nan() || file.duration_s <= 0.0 {
+        if !(file.duration_s > 0.0 && file.duration_s <= MAX_DURATION_S) {
             return Err(at(
                 "duration_s",
-                format!("must be positive, found {}", file.duration_s),
+                format!(
+                    "must be positive and at most {MAX_DURATION_S} s (one day), found {}",
+                    file.duration_s
+                ),
             ));
         }
         if !(0.0..=0.1).contains(&file.control_period_s) || file.control_period_s == 0.0 {

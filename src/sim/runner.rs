@@ -460,7 +460,8 @@ impl<'a> PlantRun<'a> {
             recycle_energy: 0.0,
             last_recycle_pos,
             law_events: LawEventCounts::default(),
-            trace: Vec::with_capacity(n_steps / trace_every + 2),
+            // preallocation bounded (1 M rows); a longer trace grows as it is written
+            trace: Vec::with_capacity((n_steps / trace_every + 2).min(1 << 20)),
             trace_every,
             surge_margin: Box::new(move |q, r| model.surge_margin(q, r)),
             wall: Instant::now(),

@@ -540,7 +540,7 @@ impl CanDatabase {
     pub fn from_file(path: impl AsRef<Path>) -> Result<CanDatabase, DbcError> {
         let path = path.as_ref();
         let file = path.display().to_string();
-        let text = std::fs::read_to_string(path).map_err(|e| DbcError {
+        let text = crate::config::read_config_text(path).map_err(|e| DbcError {
             file: file.clone(),
             kind: DbcErrorKind::Io(e),
         })?;

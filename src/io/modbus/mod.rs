@@ -16,6 +16,7 @@ pub mod client;
 pub mod link;
 pub mod plan;
 pub mod register;
+pub mod request_guard;
 pub mod server;
 
 pub use client::{

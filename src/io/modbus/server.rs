@@ -421,7 +421,11 @@ pub fn spawn_tcp_server_on(
             async move {
                 let _ = stream.set_nodelay(true);
                 tracing::debug!(target: "modbus", %peer, "client connected");
-                Ok(Some((service, stream)))
+                // malformed requests never reach tokio-modbus's decoder (issue 12, item 9)
+                Ok(Some((
+                    service,
+                    super::request_guard::guard_connection(stream, peer),
+                )))
             }
         };
         let on_error =
