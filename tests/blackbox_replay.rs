@@ -59,7 +59,11 @@ scenario = "throttle-closure"
         .expect("an exit dump");
     let rec = blackbox::read_file(&exit_file).expect("read the recording");
     assert_eq!(rec.header.law, "recycle-pi");
-    assert_eq!(rec.records.first().map(|r| r.cycle), Some(0), "starts at the first cycle");
+    assert_eq!(
+        rec.records.first().map(|r| r.cycle),
+        Some(0),
+        "starts at the first cycle"
+    );
     // 8 s at 1 kHz, minus start-up: the closure (5–7 s) is in it
     assert!(rec.records.len() > 6000, "{} records", rec.records.len());
     assert!(rec.records.iter().any(|r| r.t_s > 7.0));
@@ -99,9 +103,16 @@ scenario = "throttle-closure"
         .output()
         .expect("antisurge replay");
     let text = String::from_utf8_lossy(&o.stdout);
-    assert!(o.status.success(), "{text}{}", String::from_utf8_lossy(&o.stderr));
     assert!(
-        text.contains(&format!("{0} of {0} cycles bit-identical", rec.records.len())),
+        o.status.success(),
+        "{text}{}",
+        String::from_utf8_lossy(&o.stderr)
+    );
+    assert!(
+        text.contains(&format!(
+            "{0} of {0} cycles bit-identical",
+            rec.records.len()
+        )),
         "{text}"
     );
 }

@@ -43,7 +43,10 @@ fn readme_table_is_the_output_of_antisurge_table() {
 fn readme_inertia_sweep_is_the_output_of_antisurge_table() {
     let readme = std::fs::read_to_string(common::root().join("README.md")).expect("README.md");
     let begin = "<!-- inertia:begin -->\n";
-    let start = readme.find(begin).expect("README.md lacks <!-- inertia:begin -->") + begin.len();
+    let start = readme
+        .find(begin)
+        .expect("README.md lacks <!-- inertia:begin -->")
+        + begin.len();
     let stop = readme[start..]
         .find("<!-- inertia:end -->")
         .expect("README.md lacks <!-- inertia:end -->")
@@ -53,7 +56,11 @@ fn readme_inertia_sweep_is_the_output_of_antisurge_table() {
         .arg(common::root().join("config"))
         .output()
         .expect("run antisurge table --inertia-sweep");
-    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
     let fresh = String::from_utf8(out.stdout).expect("utf-8");
     assert_eq!(
         &readme[start..stop],

@@ -15,8 +15,12 @@ fn drive_torque_with_k1_h_over_j_of_2_is_reported_unstable() {
     let j = plant.file.shaft.inertia_kg_m2;
     let h = 1e-3;
     plant.file.controller.drive_torque.k1_nm_s_rad = 2.0 * j / h;
-    let s = common::simulate(&plant, &common::scenario("throttle_closure"), LawId::DriveTorque)
-        .summary;
+    let s = common::simulate(
+        &plant,
+        &common::scenario("throttle_closure"),
+        LawId::DriveTorque,
+    )
+    .summary;
     assert!(!s.stable, "{s:#?}");
     assert!(
         s.verdict.starts_with("UNSTABLE") || s.verdict.starts_with("SURGE"),
@@ -37,8 +41,12 @@ fn drive_torque_with_k1_h_over_j_of_2_is_reported_unstable() {
 fn drive_torque_with_the_seed_k1_is_reported_unstable() {
     let mut plant = common::plant("bohagen2007_plenum");
     plant.file.controller.drive_torque.k1_nm_s_rad = 10_000.0;
-    let s = common::simulate(&plant, &common::scenario("throttle_closure"), LawId::DriveTorque)
-        .summary;
+    let s = common::simulate(
+        &plant,
+        &common::scenario("throttle_closure"),
+        LawId::DriveTorque,
+    )
+    .summary;
     assert!(!s.stable, "{s:#?}");
     assert!(!s.verdict.starts_with("STABLE"), "{}", s.verdict);
 }
@@ -48,8 +56,12 @@ fn drive_torque_with_the_seed_k1_is_reported_unstable() {
 #[test]
 fn shipped_drive_torque_closure_is_stable_and_its_figures_come_from_the_event() {
     let plant = common::plant("bohagen2007_plenum");
-    let s = common::simulate(&plant, &common::scenario("throttle_closure"), LawId::DriveTorque)
-        .summary;
+    let s = common::simulate(
+        &plant,
+        &common::scenario("throttle_closure"),
+        LawId::DriveTorque,
+    )
+    .summary;
     assert!(s.stable, "{s:#?}");
     assert_eq!(s.verdict, "STABLE — no surge");
     assert_eq!(s.failsafe_fraction, 0.0);
@@ -77,7 +89,11 @@ fn flow_transmitter_failure_names_the_fallback_and_its_time() {
     assert!((4.0..4.2).contains(&f.from_s), "{f:?}");
     assert_eq!(f.cause, "flow transmitter stale");
     assert!(f.observer_max_error_kg_s.is_finite());
-    let plain = common::simulate(&plant, &common::scenario("throttle_closure"), LawId::RecyclePi)
-        .summary;
+    let plain = common::simulate(
+        &plant,
+        &common::scenario("throttle_closure"),
+        LawId::RecyclePi,
+    )
+    .summary;
     assert!(plain.flow_source.fallbacks.is_empty());
 }

@@ -151,7 +151,11 @@ pub struct Recorder {
 
 impl Recorder {
     /// Start a recorder writing into `dir` (created when the first file is written).
-    pub fn start(dir: PathBuf, header: Header, capacity: usize) -> std::io::Result<(BlackBoxTx, Recorder)> {
+    pub fn start(
+        dir: PathBuf,
+        header: Header,
+        capacity: usize,
+    ) -> std::io::Result<(BlackBoxTx, Recorder)> {
         let (tx, rx) = rtrb::RingBuffer::new(CHANNEL_CAPACITY);
         let dropped = Arc::new(AtomicU64::new(0));
         let stop = Arc::new(AtomicBool::new(false));
@@ -385,9 +389,12 @@ pub fn read_file(path: &Path) -> Result<Recording, BlackBoxError> {
         .next()
         .ok_or_else(|| fmt(1, "empty file".into()))?
         .map_err(|e| fmt(1, e.to_string()))?;
-    let json = first
-        .strip_prefix(MAGIC)
-        .ok_or_else(|| fmt(1, format!("not a black-box file (expected `{}`)", MAGIC.trim())))?;
+    let json = first.strip_prefix(MAGIC).ok_or_else(|| {
+        fmt(
+            1,
+            format!("not a black-box file (expected `{}`)", MAGIC.trim()),
+        )
+    })?;
     let header: Header = serde_json::from_str(json).map_err(|e| fmt(1, format!("header: {e}")))?;
     let cols = columns();
     let second = lines
@@ -470,7 +477,7 @@ mod tests {
 
     fn record(k: u64) -> CycleRecord {
         let mut raw = RawSensors::missing();
-        raw.values.values[0] = 101_325.123_456_789_01 + k as f64 * 1e-7;
+        raw.values.values[0] = 101_325.123_456_79 + k as f64 * 1e-7;
         raw.values.values[1] = -0.0;
         raw.age_s[0] = 1.0 / 3.0;
         let mut commands = ActuatorCommands::default();
@@ -494,7 +501,7 @@ mod tests {
             law_torque_nm: -3.5e-310, // subnormal
             m_used_kg_s: 8.8,
             m_observer_kg_s: f64::INFINITY,
-            flow_fallback: k % 2 == 0,
+            flow_fallback: k.is_multiple_of(2),
             surge_started: false,
             updates_applied: 0,
         }
@@ -559,7 +566,8 @@ mod tests {
     #[test]
     fn recorder_writes_on_fail_safe_and_at_exit() {
         let dir = tempfile::tempdir().expect("tmp");
-        let (mut tx, rec) = Recorder::start(dir.path().to_path_buf(), header(), 100).expect("start");
+        let (mut tx, rec) =
+            Recorder::start(dir.path().to_path_buf(), header(), 100).expect("start");
         for k in 0..3000 {
             let mut r = record(k);
             r.mode = if k >= 500 { 3 } else { 2 };
@@ -572,11 +580,19 @@ mod tests {
         let files = rec.finish();
         let names: Vec<String> = files
             .iter()
-            .map(|p| p.file_name().unwrap_or_default().to_string_lossy().into_owned())
+            .map(|p| {
+                p.file_name()
+                    .unwrap_or_default()
+                    .to_string_lossy()
+                    .into_owned()
+            })
             .collect();
         assert_eq!(
             names,
-            vec!["blackbox-fail_safe-cycle2500.csv", "blackbox-exit-cycle2999.csv"],
+            vec![
+                "blackbox-fail_safe-cycle2500.csv",
+                "blackbox-exit-cycle2999.csv"
+            ],
             "{names:?}"
         );
         let r = read_file(&files[0]).expect("read");

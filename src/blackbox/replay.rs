@@ -78,7 +78,10 @@ fn same(a: f64, b: f64) -> bool {
 }
 
 /// Replay `rec` with a core built from `setup`.
-pub fn replay(rec: &Recording, setup: ReplaySetup) -> Result<Replay, crate::control::law::LawError> {
+pub fn replay(
+    rec: &Recording,
+    setup: ReplaySetup,
+) -> Result<Replay, crate::control::law::LawError> {
     let h = &rec.header;
     let mut core = ControlCore::new(
         setup.model,

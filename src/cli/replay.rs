@@ -36,10 +36,14 @@ pub fn run(args: &ReplayArgs) -> Result<std::process::ExitCode> {
         anyhow!(
             "the configuration {} is invalid:\n{}",
             cfg_path.display(),
-            p.iter().map(|p| p.to_string()).collect::<Vec<_>>().join("\n")
+            p.iter()
+                .map(|p| p.to_string())
+                .collect::<Vec<_>>()
+                .join("\n")
         )
     })?;
-    let env_overrides = std::env::vars().any(|(k, _)| k.starts_with("ANTISURGE_") && k.contains("__"));
+    let env_overrides =
+        std::env::vars().any(|(k, _)| k.starts_with("ANTISURGE_") && k.contains("__"));
     let recorded = args.config.is_none() && args.law.is_none() && !env_overrides;
     let law: LawId = match &args.law {
         Some(l) => l.parse()?,
@@ -83,7 +87,10 @@ pub fn run(args: &ReplayArgs) -> Result<std::process::ExitCode> {
             if recorded {
                 "as recorded".to_string()
             } else {
-                format!("changed ({}): open loop over the recorded inputs", cfg_path.display())
+                format!(
+                    "changed ({}): open loop over the recorded inputs",
+                    cfg_path.display()
+                )
             }
         );
         if !rep.starts_at_first_cycle {
@@ -114,9 +121,11 @@ pub fn run(args: &ReplayArgs) -> Result<std::process::ExitCode> {
         }
     }
     let exact = rep.identical_cycles == rep.cycles;
-    Ok(if recorded && rep.starts_at_first_cycle && rep.updates_at_cycles.is_empty() && !exact {
-        std::process::ExitCode::from(1)
-    } else {
-        std::process::ExitCode::SUCCESS
-    })
+    Ok(
+        if recorded && rep.starts_at_first_cycle && rep.updates_at_cycles.is_empty() && !exact {
+            std::process::ExitCode::from(1)
+        } else {
+            std::process::ExitCode::SUCCESS
+        },
+    )
 }

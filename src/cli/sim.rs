@@ -152,7 +152,7 @@ fn thousands(x: f64) -> String {
     let s = v.abs().to_string();
     let mut out = String::new();
     for (i, c) in s.chars().enumerate() {
-        if i > 0 && (s.len() - i) % 3 == 0 {
+        if i > 0 && (s.len() - i).is_multiple_of(3) {
             out.push('\u{202f}');
         }
         out.push(c);
@@ -191,7 +191,15 @@ pub fn print_summary(s: &Summary, dir: &Path, files: &[PathBuf]) {
             if eps.is_empty() {
                 String::new()
             } else {
-                format!(" ({}{})", eps.join(", "), if s.failsafe_episodes.len() > 3 { ", …" } else { "" })
+                format!(
+                    " ({}{})",
+                    eps.join(", "),
+                    if s.failsafe_episodes.len() > 3 {
+                        ", …"
+                    } else {
+                        ""
+                    }
+                )
             },
             100.0 * s.torque_saturation_fraction
         );

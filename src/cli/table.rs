@@ -44,8 +44,9 @@ pub fn run(args: &TableArgs) -> Result<()> {
     let closure = Scenario::load(&locate::resolve(&cfg, "scenarios", &args.closure)?)?;
     if let Some(name) = &args.inertia_sweep {
         let plant = PlantDescription::load(&locate::resolve(&cfg, "plants", name)?)?;
-        let rows = antisurge::sim::table::inertia_sweep(&plant, &sweep, &closure, &SWEEP_INERTIAS_KG_M2)
-            .context("running the inertia sweep")?;
+        let rows =
+            antisurge::sim::table::inertia_sweep(&plant, &sweep, &closure, &SWEEP_INERTIAS_KG_M2)
+                .context("running the inertia sweep")?;
         let md = antisurge::sim::table::inertia_markdown(plant.name(), &rows);
         print!("{md}");
         if let Some(out) = &args.out {

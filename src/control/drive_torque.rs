@@ -823,7 +823,9 @@ mod tests {
         let r = check_sampled_speed_loop(&c, 0.2, 1e-3).expect("0.7 is fine");
         assert!((r - 0.7).abs() < 1e-12);
         c.k1_nm_s_rad = 200.0; // exactly 1: refused
-        let e = check_sampled_speed_loop(&c, 0.2, 1e-3).unwrap_err().to_string();
+        let e = check_sampled_speed_loop(&c, 0.2, 1e-3)
+            .unwrap_err()
+            .to_string();
         assert!(e.contains("k1_nm_s_rad") && e.contains("K1·h/J"), "{e}");
         c.k1_nm_s_rad = 400.0;
         assert!(check_sampled_speed_loop(&c, 0.2, 1e-3).is_err());

@@ -1315,7 +1315,9 @@ pub fn check(l: &Loaded) -> Vec<Problem> {
         Ok(_) => {
             // eq. 8 depends on the operating region, so the law's constructor leaves it to here
             if l.law == LawId::DriveTorque {
-                if let Err(e) = check_gains(&l.controller.drive_torque, &l.model, 1.0 / c.cycle.rate_hz) {
+                if let Err(e) =
+                    check_gains(&l.controller.drive_torque, &l.model, 1.0 / c.cycle.rate_hz)
+                {
                     let (key, msg, hint) = law_error(e);
                     error(&key, msg, hint);
                 }

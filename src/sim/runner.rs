@@ -6,10 +6,10 @@ use super::summary::{
 };
 use super::trace::TraceRow;
 use crate::control::core::{ControlCore, CoreSettings, Mode};
-use crate::control::supervisor::{InputFault, InputLimits};
 use crate::control::law::LawEvent;
 use crate::control::measurements::{OperatorInputs, RawSensors};
 use crate::control::model::ControlModel;
+use crate::control::supervisor::{InputFault, InputLimits};
 use crate::control::LawId;
 use crate::plant::file::PlantDescription;
 use crate::plant::{PlantError, PlantInputs, SimPlant};
@@ -266,7 +266,10 @@ impl HealthRecord {
         }
         // fail-safe episodes (mode code of the core)
         let failsafe = view.mode == f64::from(Mode::FailSafe.code());
-        let open = self.failsafe_episodes.last().is_some_and(|e| e.to_s.is_none());
+        let open = self
+            .failsafe_episodes
+            .last()
+            .is_some_and(|e| e.to_s.is_none());
         if failsafe {
             self.failsafe_cycles += 1;
             if !open {
@@ -416,11 +419,7 @@ impl<'a> PlantRun<'a> {
         let frozen = plant.sensors();
         let last_recycle_pos = plant.truth().recycle_valve_position;
         let sup = CoreSettings::defaults_for(&model).supervisor;
-        let last_event_start_s = scenario
-            .actions
-            .iter()
-            .map(|(t, _)| *t)
-            .fold(0.0, f64::max);
+        let last_event_start_s = scenario.actions.iter().map(|(t, _)| *t).fold(0.0, f64::max);
         let health = HealthRecord::new(
             [
                 sup.limits[SensorId::PSuction.index()],
@@ -428,7 +427,10 @@ impl<'a> PlantRun<'a> {
                 sup.limits[SensorId::ShaftSpeed.index()],
             ],
             last_event_start_s,
-            (desc.file.drive.min_torque_nm, desc.file.drive.rated_torque_nm),
+            (
+                desc.file.drive.min_torque_nm,
+                desc.file.drive.rated_torque_nm,
+            ),
         );
         Ok(PlantRun {
             desc,
@@ -596,7 +598,7 @@ impl<'a> PlantRun<'a> {
         self.last_recycle_pos = truth.recycle_valve_position;
         self.health.record(t_s, &truth, margin, c, view);
 
-        if k % self.trace_every == 0 {
+        if k.is_multiple_of(self.trace_every) {
             self.trace.push(TraceRow {
                 t_s,
                 m_kg_s: truth.m_kg_s,
@@ -818,7 +820,7 @@ pub fn run_with(
         }
         let applied = in_flight.pass(k, out.commands, &options);
         pr.advance(&st, &applied, dt);
-        if options.progress_every > 0 && k % options.progress_every == 0 {
+        if options.progress_every > 0 && k.is_multiple_of(options.progress_every) {
             progress(k as f64 / n_steps as f64);
         }
     }

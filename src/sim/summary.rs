@@ -362,7 +362,10 @@ mod tests {
             surge_frequency_hz: Some(2.0),
             ..healthy()
         };
-        assert_eq!(verdict(&h), (false, "SURGE — 3 cycles at 2.00 Hz".to_string()));
+        assert_eq!(
+            verdict(&h),
+            (false, "SURGE — 3 cycles at 2.00 Hz".to_string())
+        );
         let h = Health {
             steady: false,
             ..healthy()
