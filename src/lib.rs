@@ -11,6 +11,7 @@
 #![forbid(unsafe_op_in_unsafe_fn)]
 
 pub mod bench_matrix;
+pub mod blackbox;
 pub mod config;
 pub mod control;
 pub mod daemon;

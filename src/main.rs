@@ -2,11 +2,18 @@
 
 mod cli;
 
+use std::io::Write as _;
+
 use clap::{Parser, Subcommand};
 
 /// antisurge: real-time anti-surge and active surge control for centrifugal compressors.
 #[derive(Debug, Parser)]
-#[command(name = "antisurge", version, about, long_about = None)]
+#[command(
+    name = "antisurge",
+    version = concat!(env!("CARGO_PKG_VERSION"), " (commit ", env!("ANTISURGE_COMMIT"), ")"),
+    about,
+    long_about = None
+)]
 struct Cli {
     #[command(subcommand)]
     command: Option<Command>,
@@ -34,6 +41,16 @@ enum Command {
     Operate(cli::status::OperateArgs),
     /// Draw the map and time-series pictures of a trace.csv from `run`, `plant` or HIL.
     Plot(cli::plot::PlotArgs),
+    /// Run the control core over a black-box recording (bit-exact with the recorded
+    /// settings; with `--config`/`--law`, what another setting would have commanded).
+    Replay(cli::replay::ReplayArgs),
+    /// Print shell completions (bash, zsh, fish, elvish, powershell) to stdout.
+    Completions {
+        /// The shell.
+        shell: clap_complete::Shell,
+    },
+    /// Print the manual page (roff) to stdout: `antisurge man > antisurge.1`.
+    Man,
 }
 
 fn main() -> std::process::ExitCode {
@@ -52,20 +69,32 @@ fn main() -> std::process::ExitCode {
         Some(Command::Status(args)) => cli::status::status(&args),
         Some(Command::Operate(args)) => cli::status::operate(&args),
         Some(Command::Plot(args)) => cli::plot::run(&args),
+        Some(Command::Replay(args)) => match cli::replay::run(&args) {
+            Ok(code) => return code,
+            Err(e) => Err(e),
+        },
+        Some(Command::Completions { shell }) => {
+            use clap::CommandFactory;
+            clap_complete::generate(
+                shell,
+                &mut Cli::command(),
+                "antisurge",
+                &mut std::io::stdout(),
+            );
+            Ok(())
+        }
+        Some(Command::Man) => {
+            use clap::CommandFactory;
+            clap_mangen::Man::new(Cli::command())
+                .render(&mut std::io::stdout())
+                .map_err(anyhow::Error::from)
+        }
         None => {
-            // a bare `antisurge` runs the default simulation
-            let args = cli::sim::SimArgs {
-                plant: cli::sim::DEFAULT_PLANT.into(),
-                scenario: cli::sim::DEFAULT_SCENARIO.into(),
-                law: cli::sim::DEFAULT_LAW.into(),
-                out: None,
-                config_dir: None,
-                no_plots: false,
-                json: false,
-                loop_delay_periods: 0,
-                loop_delay_jitter_periods: 0,
-            };
-            cli::sim::run(&args)
+            // a bare `antisurge` explains itself instead of running anything
+            use clap::CommandFactory;
+            let _ = Cli::command().print_help();
+            let _ = writeln!(std::io::stdout());
+            return std::process::ExitCode::SUCCESS;
         }
     };
     match result {

@@ -7,7 +7,10 @@
 //! (b) Rust encodes frames (codec, heartbeat, raw edge cases); cantools must decode what Rust
 //!     meant, and the CRCs must check out with crccheck's CRC-8/SAE-J1850.
 //!
-//! The test fails (never skips) when Python or cantools is missing: CI installs cantools.
+//! The two cross-check tests are `#[ignore]`d in a plain `cargo test` (a fresh machine has no
+//! cantools): they show as "ignored" with the reason. `.ci/run` installs cantools and runs
+//! them with `--include-ignored`; run that way they fail (never skip) when Python or cantools
+//! is missing.
 //! Set `PYTHON` to choose the interpreter (default `python3`).
 
 use std::collections::BTreeSet;
@@ -89,7 +92,7 @@ fn helper(mode: &str, dbc: &Path, input: Option<&Value>) -> Value {
 }
 
 fn hex_decode(s: &str) -> Vec<u8> {
-    assert!(s.len() % 2 == 0, "odd hex length: {s}");
+    assert!(s.len().is_multiple_of(2), "odd hex length: {s}");
     (0..s.len())
         .step_by(2)
         .map(|i| u8::from_str_radix(&s[i..i + 2], 16).expect("hex"))
@@ -235,6 +238,7 @@ fn check_cantools_frames(db: &CanDatabase, codec: Option<&CanCodec>, out: &Value
 }
 
 #[test]
+#[ignore = "needs Python 3 with cantools (pip install cantools); .ci/run installs it and runs these with --include-ignored"]
 fn cantools_frames_decode_identically_in_rust() {
     let db = CanDatabase::from_file(skid_path()).expect("skid.dbc");
     let codec = CanCodec::new(&db, &skid_bindings()).expect("codec");
@@ -519,6 +523,7 @@ fn check_rust_frames(db: &CanDatabase, dbc: &Path, sent: &[Sent]) {
 }
 
 #[test]
+#[ignore = "needs Python 3 with cantools (pip install cantools); .ci/run installs it and runs these with --include-ignored"]
 fn rust_frames_decode_identically_in_cantools() {
     let db = CanDatabase::from_file(skid_path()).expect("skid.dbc");
     let mut sent = codec_frames(&db);

@@ -120,7 +120,7 @@ fn environment_overrides_conf_d() {
     );
     let env = vars(&[
         ("ANTISURGE_CONTROL__LAW", "drive-torque"),
-        ("ANTISURGE_CYCLE__RATE_HZ", "250"),
+        ("ANTISURGE_CYCLE__RATE_HZ", "2000"),
         ("ANTISURGE_EVENT_LOG__MAX_BYTES", "2097152"),
         (
             "ANTISURGE_CONTROLLER__DRIVE_TORQUE__C1_RAD_S_PER_KG_S",
@@ -135,7 +135,7 @@ fn environment_overrides_conf_d() {
     assert_eq!(l.law, LawId::DriveTorque);
     assert_eq!(l.config.control.law, "drive-torque");
     assert_eq!(
-        l.config.cycle.rate_hz, 250.0,
+        l.config.cycle.rate_hz, 2000.0,
         "an integer variable is a number"
     );
     assert_eq!(l.config.event_log.max_bytes, 2_097_152);

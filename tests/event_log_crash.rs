@@ -74,7 +74,7 @@ fn crash_child() {
             surge_count_total: i,
             frequency_hz: 8.0 + (i % 7) as f64,
             min_flow_kg_s: -0.1 * (i % 5) as f64,
-            flow_reversal: i % 2 == 0,
+            flow_reversal: i.is_multiple_of(2),
         }) && rt.try_push(ModeChanged {
             from: Mode::Auto,
             to: Mode::Manual,

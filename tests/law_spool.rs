@@ -314,7 +314,7 @@ fn ccv_limit_0_1_recovers_slower_than_0_2() {
         plant.file.spool.as_mut().expect("spool").ccv_max = limit;
         let r = common::simulate(&plant, &sc, LawId::None);
         let s = &r.summary;
-        assert!(s.stable, "limit {limit}: not stable");
+        assert!(s.stable, "limit {limit}: not stable: {s:#?}");
         let (m0, _) = equilibrium(&plant, 0.2);
         assert!((final_flow(&r) - m0).abs() < 2e-3 * m0, "limit {limit}");
         let peaks = assert_within_ratings(&plant, &r, LawId::Ccv);
@@ -390,7 +390,8 @@ fn bumpless_switch_from_none_to_each_law() {
             }
             assert!(
                 r.summary.stable,
-                "{law} switched in at {switch_s} s does not stabilise"
+                "{law} switched in at {switch_s} s does not stabilise: {:#?}",
+                r.summary
             );
             if switch_s < 7.0 {
                 assert_eq!(r.summary.surge_cycles, 0, "{law} at {switch_s} s");

@@ -38,3 +38,33 @@ fn readme_table_is_the_output_of_antisurge_table() {
         "README.md's table differs from `antisurge table`: rerun `cargo run --release -- table` and paste its output between the markers"
     );
 }
+
+#[test]
+fn readme_inertia_sweep_is_the_output_of_antisurge_table() {
+    let readme = std::fs::read_to_string(common::root().join("README.md")).expect("README.md");
+    let begin = "<!-- inertia:begin -->\n";
+    let start = readme
+        .find(begin)
+        .expect("README.md lacks <!-- inertia:begin -->")
+        + begin.len();
+    let stop = readme[start..]
+        .find("<!-- inertia:end -->")
+        .expect("README.md lacks <!-- inertia:end -->")
+        + start;
+    let out = Command::new(env!("CARGO_BIN_EXE_antisurge"))
+        .args(["table", "--inertia-sweep", "bohagen2007", "--config-dir"])
+        .arg(common::root().join("config"))
+        .output()
+        .expect("run antisurge table --inertia-sweep");
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let fresh = String::from_utf8(out.stdout).expect("utf-8");
+    assert_eq!(
+        &readme[start..stop],
+        fresh,
+        "README.md's inertia sweep differs: rerun `cargo run --release -- table --inertia-sweep bohagen2007`"
+    );
+}

@@ -379,14 +379,7 @@ pub fn run_case(
             res.valve_travel += (pos - last_pos).abs();
         }
         last_pos = pos;
-        let m = &out.measurements;
-        let view = ControllerView {
-            m_measured_kg_s: m.m_measured_kg_s,
-            m_observer_kg_s: m.m_observer_kg_s,
-            m_used_kg_s: m.m_kg_s,
-            mode: f64::from(out.mode.code()),
-            law_diagnostic: out.law_diagnostic,
-        };
+        let view = ControllerView::of(&out);
         pr.record(k, t, dt, &raw, &out.commands, &view);
         if k == n {
             break;

@@ -4,7 +4,8 @@ use anyhow::{bail, Context, Result};
 use std::path::{Path, PathBuf};
 
 /// The configuration directory: `--config-dir`, `$ANTISURGE_CONFIG_DIR`, `./config`, the
-/// directory next to the executable's `../config`, or `/etc/antisurge`.
+/// directory next to the executable's `../config`, `/etc/antisurge`, or else the shipped
+/// plants, maps and scenarios built into the binary ([`embedded_config_dir`]).
 pub fn config_dir(explicit: Option<&Path>) -> PathBuf {
     if let Some(p) = explicit {
         return p.to_path_buf();
@@ -24,7 +25,35 @@ pub fn config_dir(explicit: Option<&Path>) -> PathBuf {
             }
         }
     }
-    PathBuf::from("/etc/antisurge")
+    let etc = PathBuf::from("/etc/antisurge");
+    if etc.join("plants").is_dir() {
+        return etc;
+    }
+    // nothing on disk: the copies built into the binary
+    embedded_config_dir().unwrap_or(etc)
+}
+
+mod embedded {
+    include!(concat!(env!("OUT_DIR"), "/embedded_config.rs"));
+}
+
+/// Write the shipped plants, maps and scenarios built into the binary to a directory under
+/// the temporary directory (once per build) and return it.
+pub fn embedded_config_dir() -> Option<PathBuf> {
+    let dir = std::env::temp_dir().join(format!(
+        "antisurge-{}-{}-config",
+        env!("CARGO_PKG_VERSION"),
+        env!("ANTISURGE_COMMIT")
+    ));
+    for (rel, text) in embedded::FILES {
+        let p = dir.join(rel);
+        if std::fs::read_to_string(&p).ok().as_deref() == Some(*text) {
+            continue;
+        }
+        std::fs::create_dir_all(p.parent()?).ok()?;
+        std::fs::write(&p, text).ok()?;
+    }
+    Some(dir)
 }
 
 /// Resolve `name_or_path` in `dir/<kind>/`: an existing path, `<name>.toml`, or a file whose

@@ -5,6 +5,7 @@ pub mod daemon;
 pub mod locate;
 pub mod pictures;
 pub mod plot;
+pub mod replay;
 pub mod sim;
 pub mod status;
 pub mod table;

@@ -58,13 +58,36 @@ pub fn run(args: &SimArgs) -> Result<()> {
     let law = LawId::parse_sim(&args.law)?;
     let desc = PlantDescription::load(&plant_path)?;
     let scenario = Scenario::load(&scenario_path)?;
+    let uses_drive_torque = law == LawId::DriveTorque
+        || scenario
+            .law_names
+            .iter()
+            .any(|n| n.parse::<LawId>().ok() == Some(LawId::DriveTorque));
+    if uses_drive_torque {
+        // the same gain checks as check-config (sampled speed loop K1·h/J < 1, eq. 8)
+        let model = antisurge::sim::control_model(&desc);
+        antisurge::control::drive_torque::check_gains(
+            &desc.file.controller.drive_torque,
+            &model,
+            scenario.file.control_period_s,
+        )
+        .with_context(|| {
+            format!(
+                "{}: [controller.drive_torque] refused for a {:.3} ms control period",
+                plant_path.display(),
+                1e3 * scenario.file.control_period_s
+            )
+        })?;
+    }
     let out_dir = args.out.clone().unwrap_or_else(|| {
-        PathBuf::from("out").join(format!(
-            "{}-{}-{}",
-            desc.name(),
-            scenario.name(),
-            law.name()
-        ))
+        let name = format!("{}-{}-{}", desc.name(), scenario.name(), law.name());
+        let local = PathBuf::from("out");
+        if std::fs::create_dir_all(&local).is_ok() {
+            local.join(name)
+        } else {
+            // e.g. run from `/` by an ordinary user: the temporary directory instead
+            std::env::temp_dir().join("antisurge-out").join(name)
+        }
     });
 
     let started = Instant::now();
@@ -129,7 +152,7 @@ fn thousands(x: f64) -> String {
     let s = v.abs().to_string();
     let mut out = String::new();
     for (i, c) in s.chars().enumerate() {
-        if i > 0 && (s.len() - i) % 3 == 0 {
+        if i > 0 && (s.len() - i).is_multiple_of(3) {
             out.push('\u{202f}');
         }
         out.push(c);
@@ -151,46 +174,93 @@ pub fn print_summary(s: &Summary, dir: &Path, files: &[PathBuf]) {
         "  {:.1} s simulated in {:.2} s ({:.0}× real time)\n",
         s.duration_s, s.wall_time_s, s.realtime_factor
     );
-    let verdict = if s.surge_cycles == 0 && !s.flow_reversal {
-        if s.stable {
-            "STABLE — no surge".to_string()
-        } else {
-            "no surge detected, but not settled at the end".to_string()
-        }
-    } else {
-        format!(
-            "SURGE — {} cycles{}{}",
-            s.surge_cycles,
-            s.surge_frequency_hz
-                .map(|f| format!(" at {f:.2} Hz"))
-                .unwrap_or_default(),
-            if s.flow_reversal {
-                format!(", flow reversed {} times", s.flow_reversals)
-            } else {
+    println!("  result          {}", s.verdict);
+    if s.failsafe_fraction > 0.0 || s.torque_saturation_fraction > 0.0 {
+        let eps: Vec<String> = s
+            .failsafe_episodes
+            .iter()
+            .take(3)
+            .map(|e| match e.to_s {
+                Some(t) => format!("{:.2}–{t:.2} s", e.from_s),
+                None => format!("from {:.2} s", e.from_s),
+            })
+            .collect();
+        println!(
+            "  health          fail-safe {:.1} % of cycles{} · torque saturated {:.1} %",
+            100.0 * s.failsafe_fraction,
+            if eps.is_empty() {
                 String::new()
-            }
-        )
-    };
-    println!("  result          {verdict}");
+            } else {
+                format!(
+                    " ({}{})",
+                    eps.join(", "),
+                    if s.failsafe_episodes.len() > 3 {
+                        ", …"
+                    } else {
+                        ""
+                    }
+                )
+            },
+            100.0 * s.torque_saturation_fraction
+        );
+    }
+    let a = &s.closest_approach;
     println!(
-        "  flow            min {:.3} kg/s · final {:.3} kg/s · final pressure ratio {:.3}",
-        s.min_flow_kg_s, s.final_flow_kg_s, s.final_pressure_ratio
+        "  closest         from {:.2} s (last event): min flow {:.3} kg/s at {:.2} s · min margin {} at {:.2} s",
+        a.from_s,
+        a.min_flow_kg_s,
+        a.min_flow_at_s,
+        pct(a.min_surge_margin),
+        a.min_surge_margin_at_s
     );
     println!(
-        "  surge margin    min {} · final {}   (distance right of the surge line)",
-        pct(s.min_surge_margin),
+        "  flow            final {:.3} kg/s · throughput min {:.3} kg/s · final pressure ratio {:.3}",
+        s.final_flow_kg_s, a.min_throughput_kg_s, s.final_pressure_ratio
+    );
+    println!(
+        "  surge margin    final {}   (distance right of the surge line)",
         pct(s.final_surge_margin)
     );
+    let fs = &s.flow_source;
+    if fs.fallbacks.is_empty() {
+        println!("  flow source     {} (no fallback)", fs.configured);
+    } else {
+        for (i, f) in fs.fallbacks.iter().enumerate() {
+            let span = match f.to_s {
+                Some(t) => format!("{:.2}–{t:.2} s", f.from_s),
+                None => format!("from {:.2} s to the end", f.from_s),
+            };
+            println!(
+                "  {}observer {span} ({}); its largest error {:+.3} kg/s ({:+.0} % of the true flow)",
+                if i == 0 { format!("flow source     {}: ", fs.configured) } else { "                  ".into() },
+                f.cause,
+                f.observer_max_error_kg_s,
+                100.0 * f.observer_max_error_fraction
+            );
+        }
+    }
     match s.settle_time_s {
         Some(t) => println!("  settled         {t:.2} s after the last event"),
         None => println!("  settled         no"),
     }
     let p = &s.actuator_peaks;
-    let mut act = format!(
-        "drive torque peak {} N·m (rating {})",
-        thousands(p.drive_torque_cmd_nm),
-        thousands(p.drive_torque_rating_nm)
-    );
+    let (lo, hi) = p.drive_torque_cmd_range_nm;
+    let mut act = if p.law_drive_torque_nm > 0.0 {
+        format!(
+            "law torque peak ±{} N·m · drive command {}…{} N·m (rating {})",
+            thousands(p.law_drive_torque_nm),
+            thousands(lo),
+            thousands(hi),
+            thousands(p.drive_torque_rating_nm)
+        )
+    } else {
+        format!(
+            "drive command {}…{} N·m (rating {})",
+            thousands(lo),
+            thousands(hi),
+            thousands(p.drive_torque_rating_nm)
+        )
+    };
     if p.recycle_valve_opening > 0.0 {
         act.push_str(&format!(
             " · recycle valve peak {:.0} %",

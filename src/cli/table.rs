@@ -24,7 +24,13 @@ pub struct TableArgs {
     /// Also write the Markdown table to this file.
     #[arg(long)]
     pub out: Option<PathBuf>,
+    /// Instead: drive-torque on this plant against rotor inertia (K1 scaled with J).
+    #[arg(long, value_name = "PLANT")]
+    pub inertia_sweep: Option<String>,
 }
+
+/// Rotor inertias of the sweep, kg·m².
+pub const SWEEP_INERTIAS_KG_M2: [f64; 6] = [0.2, 0.5, 1.0, 2.0, 3.0, 5.0];
 
 /// Run the command.
 pub fn run(args: &TableArgs) -> Result<()> {
@@ -36,6 +42,18 @@ pub fn run(args: &TableArgs) -> Result<()> {
     let sweep = Scenario::load(&locate::resolve(&cfg, "scenarios", &args.sweep)?)?;
     let feed_sweep = Scenario::load(&locate::resolve(&cfg, "scenarios", &args.feed_sweep)?)?;
     let closure = Scenario::load(&locate::resolve(&cfg, "scenarios", &args.closure)?)?;
+    if let Some(name) = &args.inertia_sweep {
+        let plant = PlantDescription::load(&locate::resolve(&cfg, "plants", name)?)?;
+        let rows =
+            antisurge::sim::table::inertia_sweep(&plant, &sweep, &closure, &SWEEP_INERTIAS_KG_M2)
+                .context("running the inertia sweep")?;
+        let md = antisurge::sim::table::inertia_markdown(plant.name(), &rows);
+        print!("{md}");
+        if let Some(out) = &args.out {
+            std::fs::write(out, &md).with_context(|| format!("writing {}", out.display()))?;
+        }
+        return Ok(());
+    }
     eprintln!(
         "running {} and {} on {} plants with every applicable law…",
         sweep.name(),

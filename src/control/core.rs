@@ -162,6 +162,10 @@ pub struct CycleOutput {
     pub surge: Detection,
     /// An event the law reported this cycle.
     pub law_event: Option<LawEvent>,
+    /// The law's own drive-torque command this cycle (τ̄d on top of the speed loop), N·m;
+    /// NaN when the law does not drive the torque or no law ran. Actuator peaks of a run are
+    /// measured on this, not on the total (which includes the load torque the speed loop holds).
+    pub law_torque_nm: f64,
 }
 
 /// Filtered derivative: low-pass then difference.
@@ -244,6 +248,8 @@ pub struct ControlCore {
     failing_since_s: f64,
     /// Since when inputs have been healthy in fail-safe (exit hysteresis), s; NaN: not.
     healthy_since_s: f64,
+    /// The law's own torque of the last computing cycle (repeated by a holding cycle), N·m.
+    last_law_torque_nm: f64,
 }
 
 impl ControlCore {
@@ -287,6 +293,7 @@ impl ControlCore {
             law_started: false,
             failing_since_s: f64::NAN,
             healthy_since_s: f64::NAN,
+            last_law_torque_nm: f64::NAN,
             model,
             config,
             settings,
@@ -571,6 +578,11 @@ impl ControlCore {
             law_diagnostic: f64::NAN,
             surge: Detection::None,
             law_event: None,
+            law_torque_nm: if matches!(self.mode, Mode::Auto) {
+                self.last_law_torque_nm
+            } else {
+                f64::NAN
+            },
         }
     }
 
@@ -729,6 +741,7 @@ impl ControlCore {
         }
         let mut cmd = ActuatorCommands::default();
         let mut extra_torque = 0.0;
+        let mut law_torque = f64::NAN;
         let mut diagnostic = f64::NAN;
         let mut law_event = None;
         let inputs = LawInputs {
@@ -753,6 +766,7 @@ impl ControlCore {
                 let t = cmd.get(ActuatorId::DriveTorque);
                 if t.is_finite() {
                     extra_torque = t;
+                    law_torque = t;
                 }
             }
             Mode::Manual => {
@@ -804,6 +818,7 @@ impl ControlCore {
             self.law.surge_detected();
         }
         self.last = cmd;
+        self.last_law_torque_nm = law_torque;
         CycleOutput {
             commands: cmd,
             measurements: meas,
@@ -813,6 +828,7 @@ impl ControlCore {
             law_diagnostic: diagnostic,
             surge,
             law_event,
+            law_torque_nm: law_torque,
         }
     }
 }

@@ -318,6 +318,52 @@ pub fn check_eq8(cfg: &DriveTorqueConfig, model: &ControlModel) -> Result<Eq8Bou
     }
 }
 
+/// The sampled speed-tracking loop of eq. 7: with the command held over a control period h,
+/// ω̄ evolves as ω̄(k+1) = (1 − K1 h/J) ω̄(k) (forward Euler of eq. 1c under τ̄d = −K1 ω̄), a pole
+/// that stays inside the unit circle only for K1 h/J < 2 and is free of sign-alternating
+/// ringing only for K1 h/J < 1. The continuous-time proof of Proposition 1 says nothing about
+/// this; an unchecked K1 (the seed's 10 000 at 1 kHz on a 0.2 kg·m² rotor: K1 h/J = 50)
+/// chatters the torque between the drive's limits. Returns K1 h/J, or a setting error naming
+/// `k1_nm_s_rad` when K1 h/J ≥ 1.
+pub fn check_sampled_speed_loop(
+    cfg: &DriveTorqueConfig,
+    inertia_kg_m2: f64,
+    period_s: f64,
+) -> Result<f64, LawError> {
+    let k1 = cfg.k1_nm_s_rad;
+    let ratio = k1 * period_s / inertia_kg_m2;
+    if ratio.is_finite() && ratio < 1.0 {
+        return Ok(ratio);
+    }
+    Err(setting(
+        "k1_nm_s_rad",
+        format!(
+            "K1·h/J = {k1} × {:.3} ms / {inertia_kg_m2} kg·m² = {ratio:.2} ≥ 1: the sampled speed loop \
+             of eq. 7 rings or diverges at this control period (Proposition 1 is continuous-time); \
+             need K1 < J/h = {:.1} N·m·s/rad (about 0.7 J/h is a good start)",
+            1e3 * period_s,
+            inertia_kg_m2 / period_s
+        ),
+    ))
+}
+
+/// Every gain condition of the law that config validation checks: eq. 8 on the default
+/// operating region ([`check_eq8`]) and the sampled speed loop, K1·h/J < 1
+/// ([`check_sampled_speed_loop`]) at the control period `period_s`. The first failure is
+/// returned.
+pub fn check_gains(
+    cfg: &DriveTorqueConfig,
+    model: &ControlModel,
+    period_s: f64,
+) -> Result<Eq8Bound, LawError> {
+    // (a machine without a shaft model cannot run this law at all: the law registry's
+    // machine-data check reports that, not this one)
+    if let Some(shaft) = model.shaft {
+        check_sampled_speed_loop(cfg, shaft.inertia_kg_m2, period_s)?;
+    }
+    check_eq8(cfg, model)
+}
+
 /// The law's state.
 #[derive(Debug, Clone)]
 pub struct DriveTorque {
@@ -770,5 +816,27 @@ mod tests {
         assert_eq!(c.equilibrium_flow, EquilibriumFlow::Washout);
         assert_eq!(c.k1_nm_s_rad, 10_000.0);
         assert!(toml::from_str::<DriveTorqueConfig>("k2 = 500.0\n").is_err());
+    }
+
+    #[test]
+    fn sampled_speed_loop_needs_k1_h_over_j_below_one() {
+        let mut c = DriveTorqueConfig {
+            k1_nm_s_rad: 140.0,
+            ..DriveTorqueConfig::default()
+        };
+        let r = check_sampled_speed_loop(&c, 0.2, 1e-3).expect("0.7 is fine");
+        assert!((r - 0.7).abs() < 1e-12);
+        c.k1_nm_s_rad = 200.0; // exactly 1: refused
+        let e = check_sampled_speed_loop(&c, 0.2, 1e-3)
+            .unwrap_err()
+            .to_string();
+        assert!(e.contains("k1_nm_s_rad") && e.contains("K1·h/J"), "{e}");
+        c.k1_nm_s_rad = 400.0;
+        assert!(check_sampled_speed_loop(&c, 0.2, 1e-3).is_err());
+        // the same K1 is fine at 10 kHz
+        assert!(check_sampled_speed_loop(&c, 0.2, 1e-4).is_ok());
+        // the seed's K1 = 10 000
+        c.k1_nm_s_rad = 10_000.0;
+        assert!(check_sampled_speed_loop(&c, 0.2, 1e-3).is_err());
     }
 }

@@ -19,7 +19,7 @@ use crate::config::toml_file::locate_key;
 use crate::config::FileError;
 use crate::control::config::ControllerConfig;
 use crate::control::core::CoreSettings;
-use crate::control::drive_torque::check_eq8;
+use crate::control::drive_torque::check_gains;
 use crate::control::law::{Law, LawError, LawId};
 use crate::control::model::ControlModel;
 use crate::control::supervisor::InputLimits;
@@ -1399,7 +1399,9 @@ pub fn check(l: &Loaded) -> Vec<Problem> {
         Ok(_) => {
             // eq. 8 depends on the operating region, so the law's constructor leaves it to here
             if l.law == LawId::DriveTorque {
-                if let Err(e) = check_eq8(&l.controller.drive_torque, &l.model) {
+                if let Err(e) =
+                    check_gains(&l.controller.drive_torque, &l.model, 1.0 / c.cycle.rate_hz)
+                {
                     let (key, msg, hint) = law_error(e);
                     error(&key, msg, hint);
                 }

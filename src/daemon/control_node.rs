@@ -99,6 +99,7 @@ pub struct ControlNode {
     cause: Option<Cause>,
     /// Sensors that ever delivered a value (a fault lamp is lit for those and the needed ones).
     seen: u32,
+    blackbox: Option<crate::blackbox::BlackBoxTx>,
 }
 
 fn ev_mode(m: Mode) -> EvMode {
@@ -168,7 +169,7 @@ impl ControlNode {
             health: w.health,
             stats: w.stats,
             period_ns,
-            t0_ns: crate::runtime::handoff::monotonic_ns(),
+            t0_ns: u64::MAX, // set from the first tick: time comes from the ticks only
             prev_mode: Mode::Init,
             prev_law,
             fallback_since_ns: None,
@@ -177,6 +178,7 @@ impl ControlNode {
             commands: None,
             cause: None,
             seen: 0,
+            blackbox: None,
         }
     }
 
@@ -328,6 +330,13 @@ impl ControlNode {
         });
     }
 
+    /// Record every cycle into the black box (`crate::blackbox`): one copy per cycle into a
+    /// lock-free ring; the recorder thread does the file I/O.
+    pub fn with_black_box(mut self, tx: crate::blackbox::BlackBoxTx) -> Self {
+        self.blackbox = Some(tx);
+        self
+    }
+
     /// The core (tests, reports).
     pub fn core(&self) -> &ControlCore {
         &self.core
@@ -377,8 +386,36 @@ impl ControlNode {
         if oldest.is_finite() {
             self.stats.input_age.record((oldest * 1e9) as u64);
         }
+        if self.t0_ns == u64::MAX {
+            // the run's time origin: one period before the first deadline (from the tick)
+            self.t0_ns = tick.deadline_ns.saturating_sub(self.period_ns);
+        }
         let t_s = now.saturating_sub(self.t0_ns) as f64 * 1e-9;
         let out = self.core.cycle(t_s, &raw, &self.op);
+        if let Some(bb) = &mut self.blackbox {
+            let m = &out.measurements;
+            bb.push(crate::blackbox::CycleRecord {
+                cycle: tick.cycle,
+                deadline_ns: tick.deadline_ns,
+                wake_ns: tick.wake_ns,
+                t_s,
+                raw,
+                op: self.op,
+                commands: out.commands,
+                mode: out.mode.code(),
+                law: out.law.code(),
+                law_diagnostic: out.law_diagnostic,
+                law_torque_nm: out.law_torque_nm,
+                m_used_kg_s: m.m_kg_s,
+                m_observer_kg_s: m.m_observer_kg_s,
+                flow_fallback: m.flow_fallback,
+                surge_started: matches!(
+                    out.surge,
+                    Detection::SurgeStarted | Detection::ReversalStarted
+                ),
+                updates_applied: self.health.updates_applied.load(Ordering::Relaxed),
+            });
+        }
         self.outputs.publish(&Outputs {
             commands: out.commands,
             mode: out.mode.code(),

@@ -456,6 +456,30 @@ async fn serve(loaded: Loaded, opts: RunOptions) -> Result<()> {
     }
     node.restore(&live.kept);
     let live_board = Arc::clone(&live.board);
+    // the black box: per-cycle records, written on fail-safe, surge and exit next to the
+    // event log (crate::blackbox)
+    let bb_dir = cfg
+        .event_log
+        .path
+        .parent()
+        .map_or_else(|| PathBuf::from("blackbox"), |d| d.join("blackbox"));
+    let (bb_tx, recorder) = crate::blackbox::Recorder::start(
+        bb_dir,
+        crate::blackbox::Header {
+            version: env!("CARGO_PKG_VERSION").to_string(),
+            config: std::fs::canonicalize(&loaded.main_path).unwrap_or(loaded.main_path.clone()),
+            law: loaded.law.name().to_string(),
+            auto: cfg.control.mode == config::StartMode::Auto,
+            initial_torque_nm: initial_torque_nm(&loaded),
+            period_ns: cfg.cycle.period_ns(),
+            controller: loaded.controller.clone(),
+            reason: String::new(),
+            dropped: 0,
+        },
+        crate::blackbox::DEFAULT_CAPACITY,
+    )
+    .context("cannot start the black-box recorder")?;
+    let node = node.with_black_box(bb_tx);
     let control = spawn_control(node, cfg.cycle, Arc::clone(&stop), Arc::clone(&stats))?;
     // systemd READY/WATCHDOG from the control loop's health only, on their own thread
     let wd_stop = Arc::new(AtomicBool::new(false));
@@ -611,6 +635,7 @@ async fn serve(loaded: Loaded, opts: RunOptions) -> Result<()> {
     let _ = watchdog.join();
     stop.store(true, Ordering::Relaxed);
     let _ = tokio::task::spawn_blocking(move || control.join()).await;
+    let _ = tokio::task::spawn_blocking(move || recorder.finish()).await;
     // let the bus tasks send the safe state and a few heartbeats with the shutdown mode
     tokio::time::sleep(Duration::from_millis(100)).await;
     let _ = shutdown_tx.send(true);

@@ -78,7 +78,7 @@ impl Timestamp {
                 let d = before.duration();
                 // Round towards the past so that formatting stays monotone.
                 let whole = i64::try_from(d.as_micros()).unwrap_or(i64::MAX);
-                let extra = i64::from(d.subsec_nanos() % 1000 != 0);
+                let extra = i64::from(!d.subsec_nanos().is_multiple_of(1000));
                 -(whole.saturating_add(extra))
             }
         };

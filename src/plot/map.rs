@@ -84,7 +84,7 @@ pub fn map_svg(
         .step_by(stride)
         .map(|r| (r.flow_map, r.pressure_ratio))
         .collect();
-    if (trace.len() - 1) % stride != 0 {
+    if !(trace.len() - 1).is_multiple_of(stride) {
         let r = &trace[trace.len() - 1];
         traj.push((r.flow_map, r.pressure_ratio));
     }

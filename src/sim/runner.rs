@@ -1,10 +1,14 @@
 //! The simulation loop.
 
-use super::summary::{is_steady, settle_time, ActuatorPeaks, LawEventCounts, Summary};
+use super::summary::{
+    is_steady, settle_time, verdict, ActuatorPeaks, ClosestApproach, FlowFallback,
+    FlowSourceReport, Health, LawEventCounts, ModeEpisode, Summary,
+};
 use super::trace::TraceRow;
-use crate::control::core::{ControlCore, CoreSettings};
+use crate::control::core::{ControlCore, CoreSettings, Mode};
 use crate::control::law::LawEvent;
 use crate::control::measurements::{OperatorInputs, RawSensors};
+use crate::control::supervisor::{InputFault, InputLimits};
 use crate::control::LawId;
 use crate::plant::file::PlantDescription;
 use crate::plant::{PlantError, PlantInputs, SimPlant};
@@ -174,6 +178,188 @@ pub struct PlantRun<'a> {
     trace_every: usize,
     surge_margin: Box<dyn Fn(f64, f64) -> f64 + Send + 'a>,
     wall: Instant,
+    health: HealthRecord,
+}
+
+/// Per-cycle bookkeeping for the verdict (fail-safe, saturation, plausibility, closest
+/// approach, flow fallbacks).
+struct HealthRecord {
+    /// Plausible ranges of p_suction, p_discharge, ω (the controller's input limits).
+    limits: [Option<InputLimits>; 3],
+    /// Observed (min, max) of those three states.
+    seen: [(f64, f64); 3],
+    nonfinite_at_s: Option<f64>,
+    cycles: u64,
+    failsafe_cycles: u64,
+    saturated_cycles: u64,
+    failsafe_episodes: Vec<ModeEpisode>,
+    approach: ClosestApproach,
+    flow_source: FlowSourceReport,
+    drive_tripped: bool,
+    torque_limits_nm: (f64, f64),
+    /// Surge cycles and reversals counted before the last event started (or, if a surge was
+    /// running then, before it stopped).
+    surge_before: Option<(u32, u32)>,
+    /// When surge counting for the verdict started, s.
+    counted_from_s: f64,
+}
+
+impl HealthRecord {
+    fn new(limits: [Option<InputLimits>; 3], from_s: f64, torque_limits_nm: (f64, f64)) -> Self {
+        HealthRecord {
+            limits,
+            seen: [(f64::INFINITY, f64::NEG_INFINITY); 3],
+            nonfinite_at_s: None,
+            cycles: 0,
+            failsafe_cycles: 0,
+            saturated_cycles: 0,
+            failsafe_episodes: Vec::new(),
+            approach: ClosestApproach {
+                from_s,
+                min_flow_kg_s: f64::INFINITY,
+                min_flow_at_s: f64::NAN,
+                min_surge_margin: f64::INFINITY,
+                min_surge_margin_at_s: f64::NAN,
+                min_throughput_kg_s: f64::INFINITY,
+            },
+            flow_source: FlowSourceReport {
+                configured: "unknown (controller on the bus)".into(),
+                fallbacks: Vec::new(),
+            },
+            drive_tripped: false,
+            torque_limits_nm,
+            surge_before: None,
+            counted_from_s: f64::NAN,
+        }
+    }
+
+    fn fault_words(f: InputFault) -> &'static str {
+        match f {
+            InputFault::None => "transmitter healthy",
+            InputFault::Nan => "flow transmitter gives no value",
+            InputFault::OutOfRange => "flow transmitter out of range",
+            InputFault::Stale => "flow transmitter stale",
+        }
+    }
+
+    fn record(
+        &mut self,
+        t_s: f64,
+        truth: &crate::plant::PlantTruth,
+        margin: f64,
+        c: &ActuatorCommands,
+        view: &ControllerView,
+    ) {
+        self.cycles += 1;
+        let states = [truth.p_suction_pa, truth.p_discharge_pa, truth.omega_rad_s];
+        for (i, v) in states.into_iter().enumerate() {
+            if v.is_finite() {
+                self.seen[i].0 = self.seen[i].0.min(v);
+                self.seen[i].1 = self.seen[i].1.max(v);
+            } else if self.nonfinite_at_s.is_none() {
+                self.nonfinite_at_s = Some(t_s);
+            }
+        }
+        if !truth.m_kg_s.is_finite() && self.nonfinite_at_s.is_none() {
+            self.nonfinite_at_s = Some(t_s);
+        }
+        // fail-safe episodes (mode code of the core)
+        let failsafe = view.mode == f64::from(Mode::FailSafe.code());
+        let open = self
+            .failsafe_episodes
+            .last()
+            .is_some_and(|e| e.to_s.is_none());
+        if failsafe {
+            self.failsafe_cycles += 1;
+            if !open {
+                self.failsafe_episodes.push(ModeEpisode {
+                    from_s: t_s,
+                    to_s: None,
+                });
+            }
+        } else if open {
+            if let Some(e) = self.failsafe_episodes.last_mut() {
+                e.to_s = Some(t_s);
+            }
+        }
+        // saturation of the law's torque: the total command at a drive limit while the law
+        // drives the torque (a tripped drive ignores commands)
+        let tq = c.get(ActuatorId::DriveTorque);
+        let law_drives_torque = view.law_torque_nm.is_finite() && view.law_torque_nm != 0.0;
+        if law_drives_torque && tq.is_finite() && !self.drive_tripped {
+            let (lo, hi) = self.torque_limits_nm;
+            let tol = 1e-6 * hi.abs().max(1.0);
+            if tq >= hi - tol || tq <= lo + tol {
+                self.saturated_cycles += 1;
+            }
+        }
+        // closest approach during and after the last event
+        let a = &mut self.approach;
+        if t_s >= a.from_s {
+            if truth.m_kg_s < a.min_flow_kg_s {
+                a.min_flow_kg_s = truth.m_kg_s;
+                a.min_flow_at_s = t_s;
+            }
+            if margin.is_finite() && margin < a.min_surge_margin {
+                a.min_surge_margin = margin;
+                a.min_surge_margin_at_s = t_s;
+            }
+            if truth.throttle_flow_kg_s.is_finite() {
+                a.min_throughput_kg_s = a.min_throughput_kg_s.min(truth.throttle_flow_kg_s);
+            }
+        }
+        // flow fallbacks to the observer
+        let fb = &mut self.flow_source.fallbacks;
+        let open = fb.last().is_some_and(|f| f.to_s.is_none());
+        if view.flow_fallback {
+            if !open {
+                fb.push(FlowFallback {
+                    from_s: t_s,
+                    to_s: None,
+                    cause: Self::fault_words(view.orifice_fault).to_string(),
+                    observer_max_error_kg_s: 0.0,
+                    observer_max_error_fraction: 0.0,
+                });
+            }
+            if let Some(f) = fb.last_mut() {
+                let err = view.m_used_kg_s - truth.m_kg_s;
+                if err.is_finite() && err.abs() > f.observer_max_error_kg_s.abs() {
+                    f.observer_max_error_kg_s = err;
+                    f.observer_max_error_fraction = err / truth.m_kg_s.abs().max(1e-9);
+                }
+            }
+        } else if open {
+            if let Some(f) = fb.last_mut() {
+                f.to_s = Some(t_s);
+            }
+        }
+    }
+
+    /// States outside their plausible range, in words.
+    fn implausible(&self) -> Vec<String> {
+        let mut out = Vec::new();
+        if let Some(t) = self.nonfinite_at_s {
+            out.push(format!("states not finite from {t:.2} s (solver diverged)"));
+        }
+        let names = ["suction pressure", "discharge pressure", "speed"];
+        let units = ["Pa", "Pa", "rad/s"];
+        for i in 0..3 {
+            let Some(lim) = self.limits[i] else { continue };
+            let (lo, hi) = self.seen[i];
+            if hi > lim.max {
+                out.push(format!(
+                    "{} out of range (max {:.4e} {}, plausible ≤ {:.4e})",
+                    names[i], hi, units[i], lim.max
+                ));
+            } else if lo < lim.min {
+                out.push(format!(
+                    "{} out of range (min {:.4e} {}, plausible ≥ {:.4e})",
+                    names[i], lo, units[i], lim.min
+                ));
+            }
+        }
+        out
+    }
 }
 
 /// What the controller side reports for the trace (NaN where unknown, e.g. over a bus).
@@ -189,6 +375,12 @@ pub struct ControllerView {
     pub mode: f64,
     /// Law diagnostic.
     pub law_diagnostic: f64,
+    /// Whether the flow came from the observer because the transmitter failed.
+    pub flow_fallback: bool,
+    /// The flow transmitter's fault as the supervisor saw it.
+    pub orifice_fault: InputFault,
+    /// The law's own torque command (on top of the speed loop), N·m; NaN if none.
+    pub law_torque_nm: f64,
 }
 
 impl ControllerView {
@@ -199,7 +391,27 @@ impl ControllerView {
         m_used_kg_s: f64::NAN,
         mode: f64::NAN,
         law_diagnostic: f64::NAN,
+        flow_fallback: false,
+        orifice_fault: InputFault::None,
+        law_torque_nm: f64::NAN,
     };
+}
+
+impl ControllerView {
+    /// What the trace records of one control cycle's output.
+    pub fn of(out: &crate::control::core::CycleOutput) -> ControllerView {
+        let m = &out.measurements;
+        ControllerView {
+            m_measured_kg_s: m.m_measured_kg_s,
+            m_observer_kg_s: m.m_observer_kg_s,
+            m_used_kg_s: m.m_kg_s,
+            mode: f64::from(out.mode.code()),
+            law_diagnostic: out.law_diagnostic,
+            flow_fallback: m.flow_fallback,
+            orifice_fault: out.validity.fault[SensorId::OrificeDp.index()],
+            law_torque_nm: out.law_torque_nm,
+        }
+    }
 }
 
 impl<'a> PlantRun<'a> {
@@ -222,6 +434,20 @@ impl<'a> PlantRun<'a> {
         let trace_every = ((scenario.file.trace_period_s / dt).round() as usize).max(1);
         let frozen = plant.sensors();
         let last_recycle_pos = plant.truth().recycle_valve_position;
+        let sup = CoreSettings::defaults_for(&model).supervisor;
+        let last_event_start_s = scenario.actions.iter().map(|(t, _)| *t).fold(0.0, f64::max);
+        let health = HealthRecord::new(
+            [
+                sup.limits[SensorId::PSuction.index()],
+                sup.limits[SensorId::PDischarge.index()],
+                sup.limits[SensorId::ShaftSpeed.index()],
+            ],
+            last_event_start_s,
+            (
+                desc.file.drive.min_torque_nm,
+                desc.file.drive.rated_torque_nm,
+            ),
+        );
         Ok(PlantRun {
             desc,
             scenario,
@@ -244,6 +470,7 @@ impl<'a> PlantRun<'a> {
                     .file
                     .thrust_rating
                     .map_or(f64::NAN, |t| t.slew_max_n_s),
+                drive_torque_cmd_range_nm: (f64::INFINITY, f64::NEG_INFINITY),
                 ..Default::default()
             },
             min_flow: f64::INFINITY,
@@ -256,6 +483,7 @@ impl<'a> PlantRun<'a> {
             trace_every,
             surge_margin: Box::new(move |q, r| model.surge_margin(q, r)),
             wall: Instant::now(),
+            health,
         })
     }
 
@@ -279,9 +507,15 @@ impl<'a> PlantRun<'a> {
         (self.scenario.file.duration_s / self.dt_s()).round() as usize
     }
 
+    /// Name the controller's configured flow source (for the summary).
+    pub fn set_flow_source(&mut self, name: &str) {
+        self.health.flow_source.configured = name.to_string();
+    }
+
     /// Scenario state at `t_s` and the field readings (noise, faults) of the plant now.
     pub fn sense(&mut self, t_s: f64) -> (ScenarioState, RawSensors) {
         let st = self.timeline.state_at(t_s);
+        self.health.drive_tripped = st.drive_tripped;
         let clean = self.plant.sensors();
         let raw = field_readings(
             t_s,
@@ -320,6 +554,15 @@ impl<'a> PlantRun<'a> {
         view: &ControllerView,
     ) {
         let truth = self.plant.truth();
+        // surge counts from the last event on; a surge already running then (a rescue
+        // scenario) counts from the moment it stopped
+        if self.health.surge_before.is_none()
+            && t_s >= self.health.approach.from_s
+            && !self.detector.in_surge()
+        {
+            self.health.surge_before = Some((self.detector.surge_cycles, self.detector.reversals));
+            self.health.counted_from_s = t_s;
+        }
         self.detector.update(t_s, dt_s, truth.m_kg_s);
         self.min_flow = self.min_flow.min(truth.m_kg_s);
         let margin = (self.surge_margin)(truth.flow_map, truth.pressure_ratio());
@@ -345,6 +588,12 @@ impl<'a> PlantRun<'a> {
             c.get(ActuatorId::DriveTorque),
         );
         absmax(&mut peaks.drive_torque_nm, truth.drive_torque_nm);
+        absmax(&mut peaks.law_drive_torque_nm, view.law_torque_nm);
+        let tq = c.get(ActuatorId::DriveTorque);
+        if tq.is_finite() {
+            let r = &mut peaks.drive_torque_cmd_range_nm;
+            *r = (r.0.min(tq), r.1.max(tq));
+        }
         absmax(
             &mut peaks.recycle_valve_opening,
             c.get(ActuatorId::RecycleValve),
@@ -363,8 +612,9 @@ impl<'a> PlantRun<'a> {
                 peaks.recycle_valve_closing_rate_per_s.max(rate);
         }
         self.last_recycle_pos = truth.recycle_valve_position;
+        self.health.record(t_s, &truth, margin, c, view);
 
-        if k % self.trace_every == 0 {
+        if k.is_multiple_of(self.trace_every) {
             self.trace.push(TraceRow {
                 t_s,
                 m_kg_s: truth.m_kg_s,
@@ -422,7 +672,45 @@ impl<'a> PlantRun<'a> {
         let last = trace.last().copied().unwrap_or_default();
         let duration = trace.last().map_or(0.0, |r| r.t_s);
         let window = (0.25 * duration).clamp(1.0, 3.0);
-        let stable = is_steady(trace, window, 0.02, 1e-4) && !self.detector.in_surge();
+        let steady = is_steady(trace, window, 0.02, 1e-4) && !self.detector.in_surge();
+        let h = &self.health;
+        let cycles = h.cycles.max(1) as f64;
+        let failsafe_fraction = h.failsafe_cycles as f64 / cycles;
+        let torque_saturation_fraction = h.saturated_cycles as f64 / cycles;
+        let implausible = h.implausible();
+        let surge_frequency_hz = self
+            .detector
+            .frequency_hz
+            .is_finite()
+            .then_some(self.detector.frequency_hz);
+        let (cycles_before, reversals_before) = h.surge_before.unwrap_or((0, 0));
+        let (stable, mut verdict_words) = verdict(&Health {
+            surge_cycles: self.detector.surge_cycles - cycles_before,
+            surge_frequency_hz,
+            flow_reversals: self.detector.reversals - reversals_before,
+            steady,
+            failsafe_fraction,
+            torque_saturation_fraction,
+            implausible: &implausible,
+        });
+        if stable && (cycles_before > 0 || reversals_before > 0) {
+            verdict_words = if h.counted_from_s > h.approach.from_s + 1e-9 {
+                format!(
+                    "STABLE — the surge running at the last event ({:.2} s) stopped at {:.2} s, \
+                     none after ({} cycles in all)",
+                    h.approach.from_s, h.counted_from_s, cycles_before
+                )
+            } else {
+                format!(
+                    "STABLE — no surge from {:.2} s (the last event); {} surge cycles before",
+                    h.approach.from_s, cycles_before
+                )
+            };
+        }
+        let mut peaks = self.peaks;
+        if !peaks.drive_torque_cmd_range_nm.0.is_finite() {
+            peaks.drive_torque_cmd_range_nm = (f64::NAN, f64::NAN);
+        }
         let settle = if stable {
             settle_time(trace, self.scenario.last_event_s(), 0.02, 1e-4)
         } else {
@@ -434,14 +722,17 @@ impl<'a> PlantRun<'a> {
             law: law.to_string(),
             duration_s: duration,
             stable,
+            verdict: verdict_words,
+            failsafe_fraction,
+            failsafe_episodes: h.failsafe_episodes.clone(),
+            torque_saturation_fraction,
+            implausible,
+            closest_approach: h.approach,
+            flow_source: h.flow_source.clone(),
             flow_reversal: self.detector.reversals > 0,
             flow_reversals: self.detector.reversals,
             surge_cycles: self.detector.surge_cycles,
-            surge_frequency_hz: self
-                .detector
-                .frequency_hz
-                .is_finite()
-                .then_some(self.detector.frequency_hz),
+            surge_frequency_hz,
             min_flow_kg_s: self.min_flow,
             final_flow_kg_s: last.m_kg_s,
             final_pressure_ratio: last.pressure_ratio,
@@ -449,7 +740,7 @@ impl<'a> PlantRun<'a> {
             final_surge_margin: last.surge_margin,
             settle_time_s: settle,
             recycle_energy_j: self.recycle_energy,
-            actuator_peaks: self.peaks,
+            actuator_peaks: peaks,
             law_events: self.law_events,
             wall_time_s: wall_s,
             realtime_factor: duration / wall_s.max(1e-9),
@@ -488,6 +779,11 @@ pub fn run_with(
     let nominal_speed = model.drive.nominal_speed_rad_s;
     let t0_torque = pr.plant().truth().load_torque_nm;
     let config = model.controller.clone();
+    let flow_source = serde_json::to_value(config.flow_source)
+        .ok()
+        .and_then(|v| v.as_str().map(str::to_string))
+        .unwrap_or_default();
+    pr.set_flow_source(&flow_source);
     let mut core = ControlCore::new(model, config, settings, options.law, t0_torque)?;
     let law_ids: Vec<LawId> = scenario
         .law_names
@@ -523,21 +819,14 @@ pub fn run_with(
         if let Some(e) = out.law_event {
             pr.count_law_event(e);
         }
-        let m = &out.measurements;
-        let view = ControllerView {
-            m_measured_kg_s: m.m_measured_kg_s,
-            m_observer_kg_s: m.m_observer_kg_s,
-            m_used_kg_s: m.m_kg_s,
-            mode: f64::from(out.mode.code()),
-            law_diagnostic: out.law_diagnostic,
-        };
+        let view = ControllerView::of(&out);
         pr.record(k, t, dt, &raw, &out.commands, &view);
         if k == n_steps {
             break;
         }
         let applied = in_flight.pass(k, out.commands, &options);
         pr.advance(&st, &applied, dt);
-        if options.progress_every > 0 && k % options.progress_every == 0 {
+        if options.progress_every > 0 && k.is_multiple_of(options.progress_every) {
             progress(k as f64 / n_steps as f64);
         }
     }

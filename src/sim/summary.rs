@@ -37,6 +37,11 @@ pub struct ActuatorPeaks {
     pub thrust_slew_n_s: f64,
     /// Thrust slew rating, N/s.
     pub thrust_slew_rating_n_s: f64,
+    /// Largest |drive torque| the active law itself commanded on top of the speed loop, N·m
+    /// (0 when no law drives the torque). The total command also carries the load torque.
+    pub law_drive_torque_nm: f64,
+    /// Lowest and highest total drive torque commanded, N·m.
+    pub drive_torque_cmd_range_nm: (f64, f64),
 }
 
 /// Events the law reported over the run (the daemon logs them; a run counts them).
@@ -50,6 +55,66 @@ pub struct LawEventCounts {
     pub safety_on_total_margin: f64,
 }
 
+/// A run is "stable" only if the controller spent less than this fraction of the control
+/// cycles in fail-safe.
+pub const MAX_FAILSAFE_FRACTION: f64 = 0.01;
+/// … and its drive torque command sat at a limit (rating or floor) in less than this fraction
+/// of the cycles.
+pub const MAX_SATURATION_FRACTION: f64 = 0.20;
+
+/// The closest approach to surge, measured from the start of the scenario's last event to the
+/// end of the run (the t = 0 operating point does not count).
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Default)]
+pub struct ClosestApproach {
+    /// Start of the window: the start of the last scenario event, s.
+    pub from_s: f64,
+    /// Lowest compressor mass flow in the window, kg/s.
+    pub min_flow_kg_s: f64,
+    /// When, s.
+    pub min_flow_at_s: f64,
+    /// Lowest surge margin in the window (negative: left of the surge line).
+    pub min_surge_margin: f64,
+    /// When, s.
+    pub min_surge_margin_at_s: f64,
+    /// Lowest throughput (flow to the process through the throttle) in the window, kg/s.
+    pub min_throughput_kg_s: f64,
+}
+
+/// One period in which the controller took its flow from the observer instead of the
+/// transmitter.
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub struct FlowFallback {
+    /// Start, s.
+    pub from_s: f64,
+    /// End, s (null: until the end of the run).
+    pub to_s: Option<f64>,
+    /// Why, in words (the transmitter's fault as the input supervisor saw it).
+    pub cause: String,
+    /// Largest observer error against the true flow during the fallback, kg/s (signed).
+    pub observer_max_error_kg_s: f64,
+    /// The same, relative to the true flow at that instant.
+    pub observer_max_error_fraction: f64,
+}
+
+/// Where the controller's flow came from over the run.
+#[derive(Debug, Clone, PartialEq, Serialize, Default)]
+pub struct FlowSourceReport {
+    /// The configured source (`orifice`, `observer`, `orifice_with_observer_fallback`), or
+    /// `unknown` when the controller is on the far side of a bus.
+    pub configured: String,
+    /// Every fallback to the observer, with its time and cause.
+    pub fallbacks: Vec<FlowFallback>,
+}
+
+/// One stay in the fail-safe mode.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize)]
+pub struct ModeEpisode {
+    /// Entered, s.
+    pub from_s: f64,
+    /// Left, s (null: still in it at the end).
+    pub to_s: Option<f64>,
+}
+
 /// Result summary of one run.
 #[derive(Debug, Clone, PartialEq, Serialize)]
 pub struct Summary {
@@ -61,9 +126,28 @@ pub struct Summary {
     pub law: String,
     /// Simulated duration, s.
     pub duration_s: f64,
-    /// Whether the run ends in a steady operating point (no oscillation above threshold and no
-    /// flow reversal in the final window).
+    /// Whether the run is stable: no surge during or after the last scenario event (a rescue
+    /// scenario may surge before its law switches in; the verdict then says so), steady at the end (no oscillation above threshold
+    /// and no flow reversal in the final window), every state bounded and plausible, fail-safe
+    /// below [`MAX_FAILSAFE_FRACTION`] and torque saturation below [`MAX_SATURATION_FRACTION`]
+    /// of the cycles. [`Summary::verdict`] says which condition failed.
     pub stable: bool,
+    /// The verdict in words, e.g. `STABLE — no surge` or `UNSTABLE — fail-safe 92 %, speed out
+    /// of range`.
+    pub verdict: String,
+    /// Fraction of control cycles the controller spent in fail-safe (0 when unknown).
+    pub failsafe_fraction: f64,
+    /// Each stay in fail-safe.
+    pub failsafe_episodes: Vec<ModeEpisode>,
+    /// Fraction of control cycles with the drive torque command at its rating or floor.
+    pub torque_saturation_fraction: f64,
+    /// States that left their plausible range, in words (empty: all plausible). The ranges are
+    /// the controller's own input plausibility limits (`CoreSettings::defaults_for`).
+    pub implausible: Vec<String>,
+    /// Closest approach during and after the last event.
+    pub closest_approach: ClosestApproach,
+    /// Flow source and its fallbacks.
+    pub flow_source: FlowSourceReport,
     /// Whether the compressor flow reversed at any time.
     pub flow_reversal: bool,
     /// Flow-reversal episodes.
@@ -72,13 +156,15 @@ pub struct Summary {
     pub surge_cycles: u32,
     /// Frequency of the surge cycles, Hz (null if none).
     pub surge_frequency_hz: Option<f64>,
-    /// Lowest compressor mass flow, kg/s.
+    /// Lowest compressor mass flow over the whole run (including t = 0), kg/s. See
+    /// [`Summary::closest_approach`] for the event's.
     pub min_flow_kg_s: f64,
     /// Final compressor mass flow, kg/s.
     pub final_flow_kg_s: f64,
     /// Final pressure ratio.
     pub final_pressure_ratio: f64,
-    /// Lowest surge margin (q − q_SL)/q_SL over the run (negative: left of the surge line).
+    /// Lowest surge margin (q − q_SL)/q_SL over the whole run (negative: left of the surge
+    /// line).
     pub min_surge_margin: f64,
     /// Final surge margin.
     pub final_surge_margin: f64,
@@ -99,6 +185,70 @@ pub struct Summary {
     /// controller's heartbeat stopped.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub field_failsafe_entries: Option<u64>,
+}
+
+/// What a run's record says about its health, for [`verdict`].
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Health<'a> {
+    /// Surge cycles counted during and after the last event.
+    pub surge_cycles: u32,
+    /// Surge frequency, Hz.
+    pub surge_frequency_hz: Option<f64>,
+    /// Flow-reversal episodes.
+    pub flow_reversals: u32,
+    /// Whether the end of the run is steady.
+    pub steady: bool,
+    /// Fail-safe fraction of the cycles.
+    pub failsafe_fraction: f64,
+    /// Torque saturation fraction of the cycles.
+    pub torque_saturation_fraction: f64,
+    /// Implausible states, in words.
+    pub implausible: &'a [String],
+}
+
+/// The verdict: (stable, words). Stable needs no surge, a steady end, plausible states,
+/// fail-safe and saturation below their stated fractions; otherwise the words list each
+/// condition that failed.
+pub fn verdict(h: &Health<'_>) -> (bool, String) {
+    let mut problems: Vec<String> = Vec::new();
+    if h.failsafe_fraction >= MAX_FAILSAFE_FRACTION {
+        problems.push(format!("fail-safe {:.0} %", 100.0 * h.failsafe_fraction));
+    }
+    if h.torque_saturation_fraction >= MAX_SATURATION_FRACTION {
+        problems.push(format!(
+            "drive torque saturated {:.0} %",
+            100.0 * h.torque_saturation_fraction
+        ));
+    }
+    problems.extend(h.implausible.iter().cloned());
+    let surged = h.surge_cycles > 0 || h.flow_reversals > 0;
+    if surged {
+        let mut w = format!("SURGE — {} cycles", h.surge_cycles);
+        if let Some(f) = h.surge_frequency_hz {
+            w.push_str(&format!(" at {f:.2} Hz"));
+        }
+        if h.flow_reversals > 0 {
+            w.push_str(&format!(", flow reversed {} times", h.flow_reversals));
+        }
+        for p in &problems {
+            w.push_str(", ");
+            w.push_str(p);
+        }
+        return (false, w);
+    }
+    if !problems.is_empty() {
+        if !h.steady {
+            problems.push("not settled at the end".into());
+        }
+        return (false, format!("UNSTABLE — {}", problems.join(", ")));
+    }
+    if !h.steady {
+        return (
+            false,
+            "NOT SETTLED — no surge detected, but the flow still moves at the end".into(),
+        );
+    }
+    (true, "STABLE — no surge".into())
 }
 
 /// Settling time of the flow after `t_event`: the time after which it stays within the band
@@ -172,6 +322,62 @@ mod tests {
         let s = settle_time(&r, 0.0, 0.02, 0.0).expect("settles");
         assert!((s - 20f64.ln()).abs() < 0.02, "{s}");
         assert!(is_steady(&r, 3.0, 0.02, 0.0));
+    }
+
+    fn healthy() -> Health<'static> {
+        Health {
+            surge_cycles: 0,
+            surge_frequency_hz: None,
+            flow_reversals: 0,
+            steady: true,
+            failsafe_fraction: 0.0,
+            torque_saturation_fraction: 0.0,
+            implausible: &[],
+        }
+    }
+
+    #[test]
+    fn verdict_names_every_failed_condition() {
+        assert_eq!(verdict(&healthy()), (true, "STABLE — no surge".to_string()));
+        let bad = ["speed out of range (max 616 000 rad/s)".to_string()];
+        let h = Health {
+            failsafe_fraction: 0.92,
+            implausible: &bad,
+            ..healthy()
+        };
+        assert_eq!(
+            verdict(&h),
+            (
+                false,
+                "UNSTABLE — fail-safe 92 %, speed out of range (max 616 000 rad/s)".to_string()
+            )
+        );
+        let h = Health {
+            torque_saturation_fraction: 0.74,
+            ..healthy()
+        };
+        assert_eq!(verdict(&h).1, "UNSTABLE — drive torque saturated 74 %");
+        let h = Health {
+            surge_cycles: 3,
+            surge_frequency_hz: Some(2.0),
+            ..healthy()
+        };
+        assert_eq!(
+            verdict(&h),
+            (false, "SURGE — 3 cycles at 2.00 Hz".to_string())
+        );
+        let h = Health {
+            steady: false,
+            ..healthy()
+        };
+        assert!(!verdict(&h).0);
+        // just under the stated fractions: still stable
+        let h = Health {
+            failsafe_fraction: 0.9 * MAX_FAILSAFE_FRACTION,
+            torque_saturation_fraction: 0.9 * MAX_SATURATION_FRACTION,
+            ..healthy()
+        };
+        assert!(verdict(&h).0);
     }
 
     #[test]

@@ -39,11 +39,16 @@ impl TableRow {
     pub fn effort(&self) -> String {
         let p = &self.closure.actuator_peaks;
         match self.law {
-            LawId::None | LawId::DriveTorque => format!(
+            LawId::None => format!(
                 "torque {:.0} N·m ({:.1}× nominal, rating {:.0})",
                 p.drive_torque_cmd_nm,
                 p.drive_torque_cmd_nm / p.nominal_load_torque_nm,
                 p.drive_torque_rating_nm
+            ),
+            // the law's own torque, not the total (which carries the load torque at t = 0)
+            LawId::DriveTorque => format!(
+                "law torque ±{:.0} N·m on {:.0} nominal (rating {:.0})",
+                p.law_drive_torque_nm, p.nominal_load_torque_nm, p.drive_torque_rating_nm
             ),
             LawId::RecyclePi | LawId::RecycleFl | LawId::BaselinePi => {
                 format!(
@@ -166,7 +171,10 @@ pub fn markdown(rows: &[TableRow]) -> String {
     s.push_str("|---|---|---|---|---|---|---|---|---|\n");
     for r in rows {
         let c = &r.closure;
-        let closure = if c.surge_cycles == 0 && !c.flow_reversal {
+        let closure = if c.surge_cycles == 0 && !c.flow_reversal && !c.stable {
+            // no surge, but fail-safe, saturation or implausible states: say which
+            c.verdict.clone()
+        } else if c.surge_cycles == 0 && !c.flow_reversal {
             match c.settle_time_s {
                 Some(t) => format!("no surge, settles in {t:.2} s"),
                 None => "no surge, not settled".to_string(),
@@ -242,4 +250,82 @@ mod tests {
         assert!((m - 8.0).abs() < 1e-9, "{m}");
         assert!((through - 7.2).abs() < 1e-9, "{through}");
     }
+}
+
+/// One row of the drive-torque inertia sweep.
+#[derive(Debug, Clone)]
+pub struct InertiaRow {
+    /// Rotor inertia, kg·m².
+    pub inertia_kg_m2: f64,
+    /// K1 used (scaled with J to keep the plant file's K1·h/J), N·m·s/rad.
+    pub k1_nm_s_rad: f64,
+    /// Minimum stable throughput of the sweep, kg/s.
+    pub min_stable_flow_kg_s: f64,
+    /// Open loop's, kg/s.
+    pub open_loop_min_stable_flow_kg_s: f64,
+    /// Throttle-closure result.
+    pub closure: Summary,
+}
+
+/// Drive-torque against rotor inertia: the same plant with J from `inertias_kg_m2`, K1 scaled
+/// to keep the plant file's K1·h/J (the sampled speed loop), every other gain as tuned. The
+/// active law needs torque ≈ J c1 × the flow deviation's rate of change (seed 000 eq. 1c, 4):
+/// a heavier rotor needs proportionally more, and the drive's rating caps it.
+pub fn inertia_sweep(
+    plant: &PlantDescription,
+    sweep: &Scenario,
+    closure: &Scenario,
+    inertias_kg_m2: &[f64],
+) -> Result<Vec<InertiaRow>, SimError> {
+    let opts = |law| SimOptions {
+        law,
+        ..SimOptions::default()
+    };
+    let ol = run(plant, sweep, opts(LawId::None), &mut |_| {})?;
+    let ol_min = min_stable_flow(&ol.trace, sweep, 2.0, 0.02).0;
+    let j0 = plant.file.shaft.inertia_kg_m2;
+    let k0 = plant.file.controller.drive_torque.k1_nm_s_rad;
+    let mut rows = Vec::new();
+    for &j in inertias_kg_m2 {
+        let mut p = plant.clone();
+        p.file.shaft.inertia_kg_m2 = j;
+        p.file.controller.drive_torque.k1_nm_s_rad = k0 * j / j0;
+        let r = run(&p, sweep, opts(LawId::DriveTorque), &mut |_| {})?;
+        let s = min_stable_flow(&r.trace, sweep, 2.0, 0.02).0;
+        let c = run(&p, closure, opts(LawId::DriveTorque), &mut |_| {})?;
+        rows.push(InertiaRow {
+            inertia_kg_m2: j,
+            k1_nm_s_rad: k0 * j / j0,
+            min_stable_flow_kg_s: s,
+            open_loop_min_stable_flow_kg_s: ol_min,
+            closure: c.summary,
+        });
+    }
+    Ok(rows)
+}
+
+/// The inertia sweep as Markdown.
+pub fn inertia_markdown(plant: &str, rows: &[InertiaRow]) -> String {
+    let mut s = String::new();
+    let _ = writeln!(s, "| {plant}: rotor inertia J, kg·m² | K1, N·m·s/rad | min. stable throughput, kg/s (open loop) | range gained | throttle closure 60 → 20 % | law torque peak, N·m (rating) | torque saturated |");
+    s.push_str("|---|---|---|---|---|---|---|\n");
+    for r in rows {
+        let p = &r.closure.actuator_peaks;
+        let gained = 100.0 * (r.open_loop_min_stable_flow_kg_s - r.min_stable_flow_kg_s)
+            / r.open_loop_min_stable_flow_kg_s;
+        let _ = writeln!(
+            s,
+            "| {:.1} | {:.0} | {:.3} ({:.3}) | {:+.0} % | {} | ±{:.0} ({:.0}) | {:.0} % of cycles |",
+            r.inertia_kg_m2,
+            r.k1_nm_s_rad,
+            r.min_stable_flow_kg_s,
+            r.open_loop_min_stable_flow_kg_s,
+            gained,
+            r.closure.verdict,
+            p.law_drive_torque_nm,
+            p.drive_torque_rating_nm,
+            100.0 * r.closure.torque_saturation_fraction
+        );
+    }
+    s
 }
