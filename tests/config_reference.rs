@@ -85,6 +85,7 @@ fn populated() -> DaemonConfig {
                 write_on_change_only: false,
                 max_output_age_ms: 100,
                 heartbeat_register: Some(hb),
+                ..ModbusServerConfig::default()
             }),
         },
         controller,
@@ -104,6 +105,7 @@ fn populated() -> DaemonConfig {
             modbus_server: Some(ModbusServerConfig {
                 listen: "127.0.0.1:5020".parse().expect("listen"),
                 heartbeat_register: Some(hb),
+                ..ModbusServerConfig::default()
             }),
         },
         status: StatusSection {
