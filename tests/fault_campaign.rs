@@ -39,20 +39,21 @@ fn start_run(dir: &Path, cfg: &Path, notify: Option<&FakeNotify>, secs: &str) ->
     }
 }
 
-/// kill -9 at random moments while the controller logs and rotates (8 KiB files): every
+/// kill -9 at random moments while the controller logs (reloads of a changed status interval,
+/// one `config_applied` event each) and rotates (4 KiB files): every
 /// restart appends to a log that reads back with at most a torn final line, no invalid line
 /// in the middle and no lost `started` event.
 fn kill9_storm_during_logging_and_rotation() -> Row {
     let tmp = tempfile::tempdir().expect("tmp");
     let dir = tmp.path();
-    let (cfg, _) = config(
-        dir,
-        "[status]\nlog_interval_s = 0.2\n",
-    );
+    let (cfg, _) = config(dir, "[status]\nlog_interval_s = 0.2\n");
     let text = std::fs::read_to_string(&cfg).expect("cfg");
     std::fs::write(
         &cfg,
-        text.replace("fsync = \"always\"", "fsync = \"always\"\nmax_bytes = 8192\nkeep_files = 50"),
+        text.replace(
+            "fsync = \"always\"",
+            "fsync = \"always\"\nmax_bytes = 4096\nkeep_files = 200",
+        ),
     )
     .expect("cfg");
     let kills = 12u32;
@@ -64,7 +65,25 @@ fn kill9_storm_during_logging_and_rotation() -> Row {
         seed ^= seed << 13;
         seed ^= seed >> 7;
         seed ^= seed << 17;
-        std::thread::sleep(Duration::from_millis(400 + seed % 800));
+        std::thread::sleep(Duration::from_millis(400));
+        let with = std::fs::read_to_string(&cfg).expect("cfg");
+        for k in 0..6 {
+            let (a, b) = if k % 2 == 0 {
+                ("0.2", "0.3")
+            } else {
+                ("0.3", "0.2")
+            };
+            write_atomically(
+                &cfg,
+                &with.replace(
+                    &format!("log_interval_s = {a}"),
+                    &format!("log_interval_s = {b}"),
+                ),
+            );
+            signal(&child, libc::SIGHUP);
+            std::thread::sleep(Duration::from_millis(60));
+        }
+        std::thread::sleep(Duration::from_millis(seed % 300));
         kill9(&mut child);
         let (records, stats) =
             read_log(&dir.join("events.jsonl"), &EventFilter::default()).expect("log readable");
@@ -73,16 +92,13 @@ fn kill9_storm_during_logging_and_rotation() -> Row {
         if stats.invalid_total == 0 && started as u32 == i + 1 {
             safe += 1;
         } else {
-            eprintln!(
-                "kill {i}: started {started}, invalid {:?}",
-                stats.invalid
-            );
+            eprintln!("kill {i}: started {started}, invalid {:?}", stats.invalid);
         }
     }
-    let files = antisurge::events::reader::log_files(&dir.join("events.jsonl"))
-        .map_or(0, |f| f.len());
+    let files =
+        antisurge::events::reader::log_files(&dir.join("events.jsonl")).map_or(0, |f| f.len());
     Row {
-        case: "kill -9 storm while logging + rotating (8 KiB files)",
+        case: "kill -9 storm while logging + rotating (4 KiB files)",
         injected: kills,
         safe,
         seen: format!("log readable after every kill; {torn} torn tails skipped; {files} files"),
@@ -177,8 +193,14 @@ fn bad_files_at_start() -> Row {
         for cmd in ["check-config", "run"] {
             injected += 1;
             let t0 = Instant::now();
+            let cfg_s = cfg.to_str().expect("utf-8");
+            let args: &[&str] = if cmd == "run" {
+                &[cmd, "--config", cfg_s]
+            } else {
+                &[cmd, cfg_s]
+            };
             let out = std::process::Command::new(env!("CARGO_BIN_EXE_antisurge"))
-                .args([cmd, "--config", cfg.to_str().expect("utf-8")])
+                .args(args)
                 .env_remove("NOTIFY_SOCKET")
                 .output()
                 .expect("spawn");
@@ -214,7 +236,10 @@ fn bad_files_at_start() -> Row {
         case: "FIFO / /dev/zero / 128 MiB / half-written config at start",
         injected,
         safe,
-        seen: format!("exit 78 (EX_CONFIG) each, slowest {:.2} s", worst.as_secs_f64()),
+        seen: format!(
+            "exit 78 (EX_CONFIG) each, slowest {:.2} s",
+            worst.as_secs_f64()
+        ),
     }
 }
 
@@ -249,7 +274,10 @@ fn sighup_storm_and_half_written_reload() -> Row {
     let log = logs(dir);
     let ok = status.code() == Some(0) && gap < Duration::from_secs(1) && times.len() > 10;
     if !ok {
-        eprintln!("SIGHUP storm: {status:?}, gap {gap:?}, {} pings\n{log}", times.len());
+        eprintln!(
+            "SIGHUP storm: {status:?}, gap {gap:?}, {} pings\n{log}",
+            times.len()
+        );
     }
     Row {
         case: "SIGHUP storm (200 × 5 ms) with a half-written file",
@@ -379,13 +407,18 @@ transport = {{ kind = "tcp", address = "127.0.0.1:{port}" }}
         stop.store(true, Ordering::Relaxed);
         let err = String::from_utf8_lossy(&out.stderr);
         let log = std::fs::read_to_string(dir.join("events.jsonl")).unwrap_or_default();
-        let fail_safe = log.contains("\"to\":\"fail_safe\"") || err.contains("fail_safe")
-            || err.contains("FAIL-SAFE") || err.contains("fail-safe");
+        let fail_safe = log.contains("\"to\":\"fail_safe\"")
+            || err.contains("fail_safe")
+            || err.contains("FAIL-SAFE")
+            || err.contains("fail-safe");
         use std::os::unix::process::ExitStatusExt;
         if out.status.code() == Some(0) && out.status.signal().is_none() && fail_safe {
             safe += 1;
         } else {
-            eprintln!("{how:?}: {:?}, fail-safe seen {fail_safe}\n{err}\n{log}", out.status);
+            eprintln!(
+                "{how:?}: {:?}, fail-safe seen {fail_safe}\n{err}\n{log}",
+                out.status
+            );
         }
     }
     Row {
@@ -415,5 +448,8 @@ fn fault_campaign() {
         .filter(|r| r.safe != r.injected)
         .map(|r| r.case)
         .collect();
-    assert!(failed.is_empty(), "cases without their safe outcome: {failed:?}");
+    assert!(
+        failed.is_empty(),
+        "cases without their safe outcome: {failed:?}"
+    );
 }

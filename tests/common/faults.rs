@@ -153,4 +153,3 @@ pub fn run_piped(cfg: &Path, secs: &str, fsize_limit: Option<u64>) -> std::proce
     }
     cmd.output().expect("run antisurge")
 }
-
