@@ -85,7 +85,6 @@ fn populated() -> DaemonConfig {
                 write_on_change_only: false,
                 max_output_age_ms: 100,
                 heartbeat_register: Some(hb),
-                ..ModbusServerConfig::default()
             }),
         },
         controller,
@@ -105,7 +104,10 @@ fn populated() -> DaemonConfig {
             modbus_server: Some(ModbusServerConfig {
                 listen: "127.0.0.1:5020".parse().expect("listen"),
                 heartbeat_register: Some(hb),
-                ..ModbusServerConfig::default()
+                allow_writes_from: vec![
+                    "127.0.0.1".parse().expect("ip"),
+                    "::1".parse().expect("ip"),
+                ],
             }),
         },
         status: StatusSection {
