@@ -9,7 +9,6 @@
 
 use antisurge::control::core::{ControlCore, CoreSettings};
 use antisurge::control::measurements::{OperatorInputs, RawSensors};
-use antisurge::control::model::ControlModel;
 use antisurge::control::LawId;
 use antisurge::plant::file::PlantDescription;
 use antisurge::plant::{PlantInputs, SimPlant};
@@ -52,7 +51,7 @@ fn setup(stem: &str, law: LawId, delay_compensation_ms: f64) -> Setup {
         ..PlantInputs::default()
     };
     let plant = SimPlant::new(&desc, &inputs).expect("plant");
-    let model = ControlModel::from_plant(&desc);
+    let model = antisurge::sim::control_model(&desc);
     let settings = CoreSettings::defaults_for(&model);
     let mut cfg = model.controller.clone();
     cfg.drive_torque.delay_compensation_ms = delay_compensation_ms;

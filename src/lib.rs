@@ -10,11 +10,14 @@
 //! - [`io`]: CAN (DBC) and Modbus adapters; [`events`]: the append-only event log.
 #![forbid(unsafe_op_in_unsafe_fn)]
 
+pub mod bench_matrix;
 pub mod config;
 pub mod control;
 pub mod daemon;
 pub mod events;
+pub mod faults;
 pub mod io;
+pub mod machine;
 pub mod physics;
 pub mod plant;
 pub mod plot;

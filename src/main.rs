@@ -18,6 +18,8 @@ enum Command {
     Sim(cli::sim::SimArgs),
     /// Print the benchmark table (every plant × applicable law) that README.md shows.
     Table(cli::table::TableArgs),
+    /// Print the control benchmark matrix (recycle-pi against baseline-pi) that README.md shows.
+    BenchMatrix(cli::bench_matrix::BenchMatrixArgs),
     /// Run the controller service (SocketCAN / Modbus, or the in-process simulated plant).
     Run(cli::daemon::RunArgs),
     /// Run the simulated skid as a node on the field buses (hardware-in-the-loop).
@@ -33,6 +35,7 @@ fn main() -> std::process::ExitCode {
     let result = match cli.command {
         Some(Command::Sim(args)) => cli::sim::run(&args),
         Some(Command::Table(args)) => cli::table::run(&args),
+        Some(Command::BenchMatrix(args)) => cli::bench_matrix::run(&args),
         Some(Command::Run(args)) => cli::daemon::run(&args),
         Some(Command::Plant(args)) => cli::daemon::plant(&args),
         Some(Command::CheckConfig(args)) => match cli::daemon::check(&args) {

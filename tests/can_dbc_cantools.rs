@@ -531,6 +531,54 @@ fn rust_frames_decode_identically_in_cantools() {
     check_rust_frames(&edge, &edge_path(), &sent);
 }
 
+/// The heartbeat a healthy controller in auto sends, and one frame per fault category,
+/// as cantools decodes them with the DBC's value table: `healthy` (0) and each category's
+/// name, i.e. what a PLC built to the DBC reads.
+#[test]
+fn heartbeat_faults_decode_as_the_dbc_documents() {
+    use antisurge::faults::{FaultCategory, FaultSet};
+    require_cantools();
+    let db = CanDatabase::from_file(skid_path()).expect("skid.dbc");
+    let hb = HeartbeatCodec::new(&db, &HeartbeatNames::SKID).expect("heartbeat");
+    let mut words = vec![("healthy".to_string(), FaultSet::NONE)];
+    for c in FaultCategory::ALL {
+        let mut f = FaultSet::NONE;
+        f.set(c);
+        words.push((c.name().to_string(), f));
+    }
+    let frames: Vec<String> = words
+        .iter()
+        .enumerate()
+        .map(|(k, (_, f))| {
+            let v = Heartbeat {
+                mode: ControllerMode::Auto,
+                active_law: 1,
+                faults: f.0,
+            };
+            hex_encode(&hb.encode(&v, k as u8))
+        })
+        .collect();
+    let script = "import cantools, sys, json\n\
+db = cantools.database.load_file(sys.argv[1])\n\
+m = db.get_message_by_name('CTRL_Heartbeat')\n\
+print(json.dumps([str(m.decode(bytes.fromhex(h), decode_choices=True)['Faults']) for h in sys.argv[2:]]))\n";
+    let out = Command::new(python())
+        .arg("-c")
+        .arg(script)
+        .arg(skid_path())
+        .args(&frames)
+        .output()
+        .expect("python");
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let names: Vec<String> = serde_json::from_slice(&out.stdout).expect("json");
+    let want: Vec<String> = words.iter().map(|(n, _)| n.clone()).collect();
+    assert_eq!(names, want);
+}
+
 #[test]
 fn skid_dbc_features_are_exercised() {
     // The cross-check is only meaningful if skid.dbc has both byte orders, signed signals with

@@ -260,6 +260,26 @@ fn good_configs_select_what_they_say() {
     let l = load_with_env(&dir.join("in_process_tip_sliding.toml"), &[]).expect("tip");
     assert_eq!(l.law, LawId::TipSliding);
     assert_eq!(l.config.bus.transport, Transport::InProcess);
+    // vendor data, recycle-pi bindings only: the drive is not the controller's, no observer
+    let l = load_with_env(&dir.join("vendor_recycle_pi_minimal.toml"), &[]).expect("vendor");
+    assert_eq!(l.law, LawId::RecyclePi);
+    assert!(!l.model.owns_drive && l.model.map.is_none() && l.plant.is_none());
+    assert!(l.warnings.is_empty(), "{:?}", l.warnings);
+}
+
+#[test]
+fn a_pressure_range_in_bar_is_a_warning_naming_the_key() {
+    let p = common::root().join("tests/good_configs/warning_discharge_range_in_bar.toml");
+    let l = load_with_env(&p, &[]).unwrap_or_else(|e| panic!("refused: {e:?}"));
+    let w = l
+        .warnings
+        .iter()
+        .find(|w| w.error.key == "inputs.p_discharge.max")
+        .unwrap_or_else(|| panic!("no range warning: {:?}", l.warnings));
+    assert!(w.error.message.contains("excludes"), "{w}");
+    assert!(w.error.message.contains("fail-safe"), "{w}");
+    assert!(same_file(&w.error.file, &p), "{w}");
+    assert_eq!(w.error.line, 9, "{w}");
 }
 
 #[test]

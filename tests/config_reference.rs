@@ -42,9 +42,12 @@ fn populated() -> DaemonConfig {
         address: 300,
     };
     DaemonConfig {
-        plant: PlantSection {
+        plant: Some(PlantSection {
             file: PathBuf::from("plants/kvangardsnes2009_recycle.toml"),
-        },
+        }),
+        machine: Some(antisurge::daemon::config_machine::MachineSection {
+            file: PathBuf::from("machines/vendor_example.toml"),
+        }),
         control: ControlSection {
             law: "recycle-pi".into(),
             mode: StartMode::Auto,
@@ -71,6 +74,8 @@ fn populated() -> DaemonConfig {
                 reconnect_backoff_initial_ms: 50,
                 reconnect_backoff_max_ms: 2000,
                 tx_on_change_only: false,
+                bitrate_bps: Some(1_000_000),
+                max_load_pct: 70,
             }),
             modbus: Some(ModbusLinkConfig {
                 client: ClientConfig {
@@ -85,6 +90,8 @@ fn populated() -> DaemonConfig {
                 write_on_change_only: false,
                 max_output_age_ms: 100,
                 heartbeat_register: Some(hb),
+                merge_writes: false,
+                write_fault_timeout_ms: 500,
             }),
         },
         controller,

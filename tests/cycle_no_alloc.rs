@@ -6,7 +6,6 @@ mod common;
 
 use antisurge::control::core::{ControlCore, CoreSettings};
 use antisurge::control::measurements::{OperatorInputs, RawSensors};
-use antisurge::control::model::ControlModel;
 use antisurge::control::LawId;
 use antisurge::plant::{PlantInputs, SimPlant};
 use std::alloc::{GlobalAlloc, Layout, System};
@@ -67,7 +66,7 @@ fn control_cycle_does_not_allocate_for_any_law() {
                 continue;
             }
             let mut plant = SimPlant::new(&desc, &inputs).expect("plant");
-            let model = ControlModel::from_plant(&desc);
+            let model = antisurge::sim::control_model(&desc);
             let settings = CoreSettings::defaults_for(&model);
             let cfg = model.controller.clone();
             let torque = plant.truth().load_torque_nm;

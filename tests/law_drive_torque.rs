@@ -4,7 +4,6 @@
 mod common;
 
 use antisurge::control::drive_torque::{check_eq8, eq8_bound, DriveTorque, Eq8Region};
-use antisurge::control::model::ControlModel;
 use antisurge::control::LawId;
 use antisurge::plant::file::PlantDescription;
 use antisurge::scenario::Scenario;
@@ -46,7 +45,7 @@ fn mean(v: impl Iterator<Item = f64>) -> f64 {
 #[test]
 fn eq8_bound_from_the_map_and_tuned_gains_satisfy_eq8_and_eq9() {
     let plant = bohagen();
-    let model = ControlModel::from_plant(&plant);
+    let model = antisurge::sim::control_model(&plant);
     let region = Eq8Region::default_for(&model).expect("map has a surge point");
     let bound = eq8_bound(&model, region);
     // cubic map with fan-law scaling: sup (∂Ψ/∂m)/(∂Ψ/∂ω) = ω_ref/W · max H g'/(2(ψc0 − 1 + H g)

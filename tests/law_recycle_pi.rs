@@ -68,7 +68,7 @@ fn plant_with(stem: &str, f: impl Fn(&mut RecyclePiConfig)) -> PlantDescription 
 
 /// The law as configured for a plant (for its control line and gains).
 fn law_of(p: &PlantDescription) -> RecyclePi {
-    let model = ControlModel::from_plant(p);
+    let model = antisurge::sim::control_model(p);
     RecyclePi::new(&model.controller.recycle_pi, &model).expect("law")
 }
 
@@ -155,6 +155,8 @@ fn assert_settles_on_line(what: &str, p: &PlantDescription, r: &SimResult, bound
         ControlVariable::Strategy2 => 1.0,
         // z₁ = c² z₂: compare in strategy-2 units
         ControlVariable::Strategy1 => law.design_flow().powi(2),
+        // z = −d ≈ z₂/2
+        ControlVariable::Deviation => 0.5,
     };
     assert!(zmax / scale < 1e-3, "{what}: |z| = {zmax} in the last 2 s");
     // the flow settles (summary: within ±2 % of its final value)
@@ -274,11 +276,16 @@ fn valve_never_closes_faster_than_its_closing_rate() {
             );
             fastest = fastest.max(closing);
         }
-        // the limit was exercised: after the trip the valve closed a long way, at the limit
+        // the limit was exercised where the trip overshoots the final opening: after the
+        // trip the valve closed a long way, at the limit (on hemchi2016 the trip now lands on
+        // the final opening: the closed-limit anti-windup no longer pre-opens the valve on
+        // the approach, so there is nothing to close)
         let peak = cmd.iter().fold(0.0f64, |a, c| a.max(c.1));
         let end = cmd.last().expect("commands").1;
-        assert!(peak - end > 0.05, "{stem}: peak {peak}, end {end}");
-        assert!(fastest > 0.99 * rate, "{stem}: fastest closing {fastest}/s");
+        if stem == KV {
+            assert!(peak - end > 0.05, "{stem}: peak {peak}, end {end}");
+            assert!(fastest > 0.99 * rate, "{stem}: fastest closing {fastest}/s");
+        }
         // the stem follows: never faster than the command (positioner lag only slows it)
         let stem_rate = r.summary.actuator_peaks.recycle_valve_closing_rate_per_s;
         assert!(
@@ -404,8 +411,8 @@ fn strategy_2_gain_varies_less_across_speeds_than_strategy_1() {
     // seed 002 §4.2.4 / §4.3.4: steady-state gain ∂z/∂u at equilibria on the SCL across the
     // speed range, normalised by its smallest value (Fig. 4.7: 3.6×, Fig. 4.11: 1.46×)
     let desc = common::plant(KV);
-    let model = ControlModel::from_plant(&desc);
-    let scl = SurgeControlLine::new(model.map.surge_line, ControlLineForm::Sqrt { c0: 0.6 });
+    let model = antisurge::sim::control_model(&desc);
+    let scl = SurgeControlLine::new(model.surge_line, ControlLineForm::Sqrt { c0: 0.6 });
     let init = desc.file.initial;
     let plant = RecyclePlant::new(
         &desc,
@@ -418,7 +425,7 @@ fn strategy_2_gain_varies_less_across_speeds_than_strategy_1() {
     )
     .expect("plant");
     let z = |cv: ControlVariable, (q, r): (f64, f64)| cv.z(q, scl.flow_at_ratio(r));
-    let (w_lo, w_hi) = model.map.omega_range();
+    let (w_lo, w_hi) = model.speed_map().omega_range();
     let mut g1 = Vec::new();
     let mut g2 = Vec::new();
     for k in 0..=8 {
@@ -538,7 +545,7 @@ fn start_at_20pct<'a>(
 #[test]
 fn safety_on_moves_the_line_one_step_per_surge_up_to_its_cap() {
     let desc = common::plant(KV);
-    let model = ControlModel::from_plant(&desc);
+    let model = antisurge::sim::control_model(&desc);
     let mut cfg = model.controller.recycle_pi.clone();
     cfg.safety_on_step_pct = 5.0;
     cfg.safety_on_max_pct = 12.0;
@@ -548,7 +555,7 @@ fn safety_on_moves_the_line_one_step_per_surge_up_to_its_cap() {
     let q0 = law.control_line().flow_at_ratio(r);
     let m = measurements(q0, r);
     let inputs = start_at_20pct(&mut law, &m, &op, &model);
-    let j = model.map.surge_line.flow_at_ratio(r);
+    let j = model.surge_line.flow_at_ratio(r);
     let expected = [0.05, 0.10, 0.12, 0.12];
     for (k, &total) in expected.iter().enumerate() {
         law.surge_detected();
@@ -693,7 +700,7 @@ fn return_from_manual_is_bumpless() {
 #[test]
 fn control_line_left_of_the_trip_line_is_rejected() {
     let desc = common::plant(HE);
-    let model = ControlModel::from_plant(&desc);
+    let model = antisurge::sim::control_model(&desc);
     let mut cfg = model.controller.recycle_pi.clone();
     cfg.control_line = ControlLineForm::Margin {
         margin_pct: 3.0,
@@ -711,7 +718,7 @@ fn law_cycle_does_not_allocate() {
     // every branch: PI, trip (the point left of the trip line), fallback cross-check with the
     // speed line, safety-on event, both strategies
     let desc = common::plant(KV);
-    let model = ControlModel::from_plant(&desc);
+    let model = antisurge::sim::control_model(&desc);
     let op = OperatorInputs {
         speed_setpoint_rad_s: 1000.0,
         throttle_demand: 0.6,
@@ -725,7 +732,7 @@ fn law_cycle_does_not_allocate() {
         let mut cur = antisurge::signals::ActuatorCommands::default();
         cur.set(ActuatorId::RecycleValve, 0.2);
         let r = 2.2;
-        let j = model.map.surge_line.flow_at_ratio(r);
+        let j = model.surge_line.flow_at_ratio(r);
         let mut ms = [measurements(1.3 * j, r), measurements(1.02 * j, r)];
         ms[1].flow_fallback = true;
         law.start(
@@ -908,7 +915,7 @@ fn hot_reload_during_observer_fallback_stays_in_auto() {
 #[test]
 fn retune_keeps_safety_on_shifts_and_counters() {
     let desc = common::plant(KV);
-    let model = ControlModel::from_plant(&desc);
+    let model = antisurge::sim::control_model(&desc);
     let mut law = law_of(&desc);
     let op = operator();
     let r = 2.2;

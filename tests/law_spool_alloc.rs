@@ -10,7 +10,6 @@ use std::hint::black_box;
 
 use antisurge::control::law::{Law, LawInputs};
 use antisurge::control::measurements::{Measurements, OperatorInputs};
-use antisurge::control::model::ControlModel;
 use antisurge::control::LawId;
 use antisurge::signals::{ActuatorCommands, ActuatorId};
 
@@ -58,7 +57,7 @@ fn allocations() -> u64 {
 #[test]
 fn spool_laws_do_not_allocate_per_cycle() {
     let desc = common::plant("liaw2004_spool");
-    let model = ControlModel::from_plant(&desc);
+    let model = antisurge::sim::control_model(&desc);
     let sp = desc.file.spool.expect("spool");
     let p01 = sp.ambient_pressure_pa;
     for id in [LawId::Ccv, LawId::ThrottleBackstep, LawId::Robust] {

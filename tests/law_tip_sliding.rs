@@ -451,7 +451,7 @@ fn flow_transmitter_failure_falls_back_to_the_observer() {
 // ---------------------------------------------------------------- settings and the cycle
 
 fn model() -> ControlModel {
-    ControlModel::from_plant(&common::plant(PLANT))
+    antisurge::sim::control_model(&common::plant(PLANT))
 }
 
 fn setting_error(model: &ControlModel, f: impl Fn(&mut antisurge::control::ControllerConfig)) {
@@ -476,7 +476,7 @@ fn settings_are_checked_against_the_machine() {
     setting_error(&m, |c| c.tip_sliding.boundary_layer = 0.0);
     setting_error(&m, |c| c.tip_sliding.modulation_limit_fraction = 1.2);
     // not applicable to a machine without tip-clearance actuation
-    let other = ControlModel::from_plant(&common::plant("bohagen2007_plenum"));
+    let other = antisurge::sim::control_model(&common::plant("bohagen2007_plenum"));
     assert!(matches!(
         Law::new(LawId::TipSliding, &other.controller, &other),
         Err(LawError::NotApplicable { .. })

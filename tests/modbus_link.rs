@@ -149,6 +149,9 @@ fn link_config(addr: SocketAddr, rate_hz: f64, heartbeat: bool) -> ModbusLinkCon
     });
     cfg.poll_rate_hz = rate_hz;
     cfg.heartbeat_register = heartbeat.then_some(HB);
+    // our own contiguous map, written merged (the default, one request per register
+    // binding, is exercised against the foreign map in tests/modbus_foreign_e2e.rs)
+    cfg.merge_writes = true;
     cfg
 }
 

@@ -526,8 +526,9 @@ async fn exception_for_unmapped_address_keeps_connection() {
     assert!(
         matches!(
             err,
+            // one register: write single register (0x06)
             ModbusError::Exception {
-                function: 0x10,
+                function: 0x06,
                 code: ExceptionCode::IllegalDataAddress,
                 ..
             }

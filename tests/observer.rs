@@ -7,7 +7,6 @@
 
 mod common;
 
-use antisurge::control::model::ControlModel;
 use antisurge::control::observer::{MassFlowObserver, ObserverConfig};
 use antisurge::plant::plenum_duct::PlenumDuctPlant;
 use antisurge::plant::{PlantInputs, SimPlant};
@@ -72,7 +71,7 @@ fn combined(sign: ZSign, throttle_target: f64) -> (Combined, SVector<f64, 6>) {
     let x0 = plant.x;
     // constant drive torque at its initial value; the throttle moves to `throttle_target`
     plant.hold_inputs(plant.shaft.load_torque_nm(x0[1], x0[2]), throttle_target);
-    let model = ControlModel::from_plant(&desc);
+    let model = antisurge::sim::control_model(&desc);
     let obs = MassFlowObserver::new(
         &desc.file.controller.observer,
         model.observer_plant().expect("observer"),
@@ -143,7 +142,7 @@ fn error_decays_at_least_exponentially_at_the_guaranteed_rate() {
     // guarantees, (A/L)(c2 − p01 sup ∂Ψc/∂m)
     let (sys, mut x) = combined(ZSign::Derived, 0.6);
     let desc = common::plant("bohagen2007_plenum");
-    let model = ControlModel::from_plant(&desc);
+    let model = antisurge::sim::control_model(&desc);
     let c2_min = model.observer_min_gain().expect("bound");
     let lambda_bound = sys.obs.area_over_length() * (sys.obs.c2() - c2_min);
     assert!(lambda_bound > 0.0);
@@ -186,7 +185,7 @@ fn error_decays_at_least_exponentially_at_the_guaranteed_rate() {
 fn discrete_observer_in_the_control_cycle_converges_from_fifty_percent_off() {
     // the observer as the core runs it: 1 kHz, Rosenbrock–Euler update, fed by sensor readings
     let desc = common::plant("bohagen2007_plenum");
-    let model = ControlModel::from_plant(&desc);
+    let model = antisurge::sim::control_model(&desc);
     let inputs = PlantInputs {
         throttle_process: 0.6,
         ..PlantInputs::default()
@@ -237,7 +236,7 @@ fn discrete_observer_in_the_control_cycle_converges_from_fifty_percent_off() {
 fn every_plant_gain_satisfies_eq17() {
     for stem in common::PLANTS {
         let desc = common::plant(stem);
-        let model = ControlModel::from_plant(&desc);
+        let model = antisurge::sim::control_model(&desc);
         if let Some(c2_min) = model.observer_min_gain() {
             let c2 = desc.file.controller.observer.c2_pa_s_kg;
             assert!(c2 > c2_min, "{stem}: c2 = {c2} ≤ {c2_min} (eq. 17)");
@@ -245,6 +244,6 @@ fn every_plant_gain_satisfies_eq17() {
     }
     // and the bound catches a gain that is too small
     let desc = common::plant("kvangardsnes2009_recycle");
-    let model = ControlModel::from_plant(&desc);
+    let model = antisurge::sim::control_model(&desc);
     assert!(ObserverConfig::default().c2_pa_s_kg < model.observer_min_gain().expect("bound"));
 }

@@ -9,7 +9,6 @@ mod common;
 
 use antisurge::control::core::{ControlCore, CoreSettings};
 use antisurge::control::measurements::OperatorInputs;
-use antisurge::control::model::ControlModel;
 use antisurge::control::LawId;
 use antisurge::daemon::control_node::{ControlNode, ControlUpdate, ControlWiring, Health};
 use antisurge::plant::{PlantInputs, SimPlant};
@@ -68,7 +67,7 @@ fn reloads_allocate_nothing_on_the_control_thread_for_every_law_and_plant() {
             .collect();
         for &law in &laws {
             let mut plant = SimPlant::new(&desc, &inputs).expect("plant");
-            let model = ControlModel::from_plant(&desc);
+            let model = antisurge::sim::control_model(&desc);
             let settings = CoreSettings::defaults_for(&model);
             let cfg = model.controller.clone();
             let torque = plant.truth().load_torque_nm;

@@ -102,6 +102,10 @@ pub fn plant(args: &PlantArgs) -> Result<()> {
 pub struct CheckArgs {
     /// Config file (default: ./config/antisurge.toml, else /etc/antisurge/antisurge.toml).
     pub file: Option<PathBuf>,
+    /// Print the effective merged configuration with the source of every value (file:line,
+    /// conf.d file, environment variable, plant file, default).
+    #[arg(long)]
+    pub print: bool,
 }
 
 /// Check a config; exit status 78 (EX_CONFIG) on errors.
@@ -112,15 +116,18 @@ pub fn check(args: &CheckArgs) -> Result<std::process::ExitCode> {
             for w in &l.warnings {
                 eprintln!("{w}");
             }
+            if args.print {
+                print!("{}", antisurge::daemon::config_print::print_effective(&l));
+            }
             let layers: Vec<String> = l
                 .layers
                 .iter()
                 .map(|x| x.path.display().to_string())
                 .collect();
             println!(
-                "{}: OK (plant {}, law {}, transport {:?}, {} Hz; layers: {})",
+                "{}: OK (machine {}, law {}, transport {:?}, {} Hz; layers: {})",
                 file.display(),
-                l.plant.name(),
+                l.machine.name,
                 l.law,
                 l.config.bus.transport,
                 l.config.cycle.rate_hz,

@@ -1,5 +1,6 @@
 //! Command-line front end.
 
+pub mod bench_matrix;
 pub mod daemon;
 pub mod locate;
 pub mod pictures;

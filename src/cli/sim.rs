@@ -55,7 +55,7 @@ pub fn run(args: &SimArgs) -> Result<()> {
     let cfg = locate::config_dir(args.config_dir.as_deref());
     let plant_path = locate::resolve(&cfg, "plants", &args.plant)?;
     let scenario_path = locate::resolve(&cfg, "scenarios", &args.scenario)?;
-    let law: LawId = args.law.parse()?;
+    let law = LawId::parse_sim(&args.law)?;
     let desc = PlantDescription::load(&plant_path)?;
     let scenario = Scenario::load(&scenario_path)?;
     let out_dir = args.out.clone().unwrap_or_else(|| {

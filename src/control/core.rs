@@ -62,6 +62,14 @@ pub struct CoreSettings {
     /// does not move its actuators, and the first law cycle takes over from the measured
     /// positions.
     pub startup_grace_s: f64,
+    /// Transmitter-failure hold: when an essential input fails in automatic or manual mode,
+    /// the last outputs are kept this long before the fail-safe state, s. A blip shorter
+    /// than this (a late Modbus answer, a dropped frame) does not slam the valve open; a loss
+    /// longer than freshness timeout + hold enters fail-safe.
+    pub failure_hold_s: f64,
+    /// Hysteresis on leaving fail-safe: inputs must be healthy this long without a break
+    /// before the controller resumes, s (no auto ↔ fail-safe chatter on a marginal link).
+    pub failsafe_exit_s: f64,
 }
 
 impl CoreSettings {
@@ -69,13 +77,19 @@ impl CoreSettings {
     /// machine's operating region and a 50 ms freshness timeout.
     pub fn defaults_for(model: &ControlModel) -> CoreSettings {
         let timeout_s = 0.05;
-        let w_max = 2.0 * model.drive.nominal_speed_rad_s;
+        // a drive of unknown nominal speed (vendor data, drive not the controller's): no bound
+        let w_max = match 2.0 * model.drive.nominal_speed_rad_s {
+            w if w.is_finite() => w,
+            _ => f64::MAX,
+        };
         let p_hi = match (model.recycle, model.plenum_duct, model.tip, model.spool) {
             (Some(r), ..) => 3.0 * r.downstream_pressure_pa,
             (_, Some(p), ..) => 5.0 * p.ambient_pressure_pa,
             (_, _, Some(t), _) => 5.0 * t.ambient_pressure_pa,
             (_, _, _, Some(s)) => 5.0 * s.ambient_pressure_pa,
-            _ => 1e7,
+            _ => model
+                .design_suction_pressure_pa
+                .map_or(1e7, |p| 5.0 * p * model.design_pressure_ratio),
         };
         let lim = |min: f64, max: f64| {
             Some(InputLimits {
@@ -93,15 +107,40 @@ impl CoreSettings {
         limits[SensorId::RecycleValvePosition.index()] = lim(-0.05, 1.05);
         limits[SensorId::ThrottlePosition.index()] = lim(-0.05, 1.05);
         limits[SensorId::ThrustPosition.index()] = lim(-5e-3, 5e-3);
-        let t_max = 1.5 * model.drive.rated_torque_nm.abs();
+        let t_max = match 1.5 * model.drive.rated_torque_nm.abs() {
+            t if t > 0.0 => t,
+            _ => f64::MAX, // a drive the controller does not own: its torque is only read
+        };
         limits[SensorId::DriveTorque.index()] = lim(-t_max, t_max);
         CoreSettings {
-            failsafe_recycle_opening: if model.recycle.is_some() { 1.0 } else { 0.0 },
+            failsafe_recycle_opening: match model.recycle_valve.map(|v| v.fail_position) {
+                Some(crate::machine::FailPosition::Closed) => 0.0,
+                Some(_) => 1.0,
+                None => 0.0,
+            },
             supervisor: Supervisor { limits },
             startup_grace_s: 1.0,
+            failure_hold_s: DEFAULT_FAILURE_HOLD_S,
+            failsafe_exit_s: DEFAULT_FAILSAFE_EXIT_S,
         }
     }
+
+    /// Freshness defaults for inputs that arrive by polling every `poll_period_s` (Modbus):
+    /// every default timeout becomes at least [`POLL_PERIODS_PER_TIMEOUT`] poll periods, so a
+    /// device answering at the poll rate is never stale between two answers.
+    pub fn follow_poll_period(&mut self, poll_period_s: f64) {
+        self.supervisor
+            .follow_poll_period(poll_period_s, POLL_PERIODS_PER_TIMEOUT);
+    }
 }
+
+/// Default transmitter-failure hold, s: longer than a 100 ms blip plus a 50 Hz poll period,
+/// short against the ≈ 1 s a closing throttle takes to move a machine onto its surge line.
+pub const DEFAULT_FAILURE_HOLD_S: f64 = 0.25;
+/// Default healthy time before leaving fail-safe, s.
+pub const DEFAULT_FAILSAFE_EXIT_S: f64 = 0.5;
+/// Default freshness timeout in poll periods of a polled bus.
+pub const POLL_PERIODS_PER_TIMEOUT: f64 = 3.0;
 
 /// What one cycle produced (for traces, the event log and the I/O layer).
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -200,6 +239,10 @@ pub struct ControlCore {
     /// Measurements of the last processed sample (repeated by a holding cycle).
     last_meas: Measurements,
     law_started: bool,
+    /// Since when essential inputs have failed in auto/manual (the failure hold), s; NaN: not.
+    failing_since_s: f64,
+    /// Since when inputs have been healthy in fail-safe (exit hysteresis), s; NaN: not.
+    healthy_since_s: f64,
 }
 
 impl ControlCore {
@@ -241,6 +284,8 @@ impl ControlCore {
             last_sample_s: f64::NAN,
             last_meas: Measurements::unavailable(f64::NAN),
             law_started: false,
+            failing_since_s: f64::NAN,
+            healthy_since_s: f64::NAN,
             model,
             config,
             settings,
@@ -495,7 +540,7 @@ impl ControlCore {
         self.mode = Mode::FailSafe;
         self.law_started = false;
         let mut cmd = ActuatorCommands::default();
-        if self.model.recycle.is_some() {
+        if self.model.has_recycle_valve() {
             cmd.set(
                 ActuatorId::RecycleValve,
                 self.settings.failsafe_recycle_opening,
@@ -519,9 +564,18 @@ impl ControlCore {
     /// Run one cycle at time `t_s`.
     pub fn cycle(&mut self, t_s: f64, raw: &RawSensors, op: &OperatorInputs) -> CycleOutput {
         let validity = self.settings.supervisor.check(raw);
+        // speed is essential when the controller runs the speed loop or the law reads it
+        // (law registry); a recycle-pi skid whose drive keeps its own speed may not bind it
+        let speed_needed = self.model.owns_drive
+            || self
+                .law
+                .id()
+                .descriptor()
+                .sensors
+                .contains(&SensorId::ShaftSpeed);
         let essentials_ok = validity.ok(SensorId::PSuction)
             && validity.ok(SensorId::PDischarge)
-            && validity.ok(SensorId::ShaftSpeed);
+            && (!speed_needed || validity.ok(SensorId::ShaftSpeed));
         // A cycle without a new pressure/speed sample holds its outputs: observers, filters
         // and integrators take each sample once. (Sender and controller run on their own
         // clocks; without this a late sample would be processed twice, which a law on a fast
@@ -566,8 +620,31 @@ impl ControlCore {
             if self.mode == Mode::Init && t_s - self.first_t_s < self.settings.startup_grace_s {
                 return self.init_hold(meas, validity);
             }
+            self.healthy_since_s = f64::NAN;
+            if matches!(self.mode, Mode::Auto | Mode::Manual) {
+                // transmitter-failure hold: keep the last outputs for a short time
+                if self.failing_since_s.is_nan() {
+                    self.failing_since_s = t_s;
+                }
+                if t_s - self.failing_since_s < self.settings.failure_hold_s {
+                    self.history.push(self.last.get(ActuatorId::DriveTorque));
+                    return self.passive_output(self.last, meas, validity);
+                }
+            }
+            self.failing_since_s = f64::NAN;
             return self.failsafe(meas, validity);
         }
+        self.failing_since_s = f64::NAN;
+        if self.mode == Mode::FailSafe {
+            // hysteresis: stay in fail-safe until the inputs have been healthy for a while
+            if self.healthy_since_s.is_nan() {
+                self.healthy_since_s = t_s;
+            }
+            if t_s - self.healthy_since_s < self.settings.failsafe_exit_s {
+                return self.failsafe(meas, validity);
+            }
+        }
+        self.healthy_since_s = f64::NAN;
         let from_failsafe = matches!(self.mode, Mode::FailSafe | Mode::Init);
         self.mode = if self.auto_requested {
             Mode::Auto
@@ -592,9 +669,13 @@ impl ControlCore {
                     .track(from, op.speed_setpoint_rad_s, meas.omega_rad_s);
             }
         }
-        // the current outputs, with positions measured where the controller did not drive them
+        // the current outputs, with positions measured where the controller did not drive them;
+        // every resume (start, fail-safe exit, link restart) takes over from the *measured*
+        // valve position, not from the fail-safe command the valve may not have reached
         let mut current = self.last;
-        if current.get(ActuatorId::RecycleValve).is_nan() {
+        if current.get(ActuatorId::RecycleValve).is_nan()
+            || (from_failsafe && meas.recycle_position.is_finite())
+        {
             current.set(ActuatorId::RecycleValve, meas.recycle_position);
         }
         if current.get(ActuatorId::Throttle).is_nan() {
@@ -629,7 +710,7 @@ impl ControlCore {
                 }
             }
             Mode::Manual => {
-                if self.model.recycle.is_some() {
+                if self.model.has_recycle_valve() {
                     // bumpless manual: hold the last output until the operator moves the station
                     if self.manual_recycle.is_nan() {
                         self.manual_recycle = current.get(ActuatorId::RecycleValve);
@@ -645,9 +726,14 @@ impl ControlCore {
             Mode::Init | Mode::FailSafe => {}
         }
         self.last_manual_input = op.recycle_manual;
-        let torque = self
-            .speed
-            .update(op.speed_setpoint_rad_s, meas.omega_rad_s, extra_torque, dt);
+        // the drive's speed loop runs here only when the controller owns the drive; otherwise
+        // its own governor keeps speed and no torque is commanded (NaN: not driven)
+        let torque = if self.model.owns_drive {
+            self.speed
+                .update(op.speed_setpoint_rad_s, meas.omega_rad_s, extra_torque, dt)
+        } else {
+            f64::NAN
+        };
         cmd.set(ActuatorId::DriveTorque, torque);
         self.history.push(torque);
 
@@ -689,9 +775,12 @@ mod tests {
     }
 
     fn core_for(desc: &PlantDescription, grace_s: f64) -> ControlCore {
-        let model = ControlModel::from_plant(desc);
+        let model = crate::sim::control_model(desc);
         let mut settings = CoreSettings::defaults_for(&model);
         settings.startup_grace_s = grace_s;
+        // these tests look at single cycles: no failure hold, no exit hysteresis
+        settings.failure_hold_s = 0.0;
+        settings.failsafe_exit_s = 0.0;
         let config = model.controller.clone();
         ControlCore::new(model, config, settings, LawId::RecyclePi, 0.0).expect("core")
     }
@@ -715,6 +804,50 @@ mod tests {
         let op = op(&core);
         let (_, raw) = run.sense(0.0);
         (core, raw, op)
+    }
+
+    /// Vendor data only (no map, no model, the drive on its own governor): recycle-pi runs on
+    /// pressures, Δp and valve position without a speed reading and never commands torque.
+    #[test]
+    fn a_drive_the_controller_does_not_own_gets_no_torque_and_speed_is_not_essential() {
+        let desc = kvangardsnes();
+        let mut m = desc.machine();
+        m.family = None;
+        m.map = None;
+        m.recycle = None;
+        m.owns_drive_speed_loop = false;
+        let model = ControlModel::from_machine(&m, desc.file.controller.clone());
+        let mut settings = CoreSettings::defaults_for(&model);
+        settings.startup_grace_s = 0.0;
+        let config = model.controller.clone();
+        let mut core = ControlCore::new(model, config, settings, LawId::RecyclePi, 0.0)
+            .expect("recycle-pi on vendor data");
+        let sc = hold();
+        let mut run = PlantRun::new(&desc, &sc).expect("run");
+        let (_, mut raw) = run.sense(0.0);
+        raw.values.set(SensorId::ShaftSpeed, f64::NAN);
+        raw.age_s[SensorId::ShaftSpeed.index()] = f64::INFINITY;
+        let op = op(&core);
+        for k in 0..20 {
+            let t = k as f64 * 1e-3;
+            for a in raw.age_s.iter_mut().filter(|a| a.is_finite()) {
+                *a = 0.0;
+            }
+            let out = core.cycle(t, &raw, &op);
+            assert_eq!(out.mode, Mode::Auto, "cycle {k}");
+            assert!(
+                out.commands.get(ActuatorId::DriveTorque).is_nan(),
+                "cycle {k}"
+            );
+            assert!(out.commands.get(ActuatorId::RecycleValve).is_finite());
+            let (_, next) = run.sense(t);
+            raw.values = next.values;
+            raw.values.set(SensorId::ShaftSpeed, f64::NAN);
+        }
+        // the plant-file machine owns its drive: the same sample without speed fails safe
+        let mut owned = core_for(&desc, 0.0);
+        let out = owned.cycle(0.0, &raw, &op);
+        assert_eq!(out.mode, Mode::FailSafe);
     }
 
     #[test]
@@ -753,17 +886,111 @@ mod tests {
             "first command {u}, valve at {measured}"
         );
 
-        // with no grace, the same start goes fail-safe first and the law starts from 100 %
+        // with no grace, the same start goes fail-safe first (commanding 100 %), and the law
+        // still resumes from the measured position, not from the fail-safe command
         let (mut eager, _, _) = started(0.0);
-        assert_eq!(
-            eager.cycle(0.0, &RawSensors::missing(), &op).mode,
-            Mode::FailSafe
-        );
+        let fs = eager.cycle(0.0, &RawSensors::missing(), &op);
+        assert_eq!(fs.mode, Mode::FailSafe);
+        assert_eq!(fs.commands.get(ActuatorId::RecycleValve), 1.0);
         let u = eager
             .cycle(0.001, &raw, &op)
             .commands
             .get(ActuatorId::RecycleValve);
-        assert!(u > 0.99, "{u}");
+        assert!(
+            (u - measured).abs() < 0.005,
+            "resumed at {u}, valve at {measured}"
+        );
+    }
+
+    /// A core with the default supervision following a 50 Hz poll, and a function giving the
+    /// raw sample at `t` with its poll age (arrivals every 20 ms), late by `late_s`.
+    fn polled() -> (ControlCore, RawSensors, OperatorInputs) {
+        let (mut core, raw, op) = started(1.0);
+        let model = core.model().clone();
+        let mut settings = CoreSettings::defaults_for(&model);
+        settings.follow_poll_period(0.02);
+        core.set_settings(settings);
+        (core, raw, op)
+    }
+
+    fn aged(raw: &RawSensors, age_s: f64) -> RawSensors {
+        let mut r = *raw;
+        r.age_s = [age_s; SensorId::COUNT];
+        r
+    }
+
+    #[test]
+    fn freshness_follows_the_poll_period() {
+        let (core, _, _) = polled();
+        let lim = core.settings().supervisor.limits[SensorId::PSuction.index()].unwrap();
+        assert!((lim.timeout_s - 0.06).abs() < 1e-12, "{}", lim.timeout_s);
+    }
+
+    #[test]
+    fn blips_of_100_ms_every_second_do_not_enter_fail_safe() {
+        // 50 Hz poll; from t = 1 s, for 10 s, every second the answers stop for 100 ms
+        let (mut core, raw, op) = polled();
+        let dt = 1e-3;
+        let mut last_arrival = 0.0;
+        let mut stale_cycles = 0;
+        for k in 0..12_000 {
+            let t = k as f64 * dt;
+            let in_blip = (1.0..11.0).contains(&t) && (t - t.floor()) < 0.1;
+            let due = (t / 0.02).floor() * 0.02;
+            if !in_blip && due > last_arrival {
+                last_arrival = due;
+            }
+            let out = core.cycle(t, &aged(&raw, t - last_arrival), &op);
+            assert_ne!(out.mode, Mode::FailSafe, "fail-safe at {t:.3} s");
+            if !out.validity.ok(SensorId::PSuction) {
+                stale_cycles += 1;
+            }
+        }
+        // the blips were seen (inputs stale), and held through
+        assert!(stale_cycles > 300, "{stale_cycles}");
+    }
+
+    #[test]
+    fn a_loss_longer_than_the_hold_enters_fail_safe_in_time_and_leaves_with_hysteresis() {
+        let (mut core, raw, op) = polled();
+        let s = *core.settings();
+        let timeout = s.supervisor.limits[SensorId::PSuction.index()]
+            .unwrap()
+            .timeout_s;
+        let dt = 1e-3;
+        for k in 0..1000 {
+            let t = k as f64 * dt;
+            assert_eq!(core.cycle(t, &aged(&raw, 0.0), &op).mode, Mode::Auto);
+        }
+        // answers stop at t = 1 s
+        let mut entered = None;
+        for k in 1000..2000 {
+            let t = k as f64 * dt;
+            let out = core.cycle(t, &aged(&raw, t - 0.999), &op);
+            if out.mode == Mode::FailSafe && entered.is_none() {
+                entered = Some(t);
+            }
+        }
+        let entered = entered.expect("never entered fail-safe");
+        let due = 0.999 + timeout + s.failure_hold_s;
+        assert!(
+            entered <= due + 2.0 * dt && entered >= due - 2.0 * dt,
+            "fail-safe at {entered}, due at {due}"
+        );
+        // back: healthy for less than the exit time keeps fail-safe, then auto
+        let mut resumed = None;
+        for k in 2000..3000 {
+            let t = k as f64 * dt;
+            let out = core.cycle(t, &aged(&raw, 0.0), &op);
+            if out.mode == Mode::Auto && resumed.is_none() {
+                resumed = Some(t);
+            }
+        }
+        let resumed = resumed.expect("never resumed");
+        assert!(
+            (resumed - (2.0 + s.failsafe_exit_s)).abs() < 2.0 * dt,
+            "resumed at {resumed}"
+        );
     }
 
     #[test]

@@ -201,7 +201,7 @@ impl Eq8Region {
     /// (the same region as the observer bound, `ControlModel::observer_min_gain`).
     pub fn default_for(model: &ControlModel) -> Option<Eq8Region> {
         let w0 = model.drive.nominal_speed_rad_s;
-        let (q_peak, _) = model.map.peak(w0)?;
+        let (q_peak, _) = model.speed_map().peak(w0)?;
         let (p, t) = suction_conditions(model);
         let per_map = model.map_flow(1.0, p, t);
         let m_peak = q_peak / per_map;
@@ -249,7 +249,7 @@ fn suction_conditions(model: &ControlModel) -> (f64, f64) {
 pub fn eq8_bound(model: &ControlModel, region: Eq8Region) -> Eq8Bound {
     let (p, t) = suction_conditions(model);
     // flow in map units per kg/s (1 for a mass-flow map, 1/ρ for a volumetric one)
-    let per_map = match model.map.flow_coordinate {
+    let per_map = match model.flow_coordinate {
         FlowCoordinate::MassKgS => 1.0,
         FlowCoordinate::InletVolumeM3S => model.map_flow(1.0, p, t),
     };
@@ -262,7 +262,7 @@ pub fn eq8_bound(model: &ControlModel, region: Eq8Region) -> Eq8Bound {
         let w = w_lo + (w_hi - w_lo) * f64::from(i) / 40.0;
         for j in 0..=800 {
             let m = m_lo + (m_hi - m_lo) * f64::from(j) / 800.0;
-            let pt = model.map.eval(m * per_map, w);
+            let pt = model.speed_map().eval(m * per_map, w);
             let dm = pt.d_dflow * per_map;
             let dw = pt.d_domega;
             if dw > 0.0 {
@@ -388,12 +388,12 @@ impl DriveTorque {
             ));
         }
         let delay_s = 1e-3 * non_negative("delay_compensation_ms", cfg.delay_compensation_ms)?;
-        let predictor = match (delay_s > 0.0, model.plenum_duct) {
+        let predictor = match (delay_s > 0.0, model.plenum_duct.zip(model.shaft)) {
             (false, _) => None,
-            (true, Some(params)) => Some(PlenumDuctPlant::for_prediction(
+            (true, Some((params, shaft))) => Some(PlenumDuctPlant::for_prediction(
                 params,
-                model.map,
-                model.shaft,
+                *model.speed_map(),
+                shaft,
                 model.gas,
                 model.orifice,
                 (model.drive.min_torque_nm, model.drive.rated_torque_nm),
@@ -642,7 +642,7 @@ mod tests {
         let path = std::path::Path::new(env!("CARGO_MANIFEST_DIR"))
             .join("config/plants/bohagen2007_plenum.toml");
         let desc = crate::plant::file::PlantDescription::load(&path).expect("plant");
-        ControlModel::from_plant(&desc)
+        crate::sim::control_model(&desc)
     }
 
     fn measurements(m_hat: f64, throttle: f64, omega: f64) -> Measurements {

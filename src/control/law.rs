@@ -9,8 +9,9 @@
 use super::config::ControllerConfig;
 use super::measurements::{Measurements, OperatorInputs};
 use super::model::ControlModel;
-use crate::plant::file::ModelKind;
-use crate::signals::{ActuatorCommands, ActuatorId, ActuatorSet};
+use crate::machine::params::ModelKind;
+use crate::machine::MachineData;
+use crate::signals::{ActuatorCommands, ActuatorId, ActuatorSet, SensorId};
 use serde::{Deserialize, Serialize};
 use std::fmt;
 use std::str::FromStr;
@@ -37,79 +38,256 @@ pub enum LawId {
     Robust,
     /// Sliding mode on the tip clearance via the magnetic thrust bearing (seed 004).
     TipSliding,
+    /// The yardstick: textbook symmetric PI on the normalised deviation (simulation and
+    /// benchmarks only, never offered to the daemon: not in [`LawId::ALL`]).
+    BaselinePi,
+}
+
+/// What a law is and what it needs: one registry line per law ([`REGISTRY`]). The config
+/// check asks for exactly these bindings and machine data; the CAN heartbeat's `ActiveLaw`
+/// code and the DBC value table come from here (tests/config_corpus.rs checks
+/// `config/skid.dbc` against [`dbc_value_table`]).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct LawDescriptor {
+    /// Which law.
+    pub id: LawId,
+    /// Name in config files, on the command line, in the event log and the DBC value table.
+    pub name: &'static str,
+    /// Numeric code (heartbeat `ActiveLaw`, trace, DBC value table).
+    pub code: u8,
+    /// One line for humans.
+    pub summary: &'static str,
+    /// Actuators the law itself commands (the drive's speed loop comes on top when the
+    /// controller owns the drive).
+    pub actuators: ActuatorSet,
+    /// Sensors the law reads besides the suction and discharge pressures and the flow (the
+    /// flow source adds the flow element's Δp).
+    pub sensors: &'static [SensorId],
+    /// Whether the law needs the compressor flow (then the flow source's sensors are needed).
+    pub needs_flow: bool,
+    /// Machine data the law needs from the machine description.
+    pub machine_data: &'static [MachineData],
+    /// Model family of a model-based law (its equations are written for this model).
+    pub model_family: Option<ModelKind>,
+}
+
+use ActuatorId as A;
+use SensorId as S;
+
+/// The law registry: a new law is one file plus one line here.
+pub const REGISTRY: [LawDescriptor; 8] = [
+    LawDescriptor {
+        id: LawId::None,
+        name: "none",
+        code: 0,
+        summary: "no surge control (valves from their manual stations)",
+        actuators: ActuatorSet::of(&[]),
+        sensors: &[],
+        needs_flow: false,
+        machine_data: &[],
+        model_family: None,
+    },
+    LawDescriptor {
+        id: LawId::RecyclePi,
+        name: "recycle-pi",
+        code: 1,
+        summary:
+            "PI on the recycle valve around a surge control line (seed 001 ch. 3, seed 002 ch. 4)",
+        actuators: ActuatorSet::of(&[A::RecycleValve]),
+        sensors: &[S::RecycleValvePosition],
+        needs_flow: true,
+        machine_data: &[MachineData::SurgeLine, MachineData::RecycleValve],
+        model_family: None,
+    },
+    LawDescriptor {
+        id: LawId::RecycleFl,
+        name: "recycle-fl",
+        code: 2,
+        summary: "feedback linearization on the recycle valve (seed 001 ch. 4)",
+        actuators: ActuatorSet::of(&[A::RecycleValve]),
+        sensors: &[S::ShaftSpeed, S::RecycleValvePosition, S::ThrottlePosition],
+        needs_flow: true,
+        machine_data: &[
+            MachineData::SpeedLineMap,
+            MachineData::RecycleValve,
+            MachineData::Model(ModelKind::RecycleSystem),
+        ],
+        model_family: Some(ModelKind::RecycleSystem),
+    },
+    LawDescriptor {
+        id: LawId::DriveTorque,
+        name: "drive-torque",
+        code: 3,
+        summary: "active surge control with the drive torque (seed 000 eq. 7, 22)",
+        actuators: ActuatorSet::of(&[A::DriveTorque]),
+        sensors: &[S::ShaftSpeed],
+        needs_flow: true,
+        machine_data: &[
+            MachineData::SpeedLineMap,
+            MachineData::OwnedDrive,
+            MachineData::Model(ModelKind::PlenumDuct),
+        ],
+        model_family: Some(ModelKind::PlenumDuct),
+    },
+    LawDescriptor {
+        id: LawId::Ccv,
+        name: "ccv",
+        code: 4,
+        summary: "close-coupled valve (seed 003 Theorem 1)",
+        actuators: ActuatorSet::of(&[A::CloseCoupledValve]),
+        sensors: &[S::ShaftSpeed],
+        needs_flow: true,
+        machine_data: &[
+            MachineData::SpeedLineMap,
+            MachineData::Model(ModelKind::Spool),
+        ],
+        model_family: Some(ModelKind::Spool),
+    },
+    LawDescriptor {
+        id: LawId::ThrottleBackstep,
+        name: "throttle-backstep",
+        code: 5,
+        summary: "throttle backstepping (seed 003 Theorem 2)",
+        actuators: ActuatorSet::of(&[A::Throttle]),
+        sensors: &[S::ShaftSpeed],
+        needs_flow: true,
+        machine_data: &[
+            MachineData::SpeedLineMap,
+            MachineData::Model(ModelKind::Spool),
+        ],
+        model_family: Some(ModelKind::Spool),
+    },
+    LawDescriptor {
+        id: LawId::Robust,
+        name: "robust",
+        code: 6,
+        summary: "robust torque + close-coupled valve (seed 003 Theorem 3)",
+        actuators: ActuatorSet::of(&[A::DriveTorque, A::CloseCoupledValve]),
+        sensors: &[S::ShaftSpeed],
+        needs_flow: true,
+        machine_data: &[
+            MachineData::SpeedLineMap,
+            MachineData::OwnedDrive,
+            MachineData::Model(ModelKind::Spool),
+        ],
+        model_family: Some(ModelKind::Spool),
+    },
+    LawDescriptor {
+        id: LawId::TipSliding,
+        name: "tip-sliding",
+        code: 7,
+        summary: "sliding mode on the tip clearance via the magnetic thrust bearing (seed 004)",
+        actuators: ActuatorSet::of(&[A::TipClearance]),
+        sensors: &[S::ShaftSpeed, S::ThrustPosition],
+        needs_flow: true,
+        machine_data: &[
+            MachineData::SpeedLineMap,
+            MachineData::Model(ModelKind::TipClearance),
+        ],
+        model_family: Some(ModelKind::TipClearance),
+    },
+];
+
+/// The simulation-only yardstick (`baseline-pi`): not in [`REGISTRY`], so neither the
+/// daemon's config, the bus nor the DBC value table offer it.
+pub const BASELINE_PI: LawDescriptor = LawDescriptor {
+    id: LawId::BaselinePi,
+    name: "baseline-pi",
+    code: 255,
+    summary: "textbook symmetric PI on the normalised deviation (simulation and benchmarks only)",
+    actuators: ActuatorSet::of(&[A::RecycleValve]),
+    sensors: &[],
+    needs_flow: true,
+    machine_data: &[MachineData::SurgeLine, MachineData::RecycleValve],
+    model_family: None,
+};
+
+/// The DBC value table line of the heartbeat's `ActiveLaw` signal (message `msg_id`), from
+/// the registry: `VAL_ 128 ActiveLaw 0 "none" 1 "recycle-pi" … ;`.
+pub fn dbc_value_table(msg_id: u32) -> String {
+    let mut s = format!("VAL_ {msg_id} ActiveLaw");
+    for d in &REGISTRY {
+        s += &format!(" {} \"{}\"", d.code, d.name);
+    }
+    s + " ;"
 }
 
 impl LawId {
-    /// Every law.
-    pub const ALL: [LawId; 8] = [
-        LawId::None,
-        LawId::RecyclePi,
-        LawId::RecycleFl,
-        LawId::DriveTorque,
-        LawId::Ccv,
-        LawId::ThrottleBackstep,
-        LawId::Robust,
-        LawId::TipSliding,
-    ];
+    /// Every law, in registry order.
+    pub const ALL: [LawId; 8] = {
+        let mut out = [LawId::None; 8];
+        let mut i = 0;
+        while i < REGISTRY.len() {
+            out[i] = REGISTRY[i].id;
+            i += 1;
+        }
+        out
+    };
+
+    /// The law's registry entry.
+    pub const fn descriptor(self) -> &'static LawDescriptor {
+        let mut i = 0;
+        while i < REGISTRY.len() {
+            if REGISTRY[i].id as u8 == self as u8 {
+                return &REGISTRY[i];
+            }
+            i += 1;
+        }
+        if self as u8 == LawId::BaselinePi as u8 {
+            return &BASELINE_PI;
+        }
+        panic!("every law has a registry line")
+    }
+
+    /// Laws of the simulation and benchmarks only (not in [`LawId::ALL`], so the daemon's
+    /// config and the bus never offer them).
+    pub const SIM_ONLY: [LawId; 1] = [LawId::BaselinePi];
+
+    /// Parse a law name for `antisurge sim` and the benchmarks: every daemon law and the
+    /// simulation-only ones.
+    pub fn parse_sim(s: &str) -> Result<LawId, UnknownLaw> {
+        s.parse::<LawId>().or_else(|e| {
+            LawId::SIM_ONLY
+                .iter()
+                .copied()
+                .find(|l| l.name() == s)
+                .ok_or(e)
+        })
+    }
 
     /// Name used in config files, on the command line and in the event log.
     pub const fn name(self) -> &'static str {
-        match self {
-            LawId::None => "none",
-            LawId::RecyclePi => "recycle-pi",
-            LawId::RecycleFl => "recycle-fl",
-            LawId::DriveTorque => "drive-torque",
-            LawId::Ccv => "ccv",
-            LawId::ThrottleBackstep => "throttle-backstep",
-            LawId::Robust => "robust",
-            LawId::TipSliding => "tip-sliding",
-        }
+        self.descriptor().name
     }
 
     /// Numeric code (heartbeat frame `ActiveLaw`, trace).
     pub const fn code(self) -> u8 {
-        match self {
-            LawId::None => 0,
-            LawId::RecyclePi => 1,
-            LawId::RecycleFl => 2,
-            LawId::DriveTorque => 3,
-            LawId::Ccv => 4,
-            LawId::ThrottleBackstep => 5,
-            LawId::Robust => 6,
-            LawId::TipSliding => 7,
-        }
+        self.descriptor().code
     }
 
-    /// Actuators the law drives (the drive torque of every law includes the speed loop).
+    /// Actuators the law itself commands (without the drive's speed loop).
     pub const fn actuators(self) -> ActuatorSet {
-        match self {
-            LawId::None => ActuatorSet::of(&[ActuatorId::DriveTorque]),
-            LawId::RecyclePi | LawId::RecycleFl => {
-                ActuatorSet::of(&[ActuatorId::DriveTorque, ActuatorId::RecycleValve])
-            }
-            LawId::DriveTorque => ActuatorSet::of(&[ActuatorId::DriveTorque]),
-            LawId::Ccv => {
-                ActuatorSet::of(&[ActuatorId::DriveTorque, ActuatorId::CloseCoupledValve])
-            }
-            LawId::ThrottleBackstep => {
-                ActuatorSet::of(&[ActuatorId::DriveTorque, ActuatorId::Throttle])
-            }
-            LawId::Robust => {
-                ActuatorSet::of(&[ActuatorId::DriveTorque, ActuatorId::CloseCoupledValve])
-            }
-            LawId::TipSliding => ActuatorSet::of(&[ActuatorId::TipClearance]),
-        }
+        self.descriptor().actuators
     }
 
-    /// Plant model families the law's equations are written for.
+    /// Whether a simulation plant of model family `kind` gives the machine data the law
+    /// needs (a plant file has a map and owns its drive; only the recycle system has a
+    /// recycle valve; a model-based law needs its own family).
     pub fn supports(self, kind: ModelKind) -> bool {
-        match self {
-            LawId::None => true,
-            LawId::RecyclePi | LawId::RecycleFl => kind == ModelKind::RecycleSystem,
-            LawId::DriveTorque => kind == ModelKind::PlenumDuct,
-            LawId::Ccv | LawId::ThrottleBackstep | LawId::Robust => kind == ModelKind::Spool,
-            LawId::TipSliding => kind == ModelKind::TipClearance,
-        }
+        self.descriptor().machine_data.iter().all(|d| match d {
+            MachineData::SurgeLine | MachineData::SpeedLineMap | MachineData::OwnedDrive => true,
+            MachineData::RecycleValve => kind == ModelKind::RecycleSystem,
+            MachineData::Model(k) => *k == kind,
+        })
+    }
+
+    /// The first machine datum the law needs that the machine lacks.
+    pub fn missing_machine_data(self, model: &ControlModel) -> Option<MachineData> {
+        self.descriptor()
+            .machine_data
+            .iter()
+            .copied()
+            .find(|d| !model.has(*d))
     }
 }
 
@@ -145,8 +323,18 @@ pub enum LawError {
         law: LawId,
         /// Plant name.
         plant: String,
-        /// Plant model.
-        kind: ModelKind,
+        /// Plant model (`None`: the description has no model).
+        kind: Option<ModelKind>,
+    },
+    /// The machine description lacks data the law needs.
+    #[error("law `{law}` needs {what}, which the machine description of `{machine}` does not give", what = .missing.describe().0)]
+    MachineData {
+        /// Law.
+        law: LawId,
+        /// Machine name.
+        machine: String,
+        /// What is missing.
+        missing: MachineData,
     },
     /// A setting is invalid for this machine.
     #[error("law `{law}`: {key}: {message}")]
@@ -290,16 +478,26 @@ pub enum Law {
     Robust(super::spool_laws::Robust),
     /// Tip-clearance sliding mode.
     TipSliding(super::tip_sliding::TipSliding),
+    /// The benchmark yardstick.
+    BaselinePi(super::baseline_pi::BaselinePi),
 }
 
 impl Law {
     /// Build a law for a machine from the controller configuration.
     pub fn new(id: LawId, cfg: &ControllerConfig, model: &ControlModel) -> Result<Law, LawError> {
-        if !id.supports(model.kind) {
-            return Err(LawError::NotApplicable {
-                law: id,
-                plant: model.name.clone(),
-                kind: model.kind,
+        if let Some(missing) = id.missing_machine_data(model) {
+            return Err(match (missing, model.kind) {
+                // a model-based law on another model family
+                (MachineData::Model(_), Some(_)) => LawError::NotApplicable {
+                    law: id,
+                    plant: model.name.clone(),
+                    kind: model.kind,
+                },
+                _ => LawError::MachineData {
+                    law: id,
+                    machine: model.name.clone(),
+                    missing,
+                },
             });
         }
         Ok(match id {
@@ -323,6 +521,14 @@ impl Law {
                 &cfg.tip_sliding,
                 model,
             )?),
+            LawId::BaselinePi => {
+                // the same control line as recycle-pi (with its checks), textbook gains
+                let rp = super::recycle_pi::RecyclePi::new(&cfg.recycle_pi, model)?;
+                Law::BaselinePi(super::baseline_pi::BaselinePi::new(
+                    *rp.control_line(),
+                    cfg.recycle_pi.min_opening,
+                ))
+            }
         })
     }
 
@@ -337,6 +543,7 @@ impl Law {
             Law::ThrottleBackstep(_) => LawId::ThrottleBackstep,
             Law::Robust(_) => LawId::Robust,
             Law::TipSliding(_) => LawId::TipSliding,
+            Law::BaselinePi(_) => LawId::BaselinePi,
         }
     }
 
@@ -350,6 +557,7 @@ impl Law {
             Law::ThrottleBackstep(l) => Some(l),
             Law::Robust(l) => Some(l),
             Law::TipSliding(l) => Some(l),
+            Law::BaselinePi(l) => Some(l),
         }
     }
 
@@ -399,6 +607,20 @@ mod tests {
         }
         let e = "recycle_pi".parse::<LawId>().unwrap_err();
         assert!(e.to_string().contains("recycle-pi"), "{e}");
+    }
+
+    #[test]
+    fn registry_is_in_code_order_and_the_dbc_value_table_matches_it() {
+        for (i, d) in REGISTRY.iter().enumerate() {
+            assert_eq!(d.code as usize, i);
+            assert_eq!(d.id.descriptor(), d);
+        }
+        let line = dbc_value_table(128);
+        assert!(
+            line.starts_with("VAL_ 128 ActiveLaw 0 \"none\" 1 \"recycle-pi\""),
+            "{line}"
+        );
+        assert!(line.ends_with("7 \"tip-sliding\" ;"), "{line}");
     }
 
     #[test]

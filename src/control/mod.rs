@@ -5,6 +5,7 @@
 //! I/O, no clock and no allocation inside a cycle. The simulation, the HIL plant and the daemon
 //! drive the same [`core::ControlCore`].
 
+pub mod baseline_pi;
 pub mod config;
 pub mod core;
 pub mod drive_torque;

@@ -1,37 +1,50 @@
-//! What the controller knows about the machine: built from the same plant description the
-//! simulator uses (on a real skid, the plant file describes the real machine).
+//! What the controller knows about the machine: built from the machine description
+//! ([`crate::machine`]), whether it came from vendor data (`config/machines/*.toml`) or from a
+//! simulation plant file. This module depends on the description and on `physics/`, never on
+//! the simulator's plant models.
 
 use super::config::ControllerConfig;
 use super::observer::ObserverPlant;
-use crate::physics::compressor_map::{CompressorMap, FlowCoordinate};
+use crate::machine::params::{
+    DriveSpec, FeedSpec, ModelKind, PlenumDuctParams, RecycleParams, SpoolParams, ThrustRating,
+    TipClearanceParams,
+};
+use crate::machine::{MachineDescription, RecycleValve};
+use crate::physics::compressor_map::{CompressorMap, FlowCoordinate, SurgeLine};
 use crate::physics::gas::Gas;
 use crate::physics::orifice::Orifice;
 use crate::physics::shaft::Shaft;
-use crate::plant::file::{
-    DriveSpec, ModelKind, PlantDescription, PlenumDuctParams, RecycleParams, SpoolParams,
-    ThrustRating, TipClearanceParams,
-};
 
 /// The controller's model of the machine.
 #[derive(Debug, Clone)]
 pub struct ControlModel {
-    /// Plant name.
+    /// Machine name.
     pub name: String,
-    /// Which model family.
-    pub kind: ModelKind,
+    /// Which model family the machine data describe (`None`: vendor data without a model).
+    pub kind: Option<ModelKind>,
     /// Gas.
     pub gas: Gas,
     /// Suction flow element.
     pub orifice: Orifice,
-    /// Compressor map (SI) with its surge line.
-    pub map: CompressorMap,
-    /// Drive data (rating, nominal speed, speed-loop gains).
+    /// The surge limit line (flow in `flow_coordinate` versus pressure ratio).
+    pub surge_line: SurgeLine,
+    /// Flow coordinate of the surge line and the map.
+    pub flow_coordinate: FlowCoordinate,
+    /// Speed-line map, when the description has one (model-based laws need it: the law
+    /// registry refuses them on a machine without, so [`Self::speed_map`] never fails there).
+    pub map: Option<CompressorMap>,
+    /// Drive data (rating, nominal speed, speed-loop gains); a drive the controller does not
+    /// own has zero rating and gains.
     pub drive: DriveSpec,
-    /// Rotor data for the torque balance (seed 000 eq. 1c).
-    pub shaft: Shaft,
+    /// Whether the controller runs the drive's speed loop and commands torque.
+    pub owns_drive: bool,
+    /// Rotor data for the torque balance (seed 000 eq. 1c), if known.
+    pub shaft: Option<Shaft>,
+    /// The recycle valve, if the machine has one.
+    pub recycle_valve: Option<RecycleValve>,
     /// Plenum/duct data (seed 000 plants).
     pub plenum_duct: Option<PlenumDuctParams>,
-    /// Recycle system data (seed 001/002 plants).
+    /// Recycle system model data (seed 001/002 plants).
     pub recycle: Option<RecycleParams>,
     /// Tip-clearance plant data (seed 004).
     pub tip: Option<TipClearanceParams>,
@@ -41,37 +54,89 @@ pub struct ControlModel {
     pub spool: Option<SpoolParams>,
     /// Nominal suction temperature, K (used when the temperature sensor is absent).
     pub nominal_suction_temperature_k: f64,
-    /// The controller settings tuned for this machine (the plant file's `[controller]`).
+    /// Design pressure ratio (stated, or the middle of the surge line's range).
+    pub design_pressure_ratio: f64,
+    /// Design suction pressure, Pa absolute, if stated.
+    pub design_suction_pressure_pa: Option<f64>,
+    /// The controller settings tuned for this machine (defaults the daemon's config overrides).
     pub controller: ControllerConfig,
 }
 
 impl ControlModel {
-    /// Build from a plant description.
-    pub fn from_plant(desc: &PlantDescription) -> ControlModel {
-        let f = &desc.file;
-        let t_s = f
-            .plenum_duct
-            .map(|p| p.ambient_temperature_k)
-            .or(f.recycle_system.map(|r| r.suction_temperature_k))
-            .or(f.tip_clearance.map(|t| t.ambient_temperature_k))
-            .or(f.spool.map(|s| s.ambient_temperature_k))
-            .unwrap_or(293.15);
+    /// Build from a machine description and the controller settings tuned for it.
+    pub fn from_machine(m: &MachineDescription, controller: ControllerConfig) -> ControlModel {
+        let owns = m.owns_drive_speed_loop && m.drive.is_some();
+        let drive = match (owns, m.drive) {
+            (true, Some(d)) => d,
+            _ => DriveSpec {
+                rated_torque_nm: 0.0,
+                min_torque_nm: 0.0,
+                nominal_speed_rad_s: m
+                    .drive
+                    .map(|d| d.nominal_speed_rad_s)
+                    .or(m.design.and_then(|d| d.speed_rad_s))
+                    .unwrap_or(f64::NAN),
+                speed_kp_nm_s_rad: 0.0,
+                speed_ki_nm_rad: 0.0,
+            },
+        };
         ControlModel {
-            name: f.name.clone(),
-            kind: f.model,
-            gas: f.gas,
-            orifice: f.orifice,
-            map: desc.map,
-            drive: f.drive,
-            shaft: f.shaft,
-            plenum_duct: f.plenum_duct,
-            recycle: f.recycle_system,
-            tip: f.tip_clearance,
-            thrust: f.thrust_rating,
-            spool: f.spool,
-            nominal_suction_temperature_k: t_s,
-            controller: f.controller.clone(),
+            name: m.name.clone(),
+            kind: m.family,
+            gas: m.gas,
+            orifice: m.flow_element,
+            surge_line: m.surge_line,
+            flow_coordinate: m.flow_coordinate,
+            map: m.map,
+            drive,
+            owns_drive: owns,
+            shaft: m.shaft,
+            recycle_valve: m.recycle_valve,
+            plenum_duct: m.plenum_duct,
+            recycle: m.recycle,
+            tip: m.tip,
+            thrust: m.thrust,
+            spool: m.spool,
+            nominal_suction_temperature_k: m.reference_suction_temperature_k,
+            design_pressure_ratio: m.design_pressure_ratio(),
+            design_suction_pressure_pa: m.design.map(|d| d.suction_pressure_pa),
+            controller,
         }
+    }
+
+    /// The speed-line map. Only model-based laws call this; the law registry builds them only
+    /// on a machine whose description has a map (`MachineData::SpeedLineMap`).
+    #[inline]
+    pub fn speed_map(&self) -> &CompressorMap {
+        self.map
+            .as_ref()
+            .expect("law registry: a law that needs the speed-line map runs only with one")
+    }
+
+    /// Does the machine data hold this kind of datum (law registry)?
+    pub fn has(&self, d: crate::machine::MachineData) -> bool {
+        use crate::machine::MachineData as D;
+        match d {
+            D::SurgeLine => true,
+            D::SpeedLineMap => self.map.is_some(),
+            D::RecycleValve => self.recycle_valve.is_some(),
+            D::OwnedDrive => self.owns_drive,
+            D::Model(k) => {
+                self.kind == Some(k)
+                    && match k {
+                        ModelKind::PlenumDuct => self.plenum_duct.is_some() && self.shaft.is_some(),
+                        ModelKind::RecycleSystem => self.recycle.is_some(),
+                        ModelKind::TipClearance => self.tip.is_some() && self.thrust.is_some(),
+                        ModelKind::Spool => self.spool.is_some(),
+                    }
+            }
+        }
+    }
+
+    /// Whether the machine has a recycle valve the controller drives.
+    #[inline]
+    pub fn has_recycle_valve(&self) -> bool {
+        self.recycle_valve.is_some()
     }
 
     /// The outlet volume and duct the mass-flow observer copies (seed 000 eq. 1a–1b), if the
@@ -110,25 +175,17 @@ impl ControlModel {
         recycle_position: f64,
         throttle_position: f64,
     ) -> f64 {
-        use crate::plant::{plenum_duct, recycle_system, tip_clearance};
         if let Some(p) = &self.plenum_duct {
-            return plenum_duct::throttle_flow_kg_s(
-                p,
-                &self.gas,
-                p_discharge_pa,
-                throttle_position,
-            );
+            return p.throttle_flow_kg_s(&self.gas, p_discharge_pa, throttle_position);
         }
         if let Some(r) = &self.recycle {
-            let wr = recycle_system::recycle_flow_steady_kg_s(
-                r,
+            let wr = r.recycle_flow_steady_kg_s(
                 &self.gas,
                 p_suction_pa,
                 p_discharge_pa,
                 recycle_position,
             );
-            let wt = recycle_system::throttle_flow_steady_kg_s(
-                r,
+            let wt = r.throttle_flow_steady_kg_s(
                 &self.gas,
                 p_discharge_pa,
                 r.downstream_pressure_pa,
@@ -137,12 +194,7 @@ impl ControlModel {
             return wr + wt;
         }
         if let Some(t) = &self.tip {
-            return tip_clearance::throttle_flow_kg_s(
-                t,
-                &self.gas,
-                p_discharge_pa,
-                throttle_position,
-            );
+            return t.throttle_flow_kg_s(&self.gas, p_discharge_pa, throttle_position);
         }
         f64::NAN
     }
@@ -154,18 +206,17 @@ impl ControlModel {
     /// a recycle system). `None` if the machine has no observer.
     pub fn observer_min_gain(&self) -> Option<f64> {
         self.observer_plant()?;
+        let map = self.map.as_ref()?;
         let w0 = self.drive.nominal_speed_rad_s;
-        let (q_peak, _) = self.map.peak(w0)?;
-        let slope = self
-            .map
-            .max_slope((0.7 * w0, 1.2 * w0), (-q_peak, 2.5 * q_peak));
+        let (q_peak, _) = map.peak(w0)?;
+        let slope = map.max_slope((0.7 * w0, 1.2 * w0), (-q_peak, 2.5 * q_peak));
         let (p_in, t_in) = if let Some(r) = &self.recycle {
             let p = match r.feed {
-                crate::plant::file::FeedSpec::Valve {
+                FeedSpec::Valve {
                     upstream_pressure_pa,
                     ..
                 } => upstream_pressure_pa.max(r.downstream_pressure_pa),
-                crate::plant::file::FeedSpec::MassFlow { .. } => r.downstream_pressure_pa,
+                FeedSpec::MassFlow { .. } => r.downstream_pressure_pa,
             };
             (p, r.suction_temperature_k)
         } else if let Some(p) = &self.plenum_duct {
@@ -176,7 +227,7 @@ impl ControlModel {
             return None;
         };
         // per kg/s: a volumetric map's slope is divided by the inlet density
-        let per_kg = match self.map.flow_coordinate {
+        let per_kg = match self.flow_coordinate {
             FlowCoordinate::MassKgS => slope,
             FlowCoordinate::InletVolumeM3S => slope / self.gas.density_kg_m3(p_in, t_in),
         };
@@ -194,8 +245,10 @@ impl ControlModel {
         omega_rad_s: f64,
         clearance_m: f64,
     ) -> f64 {
-        let psi_ss = self
-            .map
+        let Some(map) = &self.map else {
+            return f64::NAN;
+        };
+        let psi_ss = map
             .eval(
                 self.map_flow(m_kg_s, p_suction_pa, t_suction_k),
                 omega_rad_s,
@@ -210,7 +263,7 @@ impl ControlModel {
     /// Flow in the map's coordinate for mass flow `m` at suction (p, T).
     #[inline]
     pub fn map_flow(&self, m_kg_s: f64, p_suction_pa: f64, t_suction_k: f64) -> f64 {
-        match self.map.flow_coordinate {
+        match self.flow_coordinate {
             FlowCoordinate::MassKgS => m_kg_s,
             FlowCoordinate::InletVolumeM3S => {
                 m_kg_s / self.gas.density_kg_m3(p_suction_pa, t_suction_k)
@@ -222,7 +275,7 @@ impl ControlModel {
     /// surge line in invariant coordinates (seed 002 §2.3.1, eq. 2.4; seed 001 eq. 3.1).
     #[inline]
     pub fn surge_margin(&self, flow_map: f64, pressure_ratio: f64) -> f64 {
-        let q_sl = self.map.surge_line.flow_at_ratio(pressure_ratio);
+        let q_sl = self.surge_line.flow_at_ratio(pressure_ratio);
         if q_sl.abs() < 1e-12 {
             return f64::NAN;
         }

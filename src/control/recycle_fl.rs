@@ -357,22 +357,22 @@ impl RecycleFl {
         // map coordinate q = w, or q = w/ρ1 for a volumetric map (ρ1 ∝ p1 at the suction
         // temperature)
         let q = model.map_flow(w, p1, m.t_suction_k);
-        let dq_dw = match model.map.flow_coordinate {
+        let dq_dw = match model.flow_coordinate {
             FlowCoordinate::MassKgS => 1.0,
             FlowCoordinate::InletVolumeM3S => 1.0 / model.gas.density_kg_m3(p1, m.t_suction_k),
         };
-        let pt = model.map.eval(q, omega);
+        let pt = model.speed_map().eval(q, omega);
         // ∂²ψc/∂q² by a central difference of the analytic slope (exact for cubic lines)
         let hq = 1e-4 * (q.abs() + 1e-2);
-        let psi_qq = (model.map.eval(q + hq, omega).d_dflow
-            - model.map.eval(q - hq, omega).d_dflow)
+        let psi_qq = (model.speed_map().eval(q + hq, omega).d_dflow
+            - model.speed_map().eval(q - hq, omega).d_dflow)
             / (2.0 * hq);
         let dp1 = if m.dp_suction_dt_pa_s.is_finite() {
             m.dp_suction_dt_pa_s
         } else {
             0.0
         };
-        let density = match model.map.flow_coordinate {
+        let density = match model.flow_coordinate {
             FlowCoordinate::MassKgS => 0.0,
             // q̇ = ẇ/ρ1 − q ṗ1/p1
             FlowCoordinate::InletVolumeM3S => -pt.d_dflow * q * dp1 / p1,
@@ -644,7 +644,7 @@ mod tests {
     fn hemchi() -> ControlModel {
         let path = std::path::Path::new(env!("CARGO_MANIFEST_DIR"))
             .join("config/plants/hemchi2016_recycle.toml");
-        ControlModel::from_plant(&PlantDescription::load(&path).expect("plant file"))
+        crate::sim::control_model(&PlantDescription::load(&path).expect("plant file"))
     }
 
     /// A measurement snapshot.
@@ -700,7 +700,7 @@ mod tests {
             }
         }
         fn psi(&self, w: f64) -> f64 {
-            self.model.map.eval(w, self.omega).value
+            self.model.speed_map().eval(w, self.omega).value
         }
         /// Full-open recycle flow W(p1, p2) = C_max √(2 ρ2 (p2 − p1)).
         fn w_full(&self, p1: f64, p2: f64) -> f64 {

@@ -67,7 +67,7 @@ use crate::physics::compressor_map::CompressorMap;
 use crate::signals::{ActuatorCommands, ActuatorId};
 use serde::{Deserialize, Serialize};
 
-/// Which control variable the PI acts on (seed 002 ch. 4).
+/// Which control variable the PI acts on (seed 002 ch. 4, or the normalised deviation).
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize, Default)]
 #[serde(rename_all = "snake_case")]
 pub enum ControlVariable {
@@ -75,8 +75,13 @@ pub enum ControlVariable {
     Strategy1,
     /// Strategy 2: z = 1 − q̄/c(R)² (seed 002 eq. 4.38), dimensionless. Its steady-state gain
     /// varies less with speed (seed 002 Fig. 4.11 vs 4.7).
-    #[default]
     Strategy2,
+    /// The normalised deviation d = (q − c(R))/c(R): distance to the control line as a
+    /// fraction of the control-line flow, positive = safe; the PI acts on z = −d. Gains
+    /// `kp`, `ki_per_s` are per unit of d, so one set of defaults fits every machine (the
+    /// map's flow unit and the machine's size drop out).
+    #[default]
+    Deviation,
 }
 
 impl ControlVariable {
@@ -96,6 +101,14 @@ impl ControlVariable {
                     f64::NAN
                 }
             }
+            // z = −d = (c − q)/c (signed q: a reversal reads as far left)
+            ControlVariable::Deviation => {
+                if c > 0.0 {
+                    (c - q) / c
+                } else {
+                    f64::NAN
+                }
+            }
         }
     }
 
@@ -105,6 +118,7 @@ impl ControlVariable {
         match self {
             ControlVariable::Strategy1 => 2.0 * q_line,
             ControlVariable::Strategy2 => 2.0 / q_line,
+            ControlVariable::Deviation => 1.0 / q_line,
         }
     }
 }
@@ -118,18 +132,43 @@ pub struct RecyclePiConfig {
     pub control_line: ControlLineForm,
     /// Control variable: `strategy1` (eq. 4.19) or `strategy2` (eq. 4.38). Default strategy 2.
     pub control_variable: ControlVariable,
-    /// Proportional gain: valve opening (fraction) per map flow unit (kg/s or m³/s at suction) of
-    /// equivalent linear flow error at the design point. Seed 001 §3.4: 35.5 (per kg/s).
+    /// Proportional gain of `strategy1`/`strategy2`: valve opening (fraction) per map flow
+    /// unit (kg/s or m³/s at suction) of equivalent linear flow error at the design point.
+    /// Seed 001 §3.4: 35.5 (per kg/s). Not used by `deviation`.
     pub kp_per_map_flow: f64,
-    /// Integral gain: valve opening (fraction) per map flow unit and second. Seed 001 §3.4: 85.
+    /// Integral gain of `strategy1`/`strategy2`: valve opening (fraction) per map flow unit
+    /// and second. Seed 001 §3.4: 85. Not used by `deviation`.
     pub ki_per_map_flow_s: f64,
+    /// Proportional gain of `deviation`: valve opening (fraction) per unit of normalised
+    /// deviation (a seed gain K per map flow unit is K × q_ref, q_ref the control-line flow
+    /// at the design point). Default 1.0: 1 % of the line's flow moves the valve 1 %.
+    pub kp: f64,
+    /// Integral gain of `deviation`: valve opening per unit of normalised deviation and
+    /// second (seed: K_i × q_ref). Default 2.0/s (integral time 0.5 s).
+    pub ki_per_s: f64,
+    /// Closing-rate adaptation: the allowed closing rate grows by `closing_rate_per_s` for
+    /// every this many percent of control-line flow the operating point lies right of the
+    /// control line (far from the line the valve closes fast, near it slowly), at most 5× the
+    /// base rate; 0 disables. Default 10 %.
+    pub closing_rate_distance_pct: f64,
+    /// ESD detection: a shaft deceleration beyond this percentage of the nominal speed per
+    /// second (a drive trip; speed ramps are far slower) opens the valve fully at once, held
+    /// until the speed has risen for 1 s. 0 disables. Default 20 %/s.
+    pub esd_decel_pct_per_s: f64,
+    /// Trip agreement: the trip condition must hold this many consecutive samples. Default 5.
+    pub trip_confirm_samples: u32,
+    /// Trip noise allowance: the trip thresholds move by this many times the measured noise
+    /// of the surge margin (a running mean absolute deviation from its filtered value), so
+    /// noise cannot fire the trip. Default 3.
+    pub trip_noise_factor: f64,
     /// Largest closing speed of the valve command, opening fraction per second (seed 002
     /// §2.2.2, [15]: rate-limited closing). Opening is not rate-limited. Default 0.1/s.
     pub closing_rate_per_s: f64,
     /// Smallest valve opening the law commands, fraction (0..1). Default 0.
     pub min_opening: f64,
     /// Trip line: surge margin (q − j(R))/j(R), percent, below which the recycle trip fires
-    /// (between the surge line and the SCL). Default 5 %.
+    /// (between the surge line and the SCL). 0 (default): halfway between the surge line
+    /// and the control line at every pressure ratio, so the default fits every margin.
     pub trip_margin_pct: f64,
     /// Rate-of-approach trip: fires when the surge margin, extrapolated at its current
     /// (filtered) rate of approach over this horizon, falls below the trip line, s. 0 disables
@@ -138,7 +177,7 @@ pub struct RecyclePiConfig {
     /// Cut-off of the low-pass on the surge margin before differentiation, Hz (two
     /// cascaded stages). Default 2 Hz.
     pub approach_filter_hz: f64,
-    /// Cut-off of a first-order low-pass on z before the PI, Hz (0: none). Default 0.
+    /// Cut-off of a first-order low-pass on z before the PI, Hz (0: none). Default 1 Hz.
     pub z_filter_hz: f64,
     /// Open-loop step of the trip, valve opening fraction added to the current command
     /// (seed 002 §2.2.2 [11], [13]); 0 disables the trip. Default 0.3.
@@ -163,13 +202,19 @@ impl Default for RecyclePiConfig {
             control_variable: ControlVariable::default(),
             kp_per_map_flow: 35.5,
             ki_per_map_flow_s: 85.0,
+            kp: 1.0,
+            ki_per_s: 2.0,
+            closing_rate_distance_pct: 10.0,
+            esd_decel_pct_per_s: 20.0,
+            trip_confirm_samples: 5,
+            trip_noise_factor: 3.0,
             closing_rate_per_s: 0.1,
             min_opening: 0.0,
-            trip_margin_pct: 5.0,
+            trip_margin_pct: 0.0,
             trip_lead_time_s: 0.5,
             approach_filter_hz: 2.0,
-            z_filter_hz: 0.0,
-            trip_step: 0.3,
+            z_filter_hz: 1.0,
+            trip_step: 0.15,
             trip_hold_s: 1.0,
             fallback_speed_line_check: true,
             safety_on_step_pct: 5.0,
@@ -258,6 +303,19 @@ pub struct RecyclePi {
     margin_f2_last: f64,
     /// Remaining trip hold time, s (≤ 0: not tripped).
     trip_left_s: f64,
+    /// Consecutive samples the trip condition held.
+    trip_agree: u32,
+    /// Running mean absolute deviation of the surge margin from its filtered value (noise).
+    margin_noise: f64,
+    /// The two previous raw margins (for the noise estimate).
+    margin_prev: [f64; 2],
+    /// Filtered shaft speed, rad/s, and its previous value (ESD detection).
+    omega_f: f64,
+    omega_f_last: f64,
+    /// Emergency shutdown detected (valve held fully open), and how long the speed has
+    /// been rising since, s.
+    esd: bool,
+    esd_rising_s: f64,
     /// Opening held by the trip.
     trip_level: f64,
     /// Trips so far.
@@ -288,6 +346,11 @@ impl RecyclePi {
         };
         positive("kp_per_map_flow", cfg.kp_per_map_flow)?;
         positive("ki_per_map_flow_s", cfg.ki_per_map_flow_s)?;
+        positive("kp", cfg.kp)?;
+        positive("ki_per_s", cfg.ki_per_s)?;
+        positive("closing_rate_distance_pct", cfg.closing_rate_distance_pct)?;
+        positive("trip_noise_factor", cfg.trip_noise_factor)?;
+        positive("esd_decel_pct_per_s", cfg.esd_decel_pct_per_s)?;
         positive("trip_lead_time_s", cfg.trip_lead_time_s)?;
         positive("trip_hold_s", cfg.trip_hold_s)?;
         positive("safety_on_step_pct", cfg.safety_on_step_pct)?;
@@ -318,13 +381,13 @@ impl RecyclePi {
                 format!("must be in 0..1, found {}", cfg.trip_step),
             ));
         }
-        let scl = SurgeControlLine::new(model.map.surge_line, cfg.control_line);
+        let scl = SurgeControlLine::new(model.surge_line, cfg.control_line);
         // the trip line must lie between the surge line and the SCL over the map's range
-        let mut pts = model.map.surge_line.points();
+        let mut pts = model.surge_line.points();
         let r_lo = pts.next().map_or(f64::NAN, |p| p.1);
         let r_hi = pts.last().map_or(f64::NAN, |p| p.1);
         if let Err((r, margin)) =
-            scl.check_right_of_surge_line((r_lo, r_hi), 0.01 * cfg.trip_margin_pct)
+            scl.check_right_of_surge_line((r_lo, r_hi), (0.01 * cfg.trip_margin_pct).max(1e-3))
         {
             return Err(err(
                 "control_line",
@@ -336,25 +399,35 @@ impl RecyclePi {
                 ),
             ));
         }
-        let q_ref = control_line_flow_at_speed(&model.map, &scl, model.drive.nominal_speed_rad_s)
-            .map(|(q, _)| q)
-            .ok_or_else(|| {
-                err(
-                    "control_line",
-                    format!(
-                        "does not cross the speed line at the nominal speed {} rad/s",
-                        model.drive.nominal_speed_rad_s
-                    ),
-                )
-            })?;
-        // gains on z = gains on the linear flow error / (∂z/∂q on the line at q_ref)
+        // the design point on the control line: where the speed line at nominal speed crosses
+        // it (with a map), else the control line at the design pressure ratio (vendor data)
+        let q_ref = match &model.map {
+            Some(map) => control_line_flow_at_speed(map, &scl, model.drive.nominal_speed_rad_s)
+                .map(|(q, _)| q)
+                .ok_or_else(|| {
+                    err(
+                        "control_line",
+                        format!(
+                            "does not cross the speed line at the nominal speed {} rad/s",
+                            model.drive.nominal_speed_rad_s
+                        ),
+                    )
+                })?,
+            None => scl.flow_at_ratio(model.design_pressure_ratio),
+        };
+        // gains on z = gains on the linear flow error / (∂z/∂q on the line at q_ref); the
+        // normalised deviation's gains are on z = −d directly
         let s = cfg.control_variable.slope_on_line(q_ref);
+        let (kp_z, ki_z) = match cfg.control_variable {
+            ControlVariable::Deviation => (cfg.kp, cfg.ki_per_s),
+            _ => (cfg.kp_per_map_flow / s, cfg.ki_per_map_flow_s / s),
+        };
         Ok(RecyclePi {
             cfg: cfg.clone(),
             scl,
             q_ref,
-            kp_z: cfg.kp_per_map_flow / s,
-            ki_z: cfg.ki_per_map_flow_s / s,
+            kp_z,
+            ki_z,
             z_f: f64::NAN,
             integ: 0.0,
             u_last: f64::NAN,
@@ -362,6 +435,13 @@ impl RecyclePi {
             margin_f2: f64::NAN,
             margin_f2_last: f64::NAN,
             trip_left_s: 0.0,
+            trip_agree: 0,
+            margin_noise: 0.0,
+            margin_prev: [f64::NAN; 2],
+            omega_f: f64::NAN,
+            omega_f_last: f64::NAN,
+            esd: false,
+            esd_rising_s: 0.0,
             trip_level: 0.0,
             trips: 0,
             shifts: 0,
@@ -453,6 +533,78 @@ impl RecyclePi {
         self.margin_f2_last = margin;
     }
 
+    /// ESD detection on the shaft speed (2 Hz low-pass, then differentiated): a deceleration
+    /// beyond `esd_decel_pct_per_s` of the nominal speed per second. Returns true when it
+    /// starts. 0 disables.
+    fn detect_esd(&mut self, omega: f64, nominal: f64, dt: f64) -> bool {
+        if self.cfg.esd_decel_pct_per_s <= 0.0 || !omega.is_finite() || dt <= 0.0 {
+            return false;
+        }
+        if !self.omega_f.is_finite() {
+            self.omega_f = omega;
+            self.omega_f_last = omega;
+            return false;
+        }
+        let a = 1.0 - (-2.0 * std::f64::consts::PI * 2.0 * dt).exp();
+        self.omega_f_last = self.omega_f;
+        self.omega_f += a * (omega - self.omega_f);
+        let rate = (self.omega_f - self.omega_f_last) / dt;
+        let limit = -0.01 * self.cfg.esd_decel_pct_per_s * nominal.abs();
+        if self.esd {
+            self.esd_rising_s = if rate > 0.0 {
+                self.esd_rising_s + dt
+            } else {
+                0.0
+            };
+            if self.esd_rising_s >= 1.0 {
+                self.esd = false;
+            }
+            false
+        } else if rate < limit {
+            self.esd = true;
+            self.esd_rising_s = 0.0;
+            true
+        } else {
+            false
+        }
+    }
+
+    /// Whether an emergency shutdown (drive trip) is detected.
+    pub fn esd_detected(&self) -> bool {
+        self.esd
+    }
+
+    /// Trip line at a pressure ratio, fraction of surge-line flow: `trip_margin_pct`, or
+    /// halfway to the control line.
+    fn trip_margin_at(&self, ratio: f64) -> f64 {
+        if self.cfg.trip_margin_pct > 0.0 {
+            return 0.01 * self.cfg.trip_margin_pct;
+        }
+        let j = self.scl.surge_line().flow_at_ratio(ratio);
+        let c = self.scl.flow_at_ratio(ratio);
+        if j > 0.0 {
+            0.5 * (c - j) / j
+        } else {
+            0.0
+        }
+    }
+
+    /// Allowed closing rate, fraction/s: the base rate, plus one base rate per
+    /// `closing_rate_distance_pct` of control-line flow right of the line.
+    fn closing_rate(&self, q: f64, ratio: f64) -> f64 {
+        let base = self.cfg.closing_rate_per_s;
+        if self.cfg.closing_rate_distance_pct <= 0.0 {
+            return base;
+        }
+        let c = self.scl.flow_at_ratio(ratio);
+        let right = if c > 0.0 { (q - c) / c } else { 0.0 };
+        if right.is_finite() && right > 0.0 {
+            base * (1.0 + right / (0.01 * self.cfg.closing_rate_distance_pct)).min(5.0)
+        } else {
+            base
+        }
+    }
+
     #[inline]
     fn limits(&self) -> (f64, f64) {
         (self.cfg.min_opening, 1.0)
@@ -481,6 +633,13 @@ impl SurgeLaw for RecyclePi {
         let margin = inputs.model.surge_margin(m.flow_map, m.pressure_ratio);
         self.reset_margin_filter(margin);
         self.trip_left_s = 0.0;
+        self.trip_agree = 0;
+        self.margin_prev = [f64::NAN; 2];
+        // the speed filter restarts too: after a fail-safe or a hold, the last filtered
+        // speed is old, and the difference is no deceleration
+        self.omega_f = f64::NAN;
+        self.omega_f_last = f64::NAN;
+        self.esd = false;
         self.started = true;
     }
 
@@ -492,10 +651,14 @@ impl SurgeLaw for RecyclePi {
         let m = inputs.m;
         let r = m.pressure_ratio;
         let mut q = m.flow_map;
-        if m.flow_fallback && self.cfg.fallback_speed_line_check {
+        if let (true, true, Some(map)) = (
+            m.flow_fallback,
+            self.cfg.fallback_speed_line_check,
+            &inputs.model.map,
+        ) {
             // transmitter failed: cross-check the observer's flow against the steady flow from
             // pressure ratio and speed, and use the smaller (the safer for surge)
-            let q_line = speed_line_flow(&inputs.model.map, r, m.omega_rad_s);
+            let q_line = speed_line_flow(map, r, m.omega_rad_s);
             if q_line < q {
                 q = q_line;
             }
@@ -538,10 +701,31 @@ impl SurgeLaw for RecyclePi {
 
         // recycle trip ([11], [13]): the trip line is crossed, or, at or left of the control
         // line (z ≥ 0), it would be crossed within the lead time at the present rate of approach
-        let trip_margin = 0.01 * self.cfg.trip_margin_pct;
+        // noise-proof: the level criterion uses the filtered margin, both thresholds move
+        // left by the measured noise (mean absolute deviation of the margin from its filtered
+        // value, ≈ 1 s average), and the condition must hold over several samples
+        let trip_margin = self.trip_margin_at(r);
+        // (noise from the second difference |m_k − 2 m_k−1 + m_k−2|/2: ≈ σ for white noise,
+        // ≈ 0 for a ramp, so a fast but clean approach does not raise the allowance)
+        let [p1, p2] = self.margin_prev;
+        if margin.is_finite() && p1.is_finite() && p2.is_finite() {
+            let a = (dt / 1.0).min(1.0);
+            let d2 = 0.5 * (margin - 2.0 * p1 + p2).abs();
+            self.margin_noise += a * (d2 - self.margin_noise);
+        }
+        self.margin_prev = [margin, p1];
+        // (capped: in deep surge the margin swings hard, which is no reason not to trip)
+        let allowance = (self.cfg.trip_noise_factor * self.margin_noise).min(0.5 * trip_margin);
         let predicted = margin + self.cfg.trip_lead_time_s * d_margin.min(0.0);
-        let trip_now =
-            margin.is_finite() && (margin < trip_margin || (z >= 0.0 && predicted < trip_margin));
+        let trip_cond = margin.is_finite()
+            && (margin < trip_margin - allowance
+                || (z >= 0.0 && predicted < trip_margin - allowance));
+        self.trip_agree = if trip_cond {
+            self.trip_agree.saturating_add(1)
+        } else {
+            0
+        };
+        let trip_now = trip_cond && self.trip_agree >= self.cfg.trip_confirm_samples.max(1);
         self.trip_left_s -= dt;
         let mut event = None;
         if trip_now && self.trip_left_s <= 0.0 && self.cfg.trip_step > 0.0 {
@@ -554,6 +738,20 @@ impl SurgeLaw for RecyclePi {
             });
         }
 
+        // emergency shutdown (seed 002 §2.2.2: ESD events): the shaft decelerates faster than
+        // any speed ramp (drive trip) → valve fully open at once, held until the speed has
+        // been rising for 1 s (the drive back)
+        let esd_started =
+            self.detect_esd(m.omega_rad_s, inputs.model.drive.nominal_speed_rad_s, dt);
+        if esd_started && event.is_none() {
+            event = Some(LawEvent::RecycleTrip { opening: 1.0 });
+            self.trips = self.trips.saturating_add(1);
+        }
+        if self.esd {
+            self.trip_level = 1.0;
+            self.trip_left_s = self.trip_left_s.max(self.cfg.trip_hold_s.max(dt));
+        }
+
         // PI on z (seed 001 eq. 3.7, K_d = 0) with anti-windup against the static limits: the
         // integrator tracks the clamped demand
         let (lo, hi) = self.limits();
@@ -561,8 +759,11 @@ impl SurgeLaw for RecyclePi {
         let u_pi = integ_next + self.kp_z * z;
         let demand = u_pi.clamp(lo, hi);
         // fast opening, rate-limited closing ([15]): the valve follows the demand up at once and
-        // down at most at the closing rate; the PI keeps its own demand meanwhile
-        let follow = demand.max(self.u_last - self.cfg.closing_rate_per_s * dt);
+        // down at most at the closing rate; the PI keeps its own demand meanwhile. The rate
+        // grows with the distance right of the control line: far from it the valve closes
+        // fast (less recycle after a trip or a fail-safe), near it slowly.
+        let rate = self.closing_rate(q, r);
+        let follow = demand.max(self.u_last - rate * dt);
         let mut u = follow;
         // trip hold: at least the tripped opening
         if self.trip_left_s > 0.0 {
@@ -574,10 +775,18 @@ impl SurgeLaw for RecyclePi {
         // holds the valve above the demand, the integrator does not integrate further in the
         // closing direction (conditional integration), so the demand cannot dive below the
         // valve; against the static limits it tracks the clamped demand
+        // At the closed limit the integrator stops at the limit itself (not at limit − Kp·z,
+        // which would let every noise uptick right of the line open the valve).
         self.integ = if u > follow {
             u - self.kp_z * z
-        } else if demand != u_pi {
-            demand - self.kp_z * z
+        } else if u_pi > hi {
+            hi - self.kp_z * z
+        } else if u_pi < lo {
+            if z < 0.0 {
+                integ_next.max(lo)
+            } else {
+                integ_next
+            }
         } else if u > demand && z < 0.0 {
             self.integ
         } else {

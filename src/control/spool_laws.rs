@@ -499,10 +499,10 @@ impl Common {
             // warm start from the previous steady state while the throttle moves (a few Newton
             // steps), the full scan otherwise or when Newton does not land on the same branch
             self.eq = match had
-                .then(|| sp.equilibrium_newton(&inputs.model.map, gamma0, omega0, self.eq.0))
+                .then(|| sp.equilibrium_newton(inputs.model.speed_map(), gamma0, omega0, self.eq.0))
             {
                 Some(Some(e)) => e,
-                _ => sp.equilibrium(&inputs.model.map, gamma0, omega0),
+                _ => sp.equilibrium(inputs.model.speed_map(), gamma0, omega0),
             };
         }
         let (phi0, psi0) = self.eq;
@@ -512,7 +512,7 @@ impl Common {
         if !(omega.is_finite() && phi.is_finite() && psi.is_finite()) {
             return None;
         }
-        let pc = sp.psi_c(&inputs.model.map, phi, omega);
+        let pc = sp.psi_c(inputs.model.speed_map(), phi, omega);
         Some(Frame {
             omega0,
             phi0,
@@ -975,11 +975,11 @@ mod tests {
     #[test]
     fn nondimensional_characteristic_is_the_plants() {
         let desc = description();
-        let model = ControlModel::from_plant(&desc);
+        let model = crate::sim::control_model(&desc);
         let sp = Spool::from_model(LawId::Ccv, &model).unwrap();
         let p = plant(&desc);
         for &(phi, w) in &[(0.1, 1.0), (0.5, 0.9), (0.8, 1.2), (-0.2, 1.0), (1.5, 0.7)] {
-            let a = sp.psi_c(&model.map, phi, w);
+            let a = sp.psi_c(model.speed_map(), phi, w);
             let b = p.psi_c(phi, w);
             assert!((a.value - b.value).abs() < 1e-12, "{phi} {w}");
             assert!((a.d_dphi - b.d_dflow).abs() < 1e-9, "{phi} {w}");
@@ -990,12 +990,12 @@ mod tests {
     #[test]
     fn equilibrium_solves_eq_8_9_and_is_the_rightmost() {
         let desc = description();
-        let model = ControlModel::from_plant(&desc);
+        let model = crate::sim::control_model(&desc);
         let sp = Spool::from_model(LawId::Ccv, &model).unwrap();
         let p = plant(&desc);
         for &opening in &[0.05, 0.2, 0.35, 0.6, 1.0] {
             for &w in &[0.85, 1.0, 1.1] {
-                let (phi0, psi0) = sp.equilibrium(&model.map, sp.gamma_max * opening, w);
+                let (phi0, psi0) = sp.equilibrium(model.speed_map(), sp.gamma_max * opening, w);
                 let eq = p.equilibria(opening, w);
                 let right = eq.last().expect("steady state");
                 assert!(
@@ -1012,15 +1012,17 @@ mod tests {
     #[test]
     fn warm_started_newton_finds_the_scans_root() {
         let desc = description();
-        let model = ControlModel::from_plant(&desc);
+        let model = crate::sim::control_model(&desc);
         let sp = Spool::from_model(LawId::Ccv, &model).unwrap();
         // a throttle ramp in small steps, as during the closure scenario
-        let mut prev = sp.equilibrium(&model.map, sp.gamma_max * 0.6, 1.0).0;
+        let mut prev = sp.equilibrium(model.speed_map(), sp.gamma_max * 0.6, 1.0).0;
         let mut newton_used = 0;
         for k in 1..=400 {
             let opening = 0.6 - 0.001 * k as f64;
-            let scan = sp.equilibrium(&model.map, sp.gamma_max * opening, 1.0);
-            if let Some(nw) = sp.equilibrium_newton(&model.map, sp.gamma_max * opening, 1.0, prev) {
+            let scan = sp.equilibrium(model.speed_map(), sp.gamma_max * opening, 1.0);
+            if let Some(nw) =
+                sp.equilibrium_newton(model.speed_map(), sp.gamma_max * opening, 1.0, prev)
+            {
                 assert!(
                     (nw.0 - scan.0).abs() < 1e-9,
                     "opening {opening}: {nw:?} vs {scan:?}"
@@ -1034,8 +1036,10 @@ mod tests {
             "Newton should carry almost all steps: {newton_used}"
         );
         // a guess on the wrong side of the peak is refused, not misconverged
-        let (phi_r, _) = sp.equilibrium(&model.map, sp.gamma_max * 0.2, 1.0);
-        if let Some(e) = sp.equilibrium_newton(&model.map, sp.gamma_max * 0.2, 1.0, 3.0 * phi_r) {
+        let (phi_r, _) = sp.equilibrium(model.speed_map(), sp.gamma_max * 0.2, 1.0);
+        if let Some(e) =
+            sp.equilibrium_newton(model.speed_map(), sp.gamma_max * 0.2, 1.0, 3.0 * phi_r)
+        {
             assert!((e.0 - phi_r).abs() < 1e-9);
         }
     }
@@ -1052,7 +1056,7 @@ mod tests {
     #[test]
     fn ccv_law_gives_eq_23_negative_semidefinite_and_printed_eq_44_does_not() {
         let desc = description();
-        let model = ControlModel::from_plant(&desc);
+        let model = crate::sim::control_model(&desc);
         let mut law = Ccv::new(&CcvConfig::default(), &model).unwrap();
         let sp = law.c.sp;
         let mut seed = 7u64;
@@ -1099,7 +1103,7 @@ mod tests {
     fn backstepping_error_obeys_eq_51() {
         // with an ideal throttle, ξ = x₃ − x₃d evolves as ξ̇ = c̄ (x₂ − k_ξ ξ) (eq. 51)
         let desc = description();
-        let model = ControlModel::from_plant(&desc);
+        let model = crate::sim::control_model(&desc);
         let cfg = ThrottleBackstepConfig {
             xi_gain_nd: 1.7,
             x2_gain_nd: 1.3,
@@ -1132,7 +1136,7 @@ mod tests {
             let rhs = |x: [f64; 3]| {
                 [
                     sp.a_bar * (fr.tau0 - sp.gamma_torque(x[1], x[0])),
-                    sp.b_bar * (sp.psi_c(&model.map, x[1], x[0]).value - x[2]),
+                    sp.b_bar * (sp.psi_c(model.speed_map(), x[1], x[0]).value - x[2]),
                     sp.c_bar * (x[1] - SpoolPlant::throttle_function(gamma, x[2])),
                 ]
             };
@@ -1154,12 +1158,12 @@ mod tests {
     #[test]
     fn robust_outer_loop_is_a_boundary_layer_sign() {
         let desc = description();
-        let model = ControlModel::from_plant(&desc);
+        let model = crate::sim::control_model(&desc);
         let cfg = RobustConfig::default();
         let law = Robust::new(&cfg, &model).unwrap();
         let sp = law.c.sp;
         let opening = 0.2;
-        let (phi0, psi0) = sp.equilibrium(&model.map, sp.gamma_max * opening, 1.0);
+        let (phi0, psi0) = sp.equilibrium(model.speed_map(), sp.gamma_max * opening, 1.0);
         let mut ccv = Ccv::new(&CcvConfig::default(), &model).unwrap();
         for &(x1, x2) in &[(0.0, 0.0), (0.005, -0.002), (0.05, 0.3), (-0.3, -0.02)] {
             let m = measurements(&sp, 1.0 + x1, phi0 + x2, psi0, opening);
@@ -1183,7 +1187,7 @@ mod tests {
     #[test]
     fn first_output_equals_current_and_offset_decays() {
         let desc = description();
-        let model = ControlModel::from_plant(&desc);
+        let model = crate::sim::control_model(&desc);
         let mut law = Robust::new(&RobustConfig::default(), &model).unwrap();
         let sp = law.c.sp;
         let opening = 0.3;
@@ -1217,7 +1221,7 @@ mod tests {
     #[test]
     fn settings_are_validated_and_unknown_keys_rejected() {
         let desc = description();
-        let model = ControlModel::from_plant(&desc);
+        let model = crate::sim::control_model(&desc);
         let bad = RobustConfig {
             boundary_layer_x2_phi: 0.0,
             ..RobustConfig::default()

@@ -53,6 +53,18 @@ pub struct Supervisor {
 }
 
 impl Supervisor {
+    /// Raise every freshness timeout to at least `periods` × `poll_period_s` (inputs that
+    /// arrive by polling are up to one poll period old between answers, plus the answer
+    /// time). Timeouts already longer are kept.
+    pub fn follow_poll_period(&mut self, poll_period_s: f64, periods: f64) {
+        if !(poll_period_s.is_finite() && poll_period_s > 0.0) {
+            return;
+        }
+        for l in self.limits.iter_mut().flatten() {
+            l.timeout_s = l.timeout_s.max(periods * poll_period_s);
+        }
+    }
+
     /// Check all inputs.
     pub fn check(&self, raw: &RawSensors) -> Validity {
         let mut fault = [InputFault::None; SensorId::COUNT];

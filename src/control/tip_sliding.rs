@@ -280,11 +280,13 @@ impl TipSliding {
         // to the surge point (the region the law opens)
         let w0 = model.drive.nominal_speed_rad_s;
         let (q_peak, _) = model
-            .map
+            .speed_map()
             .peak(w0)
             .ok_or_else(|| setting("", "the map has no surge point at nominal speed"))?;
-        let slope_map = model.map.max_slope((0.9 * w0, 1.1 * w0), (0.0, q_peak));
-        let per_kg = match model.map.flow_coordinate {
+        let slope_map = model
+            .speed_map()
+            .max_slope((0.9 * w0, 1.1 * w0), (0.0, q_peak));
+        let per_kg = match model.flow_coordinate {
             FlowCoordinate::MassKgS => 1.0,
             FlowCoordinate::InletVolumeM3S => {
                 1.0 / model
@@ -505,7 +507,7 @@ impl SurgeLaw for TipSliding {
         let h = self.horizon_s + if self.horizon_s > 0.0 { 0.5 * dt } else { 0.0 };
         let (p, flow) = if h > 0.0 {
             let q = model.map_flow(m_meas, p01, t_k);
-            let psi_ss_now = model.map.eval(q, meas.omega_rad_s).value;
+            let psi_ss_now = model.speed_map().eval(q, meas.omega_rad_s).value;
             let psi_now = self.effect.pressure_ratio(psi_ss_now, u_servo); // eq. 3 (corrected)
             let m_dot = c_m * (psi_now - p_meas); // eq. 4b
             (p_meas + h * p_rate(p_meas, m_meas), m_meas + h * m_dot)
@@ -514,7 +516,7 @@ impl SurgeLaw for TipSliding {
         };
         // steady characteristic ψss(m) and its slope per kg/s (map at the measured speed)
         let pt = model
-            .map
+            .speed_map()
             .eval(model.map_flow(flow, p01, t_k), meas.omega_rad_s);
         let psi_ss = pt.value;
         let sigma = pt.d_dflow * dq_dm;
@@ -565,12 +567,12 @@ mod tests {
         let path = std::path::Path::new(env!("CARGO_MANIFEST_DIR"))
             .join("config/plants/sanadgol2006_tip.toml");
         let desc = PlantDescription::load(&path).expect("plant file");
-        ControlModel::from_plant(&desc)
+        crate::sim::control_model(&desc)
     }
 
     /// ψss(m) and ψss'(m) at nominal speed.
     fn psi_ss(model: &ControlModel, m: f64) -> (f64, f64) {
-        let pt = model.map.eval(m, model.drive.nominal_speed_rad_s);
+        let pt = model.speed_map().eval(m, model.drive.nominal_speed_rad_s);
         (pt.value, pt.d_dflow)
     }
 
@@ -697,7 +699,10 @@ mod tests {
         let p01 = tip.ambient_pressure_pa;
         let c_p = tip.sonic_velocity_m_s.powi(2) / (tip.plenum_volume_m3 * p01);
         let c_m = tip.duct_area_m2 / tip.duct_length_m * p01;
-        let (q_peak, _) = model.map.peak(model.drive.nominal_speed_rad_s).unwrap();
+        let (q_peak, _) = model
+            .speed_map()
+            .peak(model.drive.nominal_speed_rad_s)
+            .unwrap();
         for (throttle, dm) in [(0.2, 0.0), (0.1, 0.01), (0.35, 0.0), (0.6, -0.02)] {
             let m_eq = equilibrium(&model, throttle);
             for dp in [0.004, -0.003, 0.0005] {

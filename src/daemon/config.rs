@@ -234,8 +234,12 @@ impl Default for ReloadSection {
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct DaemonConfig {
-    /// The machine.
-    pub plant: PlantSection,
+    /// The simulated machine (a plant file); without `[machine]`, also the controller's.
+    #[serde(default)]
+    pub plant: Option<PlantSection>,
+    /// The controller's machine description (vendor data), `config/machines/*.toml`.
+    #[serde(default)]
+    pub machine: Option<super::config_machine::MachineSection>,
     /// Law, mode, setpoints, fail-safe opening.
     pub control: ControlSection,
     /// The control thread: rate, priority, CPU, memory locking.
@@ -312,8 +316,10 @@ pub struct Loaded {
     pub main_path: PathBuf,
     /// Source layers, main first.
     pub layers: Vec<Layer>,
-    /// The machine.
-    pub plant: PlantDescription,
+    /// The simulated plant (`[plant] file`), if any.
+    pub plant: Option<PlantDescription>,
+    /// The controller's machine description (`[machine] file`, else derived from the plant).
+    pub machine: crate::machine::MachineDescription,
     /// The controller's machine model.
     pub model: ControlModel,
     /// Controller settings: the plant file's `[controller]` with the overrides applied.
@@ -945,22 +951,16 @@ pub fn load_with_env(main: &Path, vars: &[(String, String)]) -> Result<Loaded, V
     let (config, merged) = merge(&layers).map_err(err)?;
     let at = |key: &str, msg: String| locate(&layers, key, msg);
 
-    let plant_path = resolve(main, &config.plant.file);
-    let plant = PlantDescription::load(&plant_path).map_err(|e| {
-        if e.line == 0 && e.key.is_empty() {
-            err(at(
-                "plant.file",
-                format!(
-                    "cannot load the plant file {}: {}",
-                    plant_path.display(),
-                    e.message
-                ),
-            ))
-        } else {
-            err(with_file_line_key(e))
-        }
-    })?;
-    let model = ControlModel::from_plant(&plant);
+    let resolved = super::config_machine::resolve_machine(
+        main,
+        &layers,
+        config.machine.as_ref(),
+        config.plant.as_ref().map(|p| p.file.as_path()),
+        &with_file_line_key,
+    )
+    .map_err(err)?;
+    let (plant, machine) = (resolved.plant, resolved.machine);
+    let model = ControlModel::from_machine(&machine, resolved.controller);
     let controller =
         controller_settings(&layers, &model.controller, &config.controller).map_err(err)?;
     let law: LawId = config
@@ -1003,6 +1003,7 @@ pub fn load_with_env(main: &Path, vars: &[(String, String)]) -> Result<Loaded, V
 
     // input limits: plant-derived defaults, overridden per sensor
     let mut core = CoreSettings::defaults_for(&model);
+    super::config_machine::apply_transmitter_ranges(&machine, &mut core);
     for (id, s) in &config.inputs {
         core.supervisor.limits[id.index()] = Some(InputLimits {
             min: s.min,
@@ -1022,6 +1023,7 @@ pub fn load_with_env(main: &Path, vars: &[(String, String)]) -> Result<Loaded, V
         flat: flatten(&merged),
         layers,
         plant,
+        machine,
         model,
         controller,
         core,
@@ -1043,6 +1045,7 @@ pub fn load_with_env(main: &Path, vars: &[(String, String)]) -> Result<Loaded, V
 /// The keys that cannot change while the daemon runs (a reload reports them).
 pub const RESTART_KEYS: &[&str] = &[
     "plant",
+    "machine",
     "cycle",
     "bus",
     "event_log",
@@ -1062,8 +1065,15 @@ pub fn is_live_key(key: &str) -> bool {
 /// come from the plant file's `[controller]` table and are located there; everything else in
 /// the last config layer that sets it.
 fn locate_for(l: &Loaded, key: &str, message: String) -> FileError {
-    if key.starts_with("controller.") && !layers_set(&l.layers, key) {
-        let path = resolve(&l.main_path, &l.config.plant.file);
+    if let (true, false, Some(plant)) = (
+        key.starts_with("controller."),
+        layers_set(&l.layers, key),
+        l.config
+            .plant
+            .as_ref()
+            .filter(|_| l.config.machine.is_none()),
+    ) {
+        let path = resolve(&l.main_path, &plant.file);
         if let Ok(text) = crate::config::read_config_text(&path) {
             let set = toml::from_str::<toml::Table>(&text)
                 .ok()
@@ -1102,17 +1112,23 @@ fn target_key(t: SignalTarget) -> String {
 fn check_map(l: &Loaded) -> Vec<Problem> {
     let map = &l.signal_map;
     let mut out = Vec::new();
-    let push = |out: &mut Vec<Problem>, e: FileError, hint: Option<&str>| {
+    let push_w = |out: &mut Vec<Problem>, e: FileError, hint: Option<&str>, warning: bool| {
         out.push(Problem {
             error: FileError {
                 hint: hint.map(str::to_string),
                 ..e
             },
-            warning: false,
+            warning,
         })
     };
+    let push =
+        |out: &mut Vec<Problem>, e: FileError, hint: Option<&str>| push_w(out, e, hint, false);
     for p in map.check() {
-        push(&mut out, map_error(l, &p.key, p.message), None);
+        let hint = p
+            .key
+            .ends_with(".unit")
+            .then_some("declare the unit the device uses (e.g. \"%\", \"bar\", \"rpm\", \"degC\"); it must measure what the signal is");
+        push_w(&mut out, map_error(l, &p.key, p.message), hint, p.warning);
     }
     let mut seen: Vec<(String, &str, &str)> = Vec::new();
     let can = map
@@ -1145,7 +1161,7 @@ fn check_map(l: &Loaded) -> Vec<Problem> {
             seen.push((key, message, signal));
         }
     }
-    if out.is_empty() {
+    if out.iter().all(|p| p.warning) {
         if let Some(hb) = l
             .config
             .bus
@@ -1176,6 +1192,7 @@ fn check_dbc(l: &Loaded, can: &CanBusConfig) -> Option<FileError> {
                 BindingError::UnknownMessage { target, .. }
                 | BindingError::UnknownSignal { target, .. }
                 | BindingError::ProtectionSignal { target, .. }
+                | BindingError::Unit { target, .. }
                 | BindingError::DuplicateTarget { target, .. } => Some(*target),
                 BindingError::SignalBoundTwice { second, .. } => Some(*second),
                 _ => None,
@@ -1194,9 +1211,37 @@ fn check_dbc(l: &Loaded, can: &CanBusConfig) -> Option<FileError> {
     }
 }
 
+/// The worst-case bus load of the DBC's periodic messages at `bus.can.bitrate_bps`, refused
+/// above `bus.can.max_load_pct`.
+fn check_bus_load(l: &Loaded, can: &CanBusConfig) -> Option<FileError> {
+    let bitrate = can.bitrate_bps?;
+    let db = crate::io::can::CanDatabase::from_file(resolve(&l.main_path, &can.dbc)).ok()?;
+    let load = crate::io::can::busload::BusLoad::of(&db, bitrate);
+    (load.percent() > f64::from(can.max_load_pct)).then(|| {
+        FileError {
+            hint: Some(format!(
+                "the DBC's periodic messages need {:.0} kbit/s with worst-case bit stuffing: raise the bit rate on every node (deploy/80-can0.network BitRate=) and here, or lengthen cycle times in the DBC",
+                load.bits_per_s / 1000.0
+            )),
+            ..locate(
+                &l.layers,
+                "bus.can.bitrate_bps",
+                format!(
+                    "worst-case bus load {:.1} % at {} kbit/s exceeds the limit of {} % (bus.can.max_load_pct)",
+                    load.percent(),
+                    bitrate / 1000,
+                    can.max_load_pct
+                ),
+            )
+        }
+    })
+}
+
 /// The cross-field rules. Returns errors and warnings, located.
 pub fn check(l: &Loaded) -> Vec<Problem> {
     let mut out = Vec::new();
+    let mut out_machine: Vec<Problem> = Vec::new();
+    out_machine.extend(super::config_machine::transport_problem(l));
     let layers = &l.layers;
     let c = &l.config;
     let mut error = |key: &str, msg: String, hint: &str| {
@@ -1295,7 +1340,7 @@ pub fn check(l: &Loaded) -> Vec<Problem> {
     }
     // the law on this machine with these gains (applicability, eq. 8, eq. 17, SCL vs surge line)
     let law_error = |e: LawError| {
-        match e {
+        match e.clone() {
         LawError::NotApplicable { law, plant, kind } => (
             "control.law".to_string(),
             format!(
@@ -1303,6 +1348,11 @@ pub fn check(l: &Loaded) -> Vec<Problem> {
                 actuator_list(law)
             ),
             "pick a law whose actuator the machine has (README: the surge laws)",
+        ),
+        LawError::MachineData { .. } => (
+            "control.law".to_string(),
+            e.to_string(),
+            "give the machine data the law needs (README: commissioning from vendor data)",
         ),
         LawError::Setting { law, key, message } => (
             format!("controller.{key}"),
@@ -1321,12 +1371,19 @@ pub fn check(l: &Loaded) -> Vec<Problem> {
                 }
             }
         }
-        Err(e) => {
-            let (key, msg, hint) = law_error(e);
-            error(&key, msg, hint);
-        }
+        Err(e) => match super::config_machine::machine_data_error(l, &e) {
+            Some(p) => out_machine.push(p),
+            None => {
+                let (key, msg, hint) = law_error(e);
+                error(&key, msg, hint);
+            }
+        },
     }
-    if let Some(min) = l.model.observer_min_gain() {
+    // the observer's gain condition only when the flow source uses the observer
+    if let (true, Some(min)) = (
+        super::config_machine::uses_observer(l),
+        l.model.observer_min_gain(),
+    ) {
         let c2 = l.controller.observer.c2_pa_s_kg;
         if !(c2.is_finite() && c2 > min) {
             error(
@@ -1388,29 +1445,31 @@ pub fn check(l: &Loaded) -> Vec<Problem> {
     };
     if c.bus.transport == Transport::Field {
         let map = &l.signal_map;
-        let needed = l.law.actuators();
-        for a in needed.iter() {
+        // exactly what the law, the flow source and the drive ownership need (law registry)
+        let (actuators, sensors) = super::config_machine::required_bindings(l);
+        for a in actuators {
             if !map.actuators.contains_key(&a) {
+                let why = if a == ActuatorId::DriveTorque && !l.law.actuators().contains(a) {
+                    "the controller owns the drive's speed loop, which drives".to_string()
+                } else {
+                    format!("law `{}` drives", l.law)
+                };
                 error(
                     "bus.signal_map",
-                    format!(
-                        "law `{}` drives `{}` but the signal map does not bind it",
-                        l.law,
-                        a.name()
-                    ),
+                    format!("{why} `{}` but the signal map does not bind it", a.name()),
                     &format!("add [actuators.{}] to the signal map", a.name()),
                 );
             }
         }
-        for s in [
-            SensorId::PSuction,
-            SensorId::PDischarge,
-            SensorId::ShaftSpeed,
-        ] {
+        for s in sensors {
             if !map.sensors.contains_key(&s) {
                 error(
                     "bus.signal_map",
-                    format!("the essential sensor `{}` is not bound", s.name()),
+                    format!(
+                        "law `{}` reads `{}` but the signal map does not bind it",
+                        l.law,
+                        s.name()
+                    ),
                     &format!("add [sensors.{}] to the signal map", s.name()),
                 );
             }
@@ -1425,6 +1484,12 @@ pub fn check(l: &Loaded) -> Vec<Problem> {
                 Some(can) => {
                     if can.validate().is_ok() && map_problems.is_empty() {
                         if let Some(e) = check_dbc(l, can) {
+                            map_problems.push(Problem {
+                                error: e,
+                                warning: false,
+                            });
+                        }
+                        if let Some(e) = check_bus_load(l, can) {
                             map_problems.push(Problem {
                                 error: e,
                                 warning: false,
@@ -1468,6 +1533,8 @@ pub fn check(l: &Loaded) -> Vec<Problem> {
         );
     }
     out.extend(map_problems);
+    out.extend(out_machine);
+    out.extend(super::config_machine::plausibility(l));
 
     // warnings: legal but risky
     if let crate::control::surge_control_line::ControlLineForm::Margin { margin_pct, .. } =
@@ -1490,7 +1557,7 @@ pub fn check(l: &Loaded) -> Vec<Problem> {
             });
         }
     }
-    if c.control.failsafe_recycle_opening_pct < 50.0 && l.model.recycle.is_some() {
+    if c.control.failsafe_recycle_opening_pct < 50.0 && l.model.has_recycle_valve() {
         out.push(Problem {
             error: locate(
                 layers,

@@ -104,14 +104,12 @@ fn ev_mode(m: Mode) -> EvMode {
 }
 
 /// Fault bits of the heartbeat: bit i set when sensor i is not usable.
-fn fault_bits(v: &crate::control::supervisor::Validity) -> u32 {
-    let mut bits = 0u32;
-    for id in SensorId::ALL {
-        if !v.ok(id) {
-            bits |= 1 << id.index();
-        }
-    }
-    bits
+/// The fault word on the wire: the shared categories of [`crate::faults`].
+fn fault_bits(
+    v: &crate::control::supervisor::Validity,
+    s: &crate::control::supervisor::Supervisor,
+) -> u32 {
+    crate::faults::FaultSet::from_validity(v, s).0
 }
 
 /// Boards and channels a control node is wired to.
@@ -213,7 +211,7 @@ impl ControlNode {
             commands: out.commands,
             mode: out.mode.code(),
             law: out.law.code(),
-            faults: fault_bits(&out.validity),
+            faults: fault_bits(&out.validity, &self.core.settings().supervisor),
             cycle: tick.cycle,
             t_ns: now,
         });

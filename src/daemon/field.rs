@@ -4,18 +4,24 @@
 //! checks take the machine to its safe state.
 
 use super::config::Loaded;
+use crate::events::event::BusState;
 use crate::events::event::Event;
 use crate::events::EventSender;
+use crate::faults::FaultCategory;
 use crate::io::can::bus::{
     run_controller as can_controller, run_plant as can_plant, BusCodec, BusHandles,
     ControllerBoards, PlantBoards,
 };
+use crate::io::feedback::FeedbackSupervisor;
+use crate::io::field_link::{EventSink, FieldLinkReporter};
 use crate::io::modbus::{
-    run_controller as modbus_controller, run_plant_server, LinkMonitor, Pacing,
+    run_controller as modbus_controller, run_plant_server, LinkMonitor, LinkState,
+    ModbusLinkConfig, Pacing, TransportConfig, WriteHealth,
 };
 use crate::runtime::handoff::{
     CommandBoard, HeartbeatBoard, OutputBoard, SensorBoard, SnapshotBoard, Wakeup,
 };
+use crate::signals::ActuatorId;
 use anyhow::{anyhow, Context, Result};
 use std::sync::Arc;
 use tokio::sync::watch;
@@ -38,15 +44,151 @@ fn can_codec(l: &Loaded) -> Result<(crate::io::can::bus::CanBusConfig, BusCodec)
     Ok((can, codec))
 }
 
+/// The event sink of a [`FieldLinkReporter`]: the daemon's event log.
+fn event_sink(events: EventSender) -> EventSink {
+    Arc::new(move |e: Event| {
+        let _ = events.send(e);
+    })
+}
+
+/// CAN state changes through the one reporter.
 fn bus_event_hook(events: EventSender, interface: String) -> crate::io::can::bus::StateHook {
+    let reporter = std::sync::Mutex::new(FieldLinkReporter::new(interface, event_sink(events)));
     Arc::new(move |s| {
         if let Some(state) = s.to_event() {
-            let _ = events.send(Event::BusState {
-                interface: interface.clone(),
-                state,
-            });
+            let mut r = reporter
+                .lock()
+                .unwrap_or_else(std::sync::PoisonError::into_inner);
+            r.state(state, &s.to_string());
         }
     })
+}
+
+/// Compare every supervised actuator's command with its feedback every 10 ms and report
+/// mismatches (event naming the actuator and the difference, journal, fault word).
+pub async fn supervise_feedback(
+    mut sup: FeedbackSupervisor,
+    sensors: Arc<SensorBoard>,
+    outputs: Arc<OutputBoard>,
+    timeouts_s: [f64; crate::signals::SensorId::COUNT],
+    events: EventSender,
+    shutdown: watch::Receiver<bool>,
+) {
+    let mut reporters: std::collections::BTreeMap<ActuatorId, FieldLinkReporter> =
+        Default::default();
+    let stop = until_true(shutdown);
+    tokio::pin!(stop);
+    let mut tick = tokio::time::interval(std::time::Duration::from_millis(10));
+    tick.set_missed_tick_behavior(tokio::time::MissedTickBehavior::Delay);
+    loop {
+        tokio::select! {
+            biased;
+            () = &mut stop => return,
+            _ = tick.tick() => {}
+        }
+        let now = crate::runtime::handoff::monotonic_ns();
+        let Some(o) = outputs.latest() else { continue };
+        let (values, age) = sensors.snapshot(now);
+        sup.step(
+            now,
+            |a| o.commands.get(a),
+            |s| {
+                if age[s.index()] <= timeouts_s[s.index()] {
+                    values.get(s)
+                } else {
+                    f64::NAN
+                }
+            },
+            |t| {
+                let r = reporters.entry(t.actuator).or_insert_with(|| {
+                    FieldLinkReporter::new(t.actuator.name(), event_sink(events.clone()))
+                });
+                r.fault(
+                    FaultCategory::ActuatorFeedbackMismatch,
+                    t.active,
+                    &t.cause(),
+                );
+            },
+        );
+    }
+}
+
+/// The Modbus link's name in events: `modbus:<address>` or `modbus:<serial device>`.
+fn modbus_link_name(cfg: &ModbusLinkConfig) -> String {
+    match &cfg.client.transport {
+        TransportConfig::Tcp { address } => format!("modbus:{address}"),
+        TransportConfig::Rtu(r) => format!("modbus:{}", r.path),
+    }
+}
+
+/// Follow a Modbus link's state and write health and report every transition through a
+/// [`FieldLinkReporter`]: link up/down, exception answers with their code, failed writes
+/// (raised at the first failure, with the exception code or the timeout) and the safe
+/// state the link takes when they last.
+pub async fn report_modbus(
+    monitor: Arc<LinkMonitor>,
+    mut reporter: FieldLinkReporter,
+    shutdown: watch::Receiver<bool>,
+) {
+    let mut states = monitor.subscribe();
+    let mut writes = monitor.subscribe_writes();
+    let stop = until_true(shutdown);
+    tokio::pin!(stop);
+    loop {
+        let state = *states.borrow_and_update();
+        match state {
+            LinkState::Up => {
+                reporter.state(BusState::Up, "");
+                reporter.fault(FaultCategory::SensorTimeout, false, "reads answered");
+            }
+            LinkState::Exception(x) => {
+                reporter.state(BusState::Up, "");
+                if x.function == 3 || x.function == 4 {
+                    reporter.fault(
+                        FaultCategory::SensorTimeout,
+                        true,
+                        &format!(
+                            "device refused the read with exception {} ({:?}) at unit {} function 0x{:02X} address {}",
+                            u8::from(x.code), x.code, x.unit_id, x.function, x.address
+                        ),
+                    );
+                }
+            }
+            LinkState::Down {
+                consecutive_failures,
+                backoff_ms,
+                cause,
+            } => reporter.state(
+                BusState::Down,
+                &format!(
+                    "down: {cause:?} ({consecutive_failures} failures, next attempt in {backoff_ms} ms)"
+                ),
+            ),
+            LinkState::Idle | LinkState::Stopped => {}
+        }
+        let health = *writes.borrow_and_update();
+        match health {
+            WriteHealth::Ok => reporter.fault(
+                FaultCategory::FieldWriteFailed,
+                false,
+                "writes acknowledged",
+            ),
+            WriteHealth::Failing { cause, safe_state } => {
+                let text = if safe_state {
+                    format!("{cause}; writes failing too long: watchdog withheld, the device goes to its own safe state")
+                } else {
+                    cause.to_string()
+                };
+                reporter.fault(FaultCategory::FieldWriteFailed, true, &text);
+            }
+        }
+        tokio::select! {
+            biased;
+            () = &mut stop => return,
+            r = states.changed() => if r.is_err() { return },
+            r = writes.changed() => if r.is_err() { return },
+        }
+    }
 }
 
 /// Counters of the controller's links, for the statistics written at exit.
@@ -80,6 +222,24 @@ pub fn spawn_controller_links(
 ) -> Result<LinkCounters> {
     let mut counters = LinkCounters::default();
     let map = &l.signal_map;
+    let sup = FeedbackSupervisor::new(&map.feedback);
+    if !sup.is_empty() {
+        // feedback counts as fresh for its input timeout (else: no judgement)
+        let mut timeouts_s = [0.2; crate::signals::SensorId::COUNT];
+        for (id, t) in timeouts_s.iter_mut().enumerate() {
+            if let Some(lim) = l.core.supervisor.limits[id] {
+                *t = lim.timeout_s;
+            }
+        }
+        tasks.spawn(supervise_feedback(
+            sup,
+            Arc::clone(&sensors),
+            Arc::clone(&outputs),
+            timeouts_s,
+            events.clone(),
+            shutdown.clone(),
+        ));
+    }
     if map.uses_can() {
         let (can, codec) = can_codec(l)?;
         let (handles, _state) = BusHandles::new(shutdown.clone());
@@ -104,6 +264,12 @@ pub fn spawn_controller_links(
         let map = map.clone();
         let monitor = Arc::new(LinkMonitor::new());
         counters.modbus = Some(Arc::clone(&monitor));
+        let reporter = FieldLinkReporter::new(modbus_link_name(&cfg), event_sink(events.clone()));
+        tasks.spawn(report_modbus(
+            Arc::clone(&monitor),
+            reporter,
+            shutdown.clone(),
+        ));
         tracing::info!(target: "modbus", "controller polling at {} Hz", cfg.poll_rate_hz);
         let sd = shutdown.clone();
         tasks.spawn(async move {

@@ -8,6 +8,8 @@
 //! - [`service`], [`plant_service`]: wiring, signals, reload, shutdown.
 
 pub mod config;
+pub mod config_machine;
+pub mod config_print;
 pub mod control_node;
 pub mod field;
 pub mod notify;

@@ -192,6 +192,16 @@ impl<'a> PlantNode<'a> {
                 // keep the drive's own governor tracking, for a bumpless take-over
                 self.governor
                     .track(torque, self.nominal_speed_rad_s * st.speed_setpoint, omega);
+            } else {
+                // the controller does not command torque (it does not own the drive's speed
+                // loop): the drive's own governor keeps speed
+                let t = self.governor.update(
+                    self.nominal_speed_rad_s * st.speed_setpoint,
+                    omega,
+                    0.0,
+                    dt,
+                );
+                cmd.set(ActuatorId::DriveTorque, t);
             }
         } else {
             if !was_failsafe {

@@ -56,7 +56,13 @@ pub fn run(opts: &PlantOptions) -> Result<()> {
                 .map(|p| config::resolve(&l.main_path, p))
         })
         .unwrap_or_else(|| {
-            PathBuf::from(format!("out/plant-{}-{}", l.plant.name(), scenario.name()))
+            PathBuf::from(format!(
+                "out/plant-{}-{}",
+                l.plant
+                    .as_ref()
+                    .map_or(l.machine.name.as_str(), |p| p.name()),
+                scenario.name()
+            ))
         });
     let links = PlantLinks {
         commands: Arc::new(CommandBoard::default()),
@@ -72,8 +78,15 @@ pub fn run(opts: &PlantOptions) -> Result<()> {
     rt.block_on(async { spawn_plant_links(&l, &mut tasks, &links, shutdown_rx) })?;
 
     // the plant thread
-    let desc = l.plant.clone();
-    let hb_ms = l.config.simulation.heartbeat_timeout_ms;
+    let desc = l.sim_plant().map_err(|e| anyhow!("{e}"))?.clone();
+    let desc_map = desc.map;
+    // the device watchdog time: the map's Modbus watchdog contract, else the simulation's
+    let hb_ms = l
+        .signal_map
+        .watchdog
+        .modbus
+        .and_then(|w| w.timeout_ms)
+        .unwrap_or(l.config.simulation.heartbeat_timeout_ms);
     let hold = l.config.simulation.hold_after_end;
     let rt_settings = l.config.cycle;
     let (st, stp, lk) = (Arc::clone(&status), Arc::clone(&stop), links.clone());
@@ -144,7 +157,7 @@ pub fn run(opts: &PlantOptions) -> Result<()> {
     rt.block_on(async { while tasks.join_next().await.is_some() {} });
     let mut result = result;
     result.summary.field_failsafe_entries = Some(status.failsafe_entries.load(Ordering::Relaxed));
-    crate::sim::output::write_data(&out_dir, &result, &l.plant.map).map_err(|e| anyhow!("{e}"))?;
+    crate::sim::output::write_data(&out_dir, &result, &desc_map).map_err(|e| anyhow!("{e}"))?;
     let s = &result.summary;
     println!(
         "plant {} · scenario {} · law {}: {} · {} surge cycles · min flow {:.3} kg/s · field fail-safe entered {} time(s)\n  files in {}/",

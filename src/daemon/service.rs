@@ -51,7 +51,11 @@ pub fn scenario_path(l: &Loaded, name: &str) -> PathBuf {
     if beside_config.is_file() {
         return beside_config;
     }
-    let plant_dir = l.plant.path.parent().and_then(Path::parent);
+    let plant_dir = l
+        .plant
+        .as_ref()
+        .and_then(|p| p.path.parent())
+        .and_then(Path::parent);
     match plant_dir {
         Some(d) if d.join(&file).is_file() => d.join(&file),
         _ => beside_config,
@@ -134,7 +138,7 @@ fn spawn_in_process_plant(
     out_dir: Option<PathBuf>,
     hold: bool,
 ) -> Result<InProcessPlant> {
-    let desc = l.plant.clone();
+    let desc = l.sim_plant().map_err(|e| anyhow!("{e}"))?.clone();
     let scenario_file = scenario_path(l, &l.config.simulation.scenario);
     let scenario = Scenario::load(&scenario_file).map_err(|e| {
         crate::config::ConfigInvalid(format!("loading the simulation scenario: {e}"))
@@ -176,14 +180,17 @@ use crate::sim::PlantRun;
 /// Initial torque of the speed loop: the machine's load torque at its initial operating
 /// point, from the controller's own model (a bumpless start on a running machine).
 fn initial_torque_nm(l: &Loaded) -> f64 {
-    let init = l.plant.file.initial;
+    let Some(plant) = &l.plant else {
+        return 0.0; // no simulated plant: the torque is not the controller's to start from
+    };
+    let init = plant.file.initial;
     let inputs = crate::plant::PlantInputs {
         throttle_process: init.throttle,
         recycle_manual: init.recycle_valve,
         feed: init.feed,
         ..Default::default()
     };
-    crate::plant::SimPlant::new(&l.plant, &inputs)
+    crate::plant::SimPlant::new(plant, &inputs)
         .map(|p| p.truth().load_torque_nm)
         .unwrap_or(0.0)
 }
@@ -464,7 +471,7 @@ async fn serve(loaded: Loaded, opts: RunOptions) -> Result<()> {
                 opts.out_dir.clone(),
                 hold || cfg.simulation.hold_after_end,
             )?);
-            tracing::info!(target: "antisurge", "in-process plant `{}` running scenario `{}`", loaded.plant.name(), cfg.simulation.scenario);
+            tracing::info!(target: "antisurge", "in-process plant `{}` running scenario `{}`", loaded.machine.name, cfg.simulation.scenario);
         }
         Transport::Field => {
             link_counters = super::field::spawn_controller_links(

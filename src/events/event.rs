@@ -283,6 +283,18 @@ pub enum Event {
         /// New state.
         state: BusState,
     },
+    /// A field fault (link, write, actuator feedback) was raised or cleared.
+    FieldFault {
+        /// Link or device, e.g. `modbus:127.0.0.1:5020` or `can0`.
+        link: String,
+        /// Category, as on the wire (the DBC's Faults bits).
+        fault: crate::faults::FaultCategory,
+        /// Raised (true) or cleared (false).
+        active: bool,
+        /// The cause in words, e.g. the Modbus exception code or the actuator and the
+        /// difference between command and feedback.
+        cause: String,
+    },
     /// The recycle valve was tripped open.
     RecycleTrip(RecycleTrip),
     /// Free text (operator notes, writer diagnostics).
@@ -326,6 +338,7 @@ impl Event {
             Event::RestartRequired { .. } => "restart_required",
             Event::DeadlineOverrun(_) => "deadline_overrun",
             Event::BusState { .. } => "bus_state",
+            Event::FieldFault { .. } => "field_fault",
             Event::RecycleTrip(_) => "recycle_trip",
             Event::Note { .. } => "note",
             Event::EventsDropped { .. } => "events_dropped",
@@ -395,6 +408,10 @@ impl Event {
             }
             Event::RestartRequired { keys } => keys.iter_mut().for_each(&mut clip),
             Event::BusState { interface, .. } => clip(interface),
+            Event::FieldFault { link, cause, .. } => {
+                clip(link);
+                clip(cause);
+            }
             Event::Note { text } => clip(text),
             Event::SurgeDetected(_)
             | Event::SurgeCounter(_)

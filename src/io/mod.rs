@@ -4,5 +4,8 @@
 //! They know nothing of the control laws.
 
 pub mod can;
+pub mod feedback;
+pub mod field_link;
 pub mod modbus;
 pub mod signal_map;
+pub mod units;

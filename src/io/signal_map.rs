@@ -14,7 +14,8 @@
 //! ```
 
 use super::can::SignalBinding;
-use super::modbus::{find_overlaps, RegisterBinding};
+use super::modbus::{find_overlaps, ModbusWatchdog, RegisterBinding};
+use super::units::{resolve, Quantity};
 use crate::signals::{ActuatorId, SensorId};
 use serde::{Deserialize, Serialize};
 use std::collections::BTreeMap;
@@ -44,6 +45,36 @@ pub struct SignalMap {
     /// Actuator bindings.
     #[serde(default)]
     pub actuators: BTreeMap<ActuatorId, Binding>,
+    /// The watchdog contract of each bus: what the controller writes so that the devices'
+    /// own watchdogs see it alive.
+    #[serde(default)]
+    pub watchdog: WatchdogSection,
+    /// Actuator feedback supervision: per actuator, the tolerance and time after which a
+    /// difference between command and feedback is a fault ([`crate::io::feedback`]).
+    #[serde(default)]
+    pub feedback: BTreeMap<ActuatorId, super::feedback::FeedbackLimit>,
+}
+
+/// `[watchdog]` of the signal map.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize, Default)]
+#[serde(deny_unknown_fields)]
+pub struct WatchdogSection {
+    /// Modbus: registers for alive counter, toggle, mode, law, faults.
+    #[serde(default)]
+    pub modbus: Option<ModbusWatchdog>,
+}
+
+/// Fold a declared unit into a register binding's scale and offset (SI out). A unit that
+/// does not resolve is left alone: [`SignalMap::check`] reports it.
+fn to_si(mut r: RegisterBinding, q: Quantity) -> RegisterBinding {
+    if let Some(u) = r.unit {
+        if let Ok(u) = resolve(u, q) {
+            r.offset = r.offset * u.factor + u.offset;
+            r.scale *= u.factor;
+            r.unit = None;
+        }
+    }
+    r
 }
 
 /// A problem in a signal map.
@@ -53,6 +84,8 @@ pub struct MapProblem {
     pub key: String,
     /// What is wrong.
     pub message: String,
+    /// Legal but suspicious (printed, accepted).
+    pub warning: bool,
 }
 
 impl SignalMap {
@@ -72,23 +105,23 @@ impl SignalMap {
         out
     }
 
-    /// Modbus sensor bindings.
+    /// Modbus sensor bindings, with their declared unit converted to SI.
     pub fn modbus_sensors(&self) -> Vec<(SensorId, RegisterBinding)> {
         self.sensors
             .iter()
             .filter_map(|(id, b)| match b {
-                Binding::Modbus(r) => Some((*id, *r)),
+                Binding::Modbus(r) => Some((*id, to_si(*r, Quantity::of_sensor(*id)))),
                 Binding::Can { .. } => None,
             })
             .collect()
     }
 
-    /// Modbus actuator bindings.
+    /// Modbus actuator bindings, with their declared unit converted to SI.
     pub fn modbus_actuators(&self) -> Vec<(ActuatorId, RegisterBinding)> {
         self.actuators
             .iter()
             .filter_map(|(id, b)| match b {
-                Binding::Modbus(r) => Some((*id, *r)),
+                Binding::Modbus(r) => Some((*id, to_si(*r, Quantity::of_actuator(*id)))),
                 Binding::Can { .. } => None,
             })
             .collect()
@@ -102,12 +135,24 @@ impl SignalMap {
             .any(|b| matches!(b, Binding::Can { .. }))
     }
 
-    /// Whether any signal uses Modbus.
+    /// Whether any signal uses Modbus (or a Modbus watchdog is configured).
     pub fn uses_modbus(&self) -> bool {
-        self.sensors
-            .values()
-            .chain(self.actuators.values())
-            .any(|b| matches!(b, Binding::Modbus(_)))
+        self.watchdog.modbus.is_some()
+            || self
+                .sensors
+                .values()
+                .chain(self.actuators.values())
+                .any(|b| matches!(b, Binding::Modbus(_)))
+    }
+
+    /// The Modbus watchdog parts as keyed bindings.
+    pub fn modbus_watchdog(&self) -> Vec<(String, RegisterBinding)> {
+        self.watchdog
+            .modbus
+            .iter()
+            .flat_map(|w| w.parts())
+            .map(|(p, b)| (format!("watchdog.modbus.{}", p.key()), b))
+            .collect()
     }
 
     /// Checks that do not need the DBC: Modbus registers must not overlap, and register
@@ -115,26 +160,99 @@ impl SignalMap {
     pub fn check(&self) -> Vec<MapProblem> {
         let mut problems = Vec::new();
         let mut keyed: Vec<(String, RegisterBinding)> = Vec::new();
-        for (id, r) in self.modbus_sensors() {
-            keyed.push((format!("sensors.{}.modbus", id.name()), r));
+        let unit_check = |problems: &mut Vec<MapProblem>, key: &str, r: &RegisterBinding, q| {
+            if let Some(u) = r.unit {
+                if let Err(e) = resolve(u, q) {
+                    problems.push(MapProblem {
+                        key: format!("{key}.unit"),
+                        message: e.to_string(),
+                        warning: false,
+                    });
+                }
+            }
+        };
+        for (id, b) in &self.sensors {
+            if let Binding::Modbus(r) = b {
+                let key = format!("sensors.{}.modbus", id.name());
+                unit_check(&mut problems, &key, r, Quantity::of_sensor(*id));
+                keyed.push((key, *r));
+            }
         }
-        for (id, r) in self.modbus_actuators() {
+        for (id, b) in &self.actuators {
+            let Binding::Modbus(r) = b else { continue };
             let key = format!("actuators.{}.modbus", id.name());
+            unit_check(&mut problems, &key, r, Quantity::of_actuator(*id));
             if r.table != super::modbus::RegisterTable::Holding {
                 problems.push(MapProblem {
                     key: key.clone(),
                     message:
                         "an actuator must be a holding register (input registers are read-only)"
                             .into(),
+                    warning: false,
                 });
             }
-            keyed.push((key, r));
+            keyed.push((key, *r));
+        }
+        if let Some(wd) = &self.watchdog.modbus {
+            for (key, message) in wd.problems() {
+                problems.push(MapProblem {
+                    key,
+                    message,
+                    warning: false,
+                });
+            }
+            keyed.extend(self.modbus_watchdog());
         }
         for (key, r) in &keyed {
             if let Err(e) = r.validate() {
                 problems.push(MapProblem {
                     key: key.clone(),
                     message: e.to_string(),
+                    warning: false,
+                });
+            }
+            if r.address_looks_modicon {
+                problems.push(MapProblem {
+                    key: format!("{key}.address"),
+                    message: format!(
+                        "protocol address {} looks like a Modicon register number; if the manual says {}, write `register = {}` instead of `table` and `address`",
+                        r.address, r.address, r.address
+                    ),
+                    warning: true,
+                });
+            }
+        }
+        for (a, l) in &self.feedback {
+            let key = format!("feedback.{}", a.name());
+            match super::feedback::feedback_sensor(*a) {
+                None => problems.push(MapProblem {
+                    key: key.clone(),
+                    message: format!("{} has no feedback sensor to compare with", a.name()),
+                    warning: false,
+                }),
+                Some(s) if !self.sensors.contains_key(&s) => problems.push(MapProblem {
+                    key: key.clone(),
+                    message: format!(
+                        "the feedback sensor {} of {} is not bound in [sensors]",
+                        s.name(),
+                        a.name()
+                    ),
+                    warning: false,
+                }),
+                Some(_) => {}
+            }
+            if !(l.tolerance.is_finite()
+                && l.tolerance > 0.0
+                && l.time_ms.is_finite()
+                && l.time_ms >= 0.0)
+            {
+                problems.push(MapProblem {
+                    key,
+                    message: format!(
+                        "tolerance must be > 0 and time_ms ≥ 0, got {} and {}",
+                        l.tolerance, l.time_ms
+                    ),
+                    warning: false,
                 });
             }
         }
@@ -149,6 +267,7 @@ impl SignalMap {
                     regs[o.first].table,
                     regs[o.first].address
                 ),
+                warning: false,
             });
         }
         problems
@@ -158,6 +277,15 @@ impl SignalMap {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::io::modbus::RegisterTable;
+
+    impl RegisterBinding {
+        fn encode_words(&self, v: f64) -> [u16; 2] {
+            let mut w = [0u16; 2];
+            let _ = self.encode(v, &mut w).unwrap();
+            w
+        }
+    }
 
     fn parse(t: &str) -> SignalMap {
         crate::config::toml_file::parse(t, std::path::Path::new("signals.toml")).expect("parse")
@@ -189,6 +317,44 @@ mod tests {
             p.iter()
                 .any(|x| x.key == "actuators.throttle.modbus" && x.message.contains("holding")),
             "{p:?}"
+        );
+    }
+
+    #[test]
+    fn units_modicon_numbers_and_their_warning() {
+        let m = parse(
+            "[sensors.recycle_valve_position]\nmodbus = { unit_id = 1, register = 30010, data_type = \"u16\", scale = 0.01, unit = \"%\" }\n\
+             [sensors.p_suction]\nmodbus = { unit_id = 1, table = \"input\", address = 30001, data_type = \"f32\", word_order = \"little\", unit = \"kPa\" }\n",
+        );
+        let s = m.modbus_sensors();
+        let (_, valve) = s[1];
+        assert_eq!((valve.table, valve.address), (RegisterTable::Input, 9));
+        // 5000 counts × 0.01 = 50 % = 0.5
+        assert!((valve.decode(&[5000]).unwrap() - 0.5).abs() < 1e-12);
+        let (_, p) = s[0];
+        let mut w = [0u16; 2];
+        let _ = p.encode(101_325.0, &mut w).unwrap();
+        assert_eq!(
+            w,
+            crate::io::modbus::RegisterBinding::new(
+                1,
+                RegisterTable::Input,
+                0,
+                crate::io::modbus::DataType::F32
+            )
+            .with_order(
+                crate::io::modbus::ByteOrder::Big,
+                crate::io::modbus::WordOrder::Little
+            )
+            .encode_words(101.325)
+        );
+        let problems = m.check();
+        assert_eq!(problems.len(), 1, "{problems:?}");
+        assert!(problems[0].warning);
+        assert_eq!(problems[0].key, "sensors.p_suction.modbus.address");
+        assert!(
+            problems[0].message.contains("register = 30001"),
+            "{problems:?}"
         );
     }
 

@@ -2,31 +2,20 @@
 //! its source in a comment in the file itself.
 
 use crate::config::FileError;
+use crate::machine::{DesignPoint, FailPosition, MachineDescription, RecycleValve};
 use crate::physics::characteristic::MooreGreitzerCubic;
 use crate::physics::compressor_map::{CompressorMap, FlowCoordinate};
 use crate::physics::gas::Gas;
 use crate::physics::orifice::Orifice;
 use crate::physics::shaft::Shaft;
-use crate::physics::thrust_bearing::ThrustBearingServo;
-use crate::physics::tip_clearance::TipClearanceEffect;
-use crate::physics::valve::ValveSpec;
 use crate::solver::StepSettings;
+// The machine's parameters live in the machine description; the plant file embeds them.
+pub use crate::machine::params::{
+    DriveSpec, FeedSpec, ModelKind, PlenumDuctParams, RecycleParams, SpoolParams, ThrustRating,
+    TipClearanceParams,
+};
 use serde::Deserialize;
 use std::path::{Path, PathBuf};
-
-/// Which dynamic model the plant uses.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Deserialize)]
-#[serde(rename_all = "snake_case")]
-pub enum ModelKind {
-    /// Plenum/duct/shaft model (seed 000 eq. 1).
-    PlenumDuct,
-    /// Two-volume recycle system (seed 002 eq. 3.18, seed 001 eq. 2.26–2.27).
-    RecycleSystem,
-    /// Plenum/duct with tip-clearance actuation (seed 004 eq. 4).
-    TipClearance,
-    /// Nondimensional spool model (seed 003 eq. 4–6).
-    Spool,
-}
 
 /// How the compressor map is given.
 #[derive(Debug, Clone, PartialEq, Deserialize)]
@@ -53,210 +42,6 @@ pub enum MapSpec {
         /// CSV file, relative to the plant file.
         file: PathBuf,
     },
-}
-
-/// The compressor drive (motor) as an actuator.
-#[derive(Debug, Clone, Copy, PartialEq, Deserialize)]
-#[serde(deny_unknown_fields)]
-pub struct DriveSpec {
-    /// Largest motoring torque the drive delivers, N·m (its rating).
-    pub rated_torque_nm: f64,
-    /// Most negative (braking) torque, N·m; 0 for a drive without braking.
-    #[serde(default)]
-    pub min_torque_nm: f64,
-    /// Nominal speed, rad/s: the speed setpoint at start.
-    pub nominal_speed_rad_s: f64,
-    /// Proportional gain of the drive's speed loop, N·m per rad/s (seed 002 eq. 3.7).
-    pub speed_kp_nm_s_rad: f64,
-    /// Integral gain of the speed loop, N·m per rad.
-    pub speed_ki_nm_rad: f64,
-}
-
-/// Ratings of the actuators, so that laws are judged within real limits.
-#[derive(Debug, Clone, Copy, PartialEq, Deserialize, Default)]
-#[serde(deny_unknown_fields)]
-pub struct ThrustRating {
-    /// Peak force of the magnetic thrust bearing, N.
-    pub force_max_n: f64,
-    /// Force slew-rate limit, N/s.
-    pub slew_max_n_s: f64,
-    /// Nominal tip clearance, m.
-    pub nominal_clearance_m: f64,
-    /// Largest clearance modulation the auxiliary bearings allow, m (seed 004: 50 % of nominal).
-    pub modulation_max_m: f64,
-}
-
-/// Plenum/duct/shaft plant (seed 000 eq. 1).
-#[derive(Debug, Clone, Copy, PartialEq, Deserialize)]
-#[serde(deny_unknown_fields)]
-pub struct PlenumDuctParams {
-    /// Ambient (suction) stagnation pressure p01, Pa.
-    pub ambient_pressure_pa: f64,
-    /// Ambient temperature, K.
-    pub ambient_temperature_k: f64,
-    /// Speed of sound a01, m/s.
-    pub sonic_velocity_m_s: f64,
-    /// Plenum volume Vp, m³.
-    pub plenum_volume_m3: f64,
-    /// Duct through-flow area A1, m².
-    pub duct_area_m2: f64,
-    /// Duct length Lc, m.
-    pub duct_length_m: f64,
-    /// Throttle valve to ambient.
-    pub throttle: ValveSpec,
-    /// If set, the throttle flow uses this constant density (seed 000: m_t = k_t √(p − p01));
-    /// otherwise the plenum density from the gas law.
-    #[serde(default)]
-    pub throttle_density_kg_m3: Option<f64>,
-    /// Width of the smooth zero crossing of valve flows, Pa (1/ξ of seed 001 eq. 2.9).
-    #[serde(default = "default_smoothing")]
-    pub valve_smoothing_pa: f64,
-}
-
-/// Feed into the suction volume of the recycle system.
-#[derive(Debug, Clone, Copy, PartialEq, Deserialize)]
-#[serde(rename_all = "snake_case", deny_unknown_fields)]
-pub enum FeedSpec {
-    /// A mass-flow source (seed 002: w_f is a disturbance), kg/s at scale 1.
-    MassFlow {
-        /// Nominal feed, kg/s.
-        nominal_kg_s: f64,
-    },
-    /// A feed valve from an upstream header (seed 001 eq. 2.27).
-    Valve {
-        /// Upstream header pressure, Pa.
-        upstream_pressure_pa: f64,
-        /// The feed valve.
-        valve: ValveSpec,
-        /// Constant density for the valve equation (seed 001 uses w = A √Δp), kg/m³;
-        /// otherwise the upstream density from the gas law.
-        #[serde(default)]
-        density_kg_m3: Option<f64>,
-    },
-}
-
-/// Two-volume recycle system (seed 002 eq. 3.18 with seed 001's feed and throttle valves).
-#[derive(Debug, Clone, Copy, PartialEq, Deserialize)]
-#[serde(deny_unknown_fields)]
-pub struct RecycleParams {
-    /// Suction volume V1, m³.
-    pub suction_volume_m3: f64,
-    /// Discharge volume V2, m³.
-    pub discharge_volume_m3: f64,
-    /// Speed of sound in the suction volume c1, m/s.
-    pub suction_sonic_velocity_m_s: f64,
-    /// Speed of sound in the discharge volume c2, m/s.
-    pub discharge_sonic_velocity_m_s: f64,
-    /// Suction temperature T1, K.
-    pub suction_temperature_k: f64,
-    /// Discharge temperature T2, K.
-    pub discharge_temperature_k: f64,
-    /// Compressor duct area Ac, m².
-    pub compressor_duct_area_m2: f64,
-    /// Compressor duct length Lc, m.
-    pub compressor_duct_length_m: f64,
-    /// Recycle line area Ar, m².
-    pub recycle_duct_area_m2: f64,
-    /// Recycle line length Lr, m.
-    pub recycle_duct_length_m: f64,
-    /// Discharge (check-valve) line area At, m².
-    pub discharge_duct_area_m2: f64,
-    /// Discharge line length Lt, m.
-    pub discharge_duct_length_m: f64,
-    /// Downstream header pressure p_a, Pa.
-    pub downstream_pressure_pa: f64,
-    /// Whether the discharge line has a check valve (seed 002 eq. 3.17).
-    pub check_valve: bool,
-    /// The feed.
-    pub feed: FeedSpec,
-    /// The recycle (anti-surge) valve.
-    pub recycle_valve: ValveSpec,
-    /// The throttle/discharge valve in the discharge line.
-    pub throttle: ValveSpec,
-    /// Width of the smooth zero crossing of the feed valve flow, Pa.
-    #[serde(default = "default_smoothing")]
-    pub valve_smoothing_pa: f64,
-}
-
-fn default_smoothing() -> f64 {
-    50.0
-}
-
-/// Plenum/duct plant with tip-clearance actuation at constant speed (seed 004 eq. 4).
-#[derive(Debug, Clone, Copy, PartialEq, Deserialize)]
-#[serde(deny_unknown_fields)]
-pub struct TipClearanceParams {
-    /// Ambient pressure P01, Pa.
-    pub ambient_pressure_pa: f64,
-    /// Ambient temperature, K.
-    pub ambient_temperature_k: f64,
-    /// Speed of sound a01, m/s.
-    pub sonic_velocity_m_s: f64,
-    /// Plenum volume Vp, m³.
-    pub plenum_volume_m3: f64,
-    /// Duct area A, m².
-    pub duct_area_m2: f64,
-    /// Duct length Lc, m.
-    pub duct_length_m: f64,
-    /// Throttle valve to ambient.
-    pub throttle: ValveSpec,
-    /// Constant density for the throttle equation (seed 004: m_th = k_th √(P − P01)), kg/m³.
-    #[serde(default)]
-    pub throttle_density_kg_m3: Option<f64>,
-    /// Tip-clearance effect (seed 004 eq. 2–3).
-    pub effect: TipClearanceEffect,
-    /// Thrust-bearing servo (seed 004: 3rd-order Butterworth, 70 Hz).
-    pub servo: ThrustBearingServo,
-    /// Width of the smooth zero crossing of the throttle flow, Pa.
-    #[serde(default = "default_smoothing")]
-    pub valve_smoothing_pa: f64,
-}
-
-/// Nondimensional spool model (seed 003 eq. 4–6) with the scales that map it to SI units.
-#[derive(Debug, Clone, Copy, PartialEq, Deserialize)]
-#[serde(deny_unknown_fields)]
-pub struct SpoolParams {
-    /// ā of eq. 4 (spool inertia parameter).
-    pub a_bar: f64,
-    /// b̄ of eq. 5 (Greitzer B).
-    pub b_bar: f64,
-    /// c̄ of eq. 6 (1/B).
-    pub c_bar: f64,
-    /// Torque coefficient σ: Γ(φ, ω̃) = σ φ ω̃ (seed 003 eq. 48, after [3]).
-    pub torque_coefficient: f64,
-    /// Throttle gain at full opening: F(γ, ψ) = γ √ψ with γ = gamma_max · opening.
-    pub gamma_max: f64,
-    /// Time unit of the nondimensional model (1/ω_H), s.
-    pub time_scale_s: f64,
-    /// Pressure per unit ψ, Pa.
-    pub pressure_scale_pa: f64,
-    /// Mass flow per unit φ, kg/s.
-    pub flow_scale_kg_s: f64,
-    /// Shaft speed per unit ω̃, rad/s.
-    pub speed_scale_rad_s: f64,
-    /// Torque per unit τ, N·m.
-    pub torque_scale_nm: f64,
-    /// Ambient (suction) pressure, Pa.
-    pub ambient_pressure_pa: f64,
-    /// Ambient temperature, K.
-    pub ambient_temperature_k: f64,
-    /// The throttle valve's positioner (its capacity is gamma_max).
-    pub throttle: ValveSpec,
-    /// Close-coupled valve authority: |u₂| ≤ this (seed 003 §IV uses 0.1 and 0.2).
-    pub ccv_max: f64,
-    /// Matched model uncertainty of seed 003 eq. 53 in the plant, off by default: amplitude A
-    /// of Δf = ΔCss = A sin(k x₂), which enters eq. 4 as ā Δf and eq. 5 as b̄ ΔCss (seed 003
-    /// eq. 38, 41–42; §IV uses A = 0.1). x₂ = φ − φ⁰ with φ⁰ the nominal steady state of the
-    /// plant's current throttle position at nominal speed, so the equilibrium is unchanged.
-    #[serde(default)]
-    pub uncertainty_amplitude: f64,
-    /// k of eq. 53 (per unit φ; seed 003 §IV: 10).
-    #[serde(default = "default_uncertainty_frequency")]
-    pub uncertainty_frequency: f64,
-}
-
-fn default_uncertainty_frequency() -> f64 {
-    10.0
 }
 
 /// Initial conditions: the sim starts from the steady state for these inputs.
@@ -421,6 +206,57 @@ impl PlantDescription {
             path: path.to_path_buf(),
             map,
         })
+    }
+
+    /// The machine description this plant file yields: the same type a vendor machine file
+    /// gives, with the speed-line map (the SLL derived from it) and the model family's data.
+    /// The simulator's machine is one the controller knows fully; the controller gets it only
+    /// through this description.
+    pub fn machine(&self) -> MachineDescription {
+        let f = &self.file;
+        let t_s = f
+            .plenum_duct
+            .map(|p| p.ambient_temperature_k)
+            .or(f.recycle_system.map(|r| r.suction_temperature_k))
+            .or(f.tip_clearance.map(|t| t.ambient_temperature_k))
+            .or(f.spool.map(|s| s.ambient_temperature_k))
+            .unwrap_or(293.15);
+        let p_s = f
+            .plenum_duct
+            .map(|p| p.ambient_pressure_pa)
+            .or(f.tip_clearance.map(|t| t.ambient_pressure_pa))
+            .or(f.spool.map(|s| s.ambient_pressure_pa));
+        MachineDescription {
+            name: f.name.clone(),
+            family: Some(f.model),
+            gas: f.gas,
+            flow_element: f.orifice,
+            flow_coordinate: self.map.flow_coordinate,
+            surge_line: self.map.surge_line,
+            reference_suction_temperature_k: t_s,
+            map: Some(self.map),
+            design: p_s.map(|p| DesignPoint {
+                suction_pressure_pa: p,
+                suction_temperature_k: t_s,
+                pressure_ratio: None,
+                speed_rad_s: Some(f.drive.nominal_speed_rad_s),
+            }),
+            transmitters: Default::default(),
+            recycle_valve: f.recycle_system.map(|r| RecycleValve {
+                spec: r.recycle_valve,
+                fail_position: FailPosition::Open,
+            }),
+            drive: Some(f.drive),
+            // the benchmark plants' drives have no governor of their own: the controller's
+            // speed loop is their governor (seed 000 eq. 7, seed 002 eq. 3.7)
+            owns_drive_speed_loop: true,
+            shaft: Some(f.shaft),
+            plenum_duct: f.plenum_duct,
+            recycle: f.recycle_system,
+            tip: f.tip_clearance,
+            thrust: f.thrust_rating,
+            spool: f.spool,
+        }
     }
 
     /// Short name.

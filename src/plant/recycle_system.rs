@@ -41,22 +41,12 @@ use nalgebra::SVector;
 /// State dimension.
 pub const N: usize = 9;
 
-/// Quasi-steady recycle flow (V2 → V1) for pressures and stem position: the steady state of
-/// the line equation, w_r = C_r*(l)·√(2 ρ_up Δp) (seed 002 eq. 3.14, 3.16), kg/s. Shared by the
-/// plant's equilibrium solver and the controller's observer.
+/// Quasi-steady recycle flow (V2 → V1): see [`RecycleParams::recycle_flow_steady_kg_s`], kg/s.
 pub fn recycle_flow_steady_kg_s(pp: &RecycleParams, gas: &Gas, p1: f64, p2: f64, lr: f64) -> f64 {
-    let cv = pp.recycle_valve.cv_m2(lr);
-    let rho = if p2 >= p1 {
-        gas.density_kg_m3(p2.max(1.0), pp.discharge_temperature_k)
-    } else {
-        gas.density_kg_m3(p1.max(1.0), pp.suction_temperature_k)
-    };
-    let dp = p2 - p1;
-    cv * (2.0 * rho * dp.abs()).sqrt() * dp.signum()
+    pp.recycle_flow_steady_kg_s(gas, p1, p2, lr)
 }
 
-/// Quasi-steady flow through the discharge line's throttle to the header at `p_a_pa`, with the
-/// check valve shut when p2 ≤ p_a (seed 002 eq. 3.17), kg/s.
+/// Quasi-steady throttle flow: see [`RecycleParams::throttle_flow_steady_kg_s`], kg/s.
 pub fn throttle_flow_steady_kg_s(
     pp: &RecycleParams,
     gas: &Gas,
@@ -64,13 +54,7 @@ pub fn throttle_flow_steady_kg_s(
     p_a_pa: f64,
     lt: f64,
 ) -> f64 {
-    let cv = pp.throttle.cv_m2(lt);
-    let dp = p2 - p_a_pa;
-    if dp <= 0.0 && pp.check_valve {
-        return 0.0;
-    }
-    cv * (2.0 * gas.density_kg_m3(p2.max(1.0), pp.discharge_temperature_k) * dp.abs()).sqrt()
-        * dp.signum()
+    pp.throttle_flow_steady_kg_s(gas, p2, p_a_pa, lt)
 }
 
 /// Indices into the state vector.

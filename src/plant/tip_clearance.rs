@@ -14,7 +14,6 @@ use crate::physics::compressor_map::{CompressorMap, FlowCoordinate};
 use crate::physics::gas::Gas;
 use crate::physics::orifice::Orifice;
 use crate::physics::shaft::Shaft;
-use crate::physics::valve;
 use crate::signals::{ActuatorId, SensorSnapshot};
 use crate::solver::{self, OdeSystem, StepSettings};
 use nalgebra::SVector;
@@ -22,19 +21,10 @@ use nalgebra::SVector;
 /// State dimension.
 pub const N: usize = 6;
 
-/// Throttle flow to ambient, m_th = k_th √(P − P01) (seed 004), kg/s. Shared by the plant and
-/// the controller's observer.
+/// Throttle flow to ambient: see [`TipClearanceParams::throttle_flow_kg_s`], kg/s.
 #[inline]
 pub fn throttle_flow_kg_s(pp: &TipClearanceParams, gas: &Gas, p_pa: f64, position: f64) -> f64 {
-    let rho = pp.throttle_density_kg_m3.unwrap_or_else(|| {
-        gas.density_kg_m3(p_pa.max(pp.ambient_pressure_pa), pp.ambient_temperature_k)
-    });
-    valve::flow_kg_s(
-        pp.throttle.cv_m2(position),
-        rho,
-        p_pa - pp.ambient_pressure_pa,
-        pp.valve_smoothing_pa,
-    )
+    pp.throttle_flow_kg_s(gas, p_pa, position)
 }
 
 /// Seed 004 plant.

@@ -9,3 +9,12 @@ pub mod trace;
 
 pub use runner::{run, run_with, ControllerView, PlantRun, SimError, SimOptions, SimResult};
 pub use summary::Summary;
+
+/// The controller's model of a simulation plant: the machine description the plant file
+/// yields plus its tuned `[controller]` settings. The one way from a plant file to the
+/// controller (`sim`, `plant` and `run` all come through here).
+pub fn control_model(
+    desc: &crate::plant::file::PlantDescription,
+) -> crate::control::model::ControlModel {
+    crate::control::model::ControlModel::from_machine(&desc.machine(), desc.file.controller.clone())
+}

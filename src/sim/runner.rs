@@ -5,7 +5,6 @@ use super::trace::TraceRow;
 use crate::control::core::{ControlCore, CoreSettings};
 use crate::control::law::LawEvent;
 use crate::control::measurements::{OperatorInputs, RawSensors};
-use crate::control::model::ControlModel;
 use crate::control::LawId;
 use crate::plant::file::PlantDescription;
 use crate::plant::{PlantError, PlantInputs, SimPlant};
@@ -216,7 +215,7 @@ impl<'a> PlantRun<'a> {
             ..PlantInputs::default()
         };
         let plant = SimPlant::new(desc, &inputs)?;
-        let model = ControlModel::from_plant(desc);
+        let model = crate::sim::control_model(desc);
         let t0_torque = plant.truth().load_torque_nm;
         let dt = scenario.file.control_period_s;
         let n_steps = (scenario.file.duration_s / dt).round() as usize;
@@ -484,7 +483,7 @@ pub fn run_with(
     before_cycle: &mut dyn FnMut(f64, &mut ControlCore),
 ) -> Result<SimResult, SimError> {
     let mut pr = PlantRun::new(desc, scenario)?;
-    let model = ControlModel::from_plant(desc);
+    let model = crate::sim::control_model(desc);
     let settings = CoreSettings::defaults_for(&model);
     let nominal_speed = model.drive.nominal_speed_rad_s;
     let t0_torque = pr.plant().truth().load_torque_nm;
@@ -494,7 +493,7 @@ pub fn run_with(
         .law_names
         .iter()
         .map(|n| {
-            n.parse::<LawId>().map_err(|e| SimError::Scenario {
+            LawId::parse_sim(n).map_err(|e| SimError::Scenario {
                 scenario: scenario.name().to_string(),
                 message: e.to_string(),
             })

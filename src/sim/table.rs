@@ -45,7 +45,7 @@ impl TableRow {
                 p.drive_torque_cmd_nm / p.nominal_load_torque_nm,
                 p.drive_torque_rating_nm
             ),
-            LawId::RecyclePi | LawId::RecycleFl => {
+            LawId::RecyclePi | LawId::RecycleFl | LawId::BaselinePi => {
                 format!(
                     "recycle valve {:.0} % open",
                     100.0 * p.recycle_valve_opening

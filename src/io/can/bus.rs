@@ -100,6 +100,18 @@ pub struct CanBusConfig {
     /// `heartbeat_period_ms`, so the receiver's staleness checks hold).
     #[serde(default)]
     pub tx_on_change_only: bool,
+    /// Bit rate of the bus, bit/s (as set on the interface, e.g. `BitRate=` in
+    /// deploy/80-can0.network). When given, check-config computes the worst-case load of
+    /// the DBC's periodic messages and refuses more than `max_load_pct`.
+    #[serde(default)]
+    pub bitrate_bps: Option<u64>,
+    /// Highest accepted worst-case bus load, % of the bit rate (default 70).
+    #[serde(default = "default_max_load_pct")]
+    pub max_load_pct: u32,
+}
+
+fn default_max_load_pct() -> u32 {
+    70
 }
 
 impl CanBusConfig {
@@ -113,6 +125,8 @@ impl CanBusConfig {
             reconnect_backoff_initial_ms: default_backoff_initial_ms(),
             reconnect_backoff_max_ms: default_backoff_max_ms(),
             tx_on_change_only: false,
+            bitrate_bps: None,
+            max_load_pct: default_max_load_pct(),
         }
     }
 

@@ -226,6 +226,18 @@ pub enum BindingError {
         /// Its role.
         role: SignalRole,
     },
+    /// The signal's unit (DBC) does not measure what the target is, or is unknown.
+    #[error("{target}: signal {message}.{signal}: {reason}")]
+    Unit {
+        /// Bound target.
+        target: SignalTarget,
+        /// Message name.
+        message: String,
+        /// Signal name.
+        signal: String,
+        /// Why (the unit and the quantities).
+        reason: String,
+    },
     /// A signal unfit for a fixed-purpose codec (e.g. the heartbeat).
     #[error("message {message}, signal {signal}: {reason}")]
     Unfit {
@@ -474,12 +486,25 @@ impl CanCodec {
                 });
             }
             seen.push((b.target, path));
+            // The DBC's unit, checked against the target's quantity and folded into factor
+            // and offset so that the decoded value is SI (e.g. % → fraction: × 0.01).
+            let quantity = match b.target {
+                SignalTarget::Sensor(id) => crate::io::units::Quantity::of_sensor(id),
+                SignalTarget::Actuator(id) => crate::io::units::Quantity::of_actuator(id),
+            };
+            let unit =
+                crate::io::units::resolve(s.unit(), quantity).map_err(|e| BindingError::Unit {
+                    target: b.target,
+                    message: b.message.clone(),
+                    signal: b.signal.clone(),
+                    reason: e.to_string(),
+                })?;
             if let Some(cm) = messages.get_mut(mi) {
                 cm.bound.push(BoundSignal {
                     target: b.target,
                     layout: *s.layout(),
-                    factor: s.factor(),
-                    offset: s.offset(),
+                    factor: s.factor() * unit.factor,
+                    offset: s.offset() * unit.factor + unit.offset,
                 });
             }
         }

@@ -15,6 +15,7 @@
 
 pub mod bits;
 pub mod bus;
+pub mod busload;
 pub mod codec;
 pub mod dbc;
 pub mod e2e;

@@ -665,10 +665,15 @@ impl ModbusClient {
                 let lo = base + (run_start - req.address) as usize;
                 let hi = lo + (run_end - u32::from(run_start)) as usize;
                 let count = (hi - lo) as u16;
-                let request = Request::WriteMultipleRegisters(
-                    run_start,
-                    Cow::Borrowed(&self.write_words[lo..hi]),
-                );
+                // One register: write single register (0x06), which every device has.
+                let request = if count == 1 {
+                    Request::WriteSingleRegister(run_start, self.write_words[lo])
+                } else {
+                    Request::WriteMultipleRegisters(
+                        run_start,
+                        Cow::Borrowed(&self.write_words[lo..hi]),
+                    )
+                };
                 report.requests += 1;
                 match call(
                     &mut self.ctx,
@@ -682,6 +687,12 @@ impl ModbusClient {
                 {
                     Ok(Response::WriteMultipleRegisters(addr, qty))
                         if addr == run_start && qty == count =>
+                    {
+                        report.written += n as u32;
+                        self.mark_good();
+                    }
+                    Ok(Response::WriteSingleRegister(addr, _))
+                        if addr == run_start && count == 1 =>
                     {
                         report.written += n as u32;
                         self.mark_good();

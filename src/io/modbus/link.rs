@@ -181,6 +181,9 @@ fn default_poll_rate_hz() -> f64 {
 fn default_max_output_age_ms() -> u64 {
     500
 }
+fn default_write_fault_ms() -> u64 {
+    500
+}
 
 /// Controller-side Modbus link configuration.
 ///
@@ -219,9 +222,19 @@ pub struct ModbusLinkConfig {
     /// Oldest output set still written, ms.
     #[serde(default = "default_max_output_age_ms")]
     pub max_output_age_ms: u64,
-    /// Heartbeat block written with every output set, if any.
+    /// Heartbeat block written with every output set, if any (legacy 4-register layout;
+    /// prefer `[watchdog.modbus]` in the signal map).
     #[serde(default)]
     pub heartbeat_register: Option<HeartbeatRegister>,
+    /// Merge setpoints at adjacent registers into one write-multiple request (default
+    /// false: every setpoint and watchdog register is its own request).
+    #[serde(default)]
+    pub merge_writes: bool,
+    /// After writes have failed (exception or timeout) for this long, the link withholds
+    /// the watchdog (alive counter and toggle stand still) so that the device's own
+    /// watchdog takes it to its safe state, ms (default 500).
+    #[serde(default = "default_write_fault_ms")]
+    pub write_fault_timeout_ms: u64,
 }
 
 impl ModbusLinkConfig {
@@ -233,6 +246,8 @@ impl ModbusLinkConfig {
             write_on_change_only: false,
             max_output_age_ms: default_max_output_age_ms(),
             heartbeat_register: None,
+            merge_writes: false,
+            write_fault_timeout_ms: default_write_fault_ms(),
         }
     }
 
@@ -354,7 +369,7 @@ pub(crate) fn check_map(
     map: &SignalMap,
     heartbeat: Option<&HeartbeatRegister>,
 ) -> Result<(), LinkError> {
-    let problems = map.check();
+    let problems: Vec<_> = map.check().into_iter().filter(|p| !p.warning).collect();
     if !problems.is_empty() {
         let text: Vec<String> = problems
             .iter()
@@ -449,6 +464,47 @@ impl ExceptionInfo {
     }
 }
 
+/// Why writes fail.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum WriteFailure {
+    /// The device answered a write with an exception (e.g. code 2, illegal data address).
+    Exception(ExceptionInfo),
+    /// The link failed during a write (timeout, connection lost).
+    Link(FailureCause),
+}
+
+impl std::fmt::Display for WriteFailure {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        match self {
+            WriteFailure::Exception(x) => write!(
+                f,
+                "device refused the write with exception {} ({:?}) at unit {} function 0x{:02X} address {}",
+                u8::from(x.code),
+                x.code,
+                x.unit_id,
+                x.function,
+                x.address
+            ),
+            WriteFailure::Link(c) => write!(f, "write not answered: {c:?}"),
+        }
+    }
+}
+
+/// Health of the controller's writes, published on change through
+/// [`LinkMonitor::subscribe_writes`].
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum WriteHealth {
+    /// The last write was acknowledged in full (or nothing was written yet).
+    Ok,
+    /// Writes are failing.
+    Failing {
+        /// The first failure of this episode.
+        cause: WriteFailure,
+        /// The failures lasted `write_fault_timeout_ms`: the watchdog is withheld.
+        safe_state: bool,
+    },
+}
+
 /// State of a controller link, published on change through [`LinkMonitor::subscribe`].
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub enum LinkState {
@@ -530,6 +586,10 @@ counters! {
         setpoints_unchanged,
         /// Heartbeat blocks written and acknowledged.
         heartbeats,
+        /// Write attempts refused with an exception or not answered.
+        write_failures,
+        /// Output sets written with the watchdog withheld (writes failing too long).
+        watchdog_withheld,
         /// Requests sent (client counter).
         requests,
         /// Requests without an answer within the timeout (client counter).
@@ -563,6 +623,7 @@ impl LinkCounters {
 pub struct LinkMonitor {
     counters: LinkCounters,
     state: watch::Sender<LinkState>,
+    writes: watch::Sender<WriteHealth>,
 }
 
 impl Default for LinkMonitor {
@@ -577,7 +638,29 @@ impl LinkMonitor {
         LinkMonitor {
             counters: LinkCounters::default(),
             state: watch::Sender::new(LinkState::Idle),
+            writes: watch::Sender::new(WriteHealth::Ok),
         }
+    }
+
+    /// A receiver that sees every change of the write health.
+    pub fn subscribe_writes(&self) -> watch::Receiver<WriteHealth> {
+        self.writes.subscribe()
+    }
+
+    /// Current write health.
+    pub fn write_health(&self) -> WriteHealth {
+        *self.writes.borrow()
+    }
+
+    fn set_writes(&self, new: WriteHealth) {
+        self.writes.send_if_modified(|s| {
+            if *s == new {
+                false
+            } else {
+                *s = new;
+                true
+            }
+        });
     }
 
     /// A receiver that sees every state change (`changed().await`, then `borrow()`).
@@ -638,6 +721,8 @@ struct Outcome {
     exception: Option<ExceptionInfo>,
     /// A link failure (including a backoff wait) ended an operation.
     link_failed: bool,
+    /// A write was attempted: `Some(None)` acknowledged, `Some(Some(_))` failed.
+    write: Option<Option<WriteFailure>>,
 }
 
 /// The controller link's state between cycles.
@@ -654,6 +739,14 @@ struct Controller {
     acknowledged_valid: bool,
     heartbeat: bool,
     alive: u8,
+    /// The map's watchdog contract, written after the actuators (and legacy block).
+    watchdog: Option<super::watchdog::ModbusWatchdog>,
+    watchdog_writer: super::watchdog::WatchdogWriter,
+    /// Index of the first watchdog value in `write_values`.
+    watchdog_at: usize,
+    /// Writes failing since (monotonic ns) and why.
+    write_failing: Option<(u64, WriteFailure)>,
+    write_fault_ns: u64,
     change_only: bool,
     max_output_age_ns: u64,
     /// Control cycle number of the last output set written in full.
@@ -696,7 +789,16 @@ impl Controller {
         if let Some(hb) = &cfg.heartbeat_register {
             writes.extend(hb.bindings());
         }
-        let write_plan = WritePlan::new(&writes)?;
+        let watchdog_at = writes.len();
+        let watchdog = map.watchdog.modbus;
+        if let Some(wd) = &watchdog {
+            writes.extend(wd.parts().iter().map(|(_, b)| *b));
+        }
+        let write_plan = if cfg.merge_writes {
+            WritePlan::new(&writes)?
+        } else {
+            WritePlan::separate(&writes)?
+        };
         Ok(Controller {
             client: ModbusClient::new(cfg.client.clone())?,
             groups,
@@ -707,6 +809,11 @@ impl Controller {
             actuators,
             heartbeat: cfg.heartbeat_register.is_some(),
             alive: 0,
+            watchdog,
+            watchdog_writer: Default::default(),
+            watchdog_at,
+            write_failing: None,
+            write_fault_ns: cfg.write_fault_timeout_ms.saturating_mul(1_000_000),
             change_only: cfg.write_on_change_only,
             max_output_age_ns: cfg.max_output_age_ms.saturating_mul(1_000_000),
             last_written_cycle: None,
@@ -819,6 +926,25 @@ impl Controller {
             self.write_values[n + 1] = f64::from(w[1]);
             self.write_values[n + 2] = f64::from(o.faults);
         }
+        if let Some(wd) = &self.watchdog {
+            // Writes failing for longer than write_fault_timeout_ms: the counter stands
+            // still, so the device's own watchdog takes it to its safe state.
+            let withheld = self
+                .write_failing
+                .is_some_and(|(t0, _)| monotonic_ns().saturating_sub(t0) >= self.write_fault_ns);
+            if withheld {
+                LinkCounters::add(&c.watchdog_withheld, 1);
+            }
+            let at = self.watchdog_at;
+            self.watchdog_writer.values(
+                wd,
+                o.mode,
+                o.law,
+                o.faults | crate::faults::field::word(),
+                !withheld,
+                &mut self.write_values[at..],
+            );
+        }
         LinkCounters::add(&c.setpoints_unchanged, unchanged);
         if self.write_values.iter().all(|v| v.is_nan()) {
             // Nothing commanded or nothing changed: this set is done.
@@ -832,6 +958,7 @@ impl Controller {
             .await
         {
             Ok(report) => {
+                out.write = Some(None);
                 let c = &self.monitor.counters;
                 LinkCounters::add(&c.writes_ok, 1);
                 if self.heartbeat {
@@ -853,6 +980,17 @@ impl Controller {
             }
             Err(e) => {
                 self.acknowledged_valid = false;
+                LinkCounters::add(&self.monitor.counters.write_failures, 1);
+                let failure = match ExceptionInfo::of(&e) {
+                    Some(x) => WriteFailure::Exception(x),
+                    None => WriteFailure::Link(FailureCause::of(&e).unwrap_or(self.last_cause)),
+                };
+                out.write = Some(Some(failure));
+                if let WriteFailure::Exception(_) = failure {
+                    // The set was delivered and refused: retrying it unchanged would be
+                    // refused again. The next output set is tried afresh.
+                    self.last_written_cycle = Some(o.cycle);
+                }
                 self.note_error(&e, out);
             }
         }
@@ -889,6 +1027,25 @@ impl Controller {
         if out.link_failed {
             self.acknowledged_valid = false;
         }
+        let now = monotonic_ns();
+        match out.write {
+            Some(None) => self.write_failing = None,
+            Some(Some(f)) => {
+                self.write_failing.get_or_insert((now, f));
+            }
+            None => {}
+        }
+        if out.link_failed && out.write.is_none() && self.write_failing.is_none() {
+            // The link is down: writes cannot reach the device either.
+            self.write_failing = Some((now, WriteFailure::Link(self.last_cause)));
+        }
+        self.monitor.set_writes(match self.write_failing {
+            None => WriteHealth::Ok,
+            Some((t0, cause)) => WriteHealth::Failing {
+                cause,
+                safe_state: now.saturating_sub(t0) >= self.write_fault_ns,
+            },
+        });
         let new = match self.client.state() {
             ConnectionState::Broken {
                 consecutive_failures,

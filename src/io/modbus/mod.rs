@@ -18,6 +18,7 @@ pub mod plan;
 pub mod register;
 pub mod request_guard;
 pub mod server;
+pub mod watchdog;
 
 pub use client::{
     ClientConfig, ClientCounters, ConfigError, ConnectionState, ModbusClient, ModbusError, Parity,
@@ -26,7 +27,7 @@ pub use client::{
 pub use link::{
     run_controller, run_plant_server, ExceptionInfo, FailureCause, HeartbeatRegister,
     HeartbeatWords, LinkCounters, LinkCounts, LinkError, LinkMonitor, LinkState, ModbusLinkConfig,
-    ModbusServerConfig, Pacing, PlantCounters, PlantCounts, PlantServer,
+    ModbusServerConfig, Pacing, PlantCounters, PlantCounts, PlantServer, WriteFailure, WriteHealth,
 };
 pub use plan::{PlanError, PlannedRequest, ReadPlan, WritePlan};
 pub use register::{
@@ -39,3 +40,4 @@ pub use server::{
 };
 /// Modbus exception codes, as reported in [`ModbusError::Exception`].
 pub use tokio_modbus::ExceptionCode;
+pub use watchdog::{ModbusWatchdog, WatchdogPart, WatchdogWriter};

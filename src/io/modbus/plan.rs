@@ -64,6 +64,15 @@ pub enum PlanError {
 /// Group bindings (indices sorted by unit, table, address) into requests of at most `max`
 /// registers, merging ranges that touch or overlap.
 fn group(bindings: &[RegisterBinding], max: u16) -> (Vec<usize>, Vec<PlannedRequest>) {
+    group_with(bindings, max, true)
+}
+
+/// As [`group`]; `merge = false` gives every binding its own request.
+fn group_with(
+    bindings: &[RegisterBinding],
+    max: u16,
+    merge: bool,
+) -> (Vec<usize>, Vec<PlannedRequest>) {
     let mut order: Vec<usize> = (0..bindings.len()).collect();
     order.sort_by_key(|&i| {
         let b = &bindings[i];
@@ -77,7 +86,8 @@ fn group(bindings: &[RegisterBinding], max: u16) -> (Vec<usize>, Vec<PlannedRequ
             let start = u32::from(last.address);
             let end = start + u32::from(last.count);
             let new_end = end.max(b.end_address());
-            if last.unit_id == b.unit_id
+            if merge
+                && last.unit_id == b.unit_id
                 && last.table == b.table
                 && u32::from(b.address) <= end
                 && new_end - start <= u32::from(max)
@@ -170,6 +180,17 @@ pub struct WritePlan {
 impl WritePlan {
     /// Validate the bindings and group them.
     pub fn new(bindings: &[RegisterBinding]) -> Result<WritePlan, PlanError> {
+        Self::build(bindings, true)
+    }
+
+    /// Validate the bindings and give each its own request, never merging unrelated
+    /// registers into one write (a device refuses a write that spans a register it does
+    /// not have, and a watchdog register must not ride on a setpoint's request).
+    pub fn separate(bindings: &[RegisterBinding]) -> Result<WritePlan, PlanError> {
+        Self::build(bindings, false)
+    }
+
+    fn build(bindings: &[RegisterBinding], merge: bool) -> Result<WritePlan, PlanError> {
         validate_all(bindings)?;
         if let Some(index) = bindings
             .iter()
@@ -183,7 +204,7 @@ impl WritePlan {
                 second: o.second,
             });
         }
-        let (order, requests) = group(bindings, MAX_WRITE_REGISTERS);
+        let (order, requests) = group_with(bindings, MAX_WRITE_REGISTERS, merge);
         let total_words = requests.iter().map(|r| r.count as usize).sum();
         Ok(WritePlan {
             bindings: bindings.to_vec(),
@@ -318,6 +339,23 @@ mod tests {
             ReadPlan::new(&[rb(1, Holding, 0, DataType::U16).with_scaling(0.0, 0.0)]),
             Err(PlanError::InvalidBinding { index: 0, .. })
         ));
+    }
+
+    #[test]
+    fn separate_write_plan_never_merges() {
+        let list = [
+            rb(1, RegisterTable::Holding, 0, DataType::U16),
+            rb(1, RegisterTable::Holding, 1, DataType::F32),
+            rb(1, RegisterTable::Holding, 3, DataType::U16),
+        ];
+        assert_eq!(WritePlan::new(&list).unwrap().requests().len(), 1);
+        let sep = WritePlan::separate(&list).unwrap();
+        let r: Vec<(u16, u16)> = sep
+            .requests()
+            .iter()
+            .map(|q| (q.address, q.count))
+            .collect();
+        assert_eq!(r, [(0, 1), (1, 2), (3, 1)]);
     }
 
     #[test]

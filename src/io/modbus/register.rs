@@ -107,15 +107,18 @@ fn default_scale() -> f64 {
 
 /// Where a value lives in a Modbus device and how to convert it to SI units.
 ///
-/// Config keys: `unit_id`, `table` (`holding` | `input`), `address`, `data_type`
+/// Config keys: `unit_id`, then the location either as a Modicon register *number*
+/// (`register = 40004`: 4xxxx holding, 3xxxx input, 1-based; six-digit 400001 also) or as
+/// `table` (`holding` | `input`) plus the 0-based *protocol* `address`; `data_type`
 /// (`u16`, `i16`, `u32`, `i32`, `f32`, `u64`, `i64`, `f64`), `byte_order`
-/// (`big` | `little`, default `big`), `word_order` (`big` | `little`, default `big`),
-/// `scale` (default 1), `offset` (default 0, SI units).
+/// (`big` | `little`, default `big`), `word_order` (`big` | `little`, default `big`;
+/// `little` with `big` bytes is CDAB), `scale` (default 1), `offset` (default 0) and
+/// `unit` (the unit of `raw × scale + offset`, e.g. `"%"`, `"bar"`, `"rpm"`, `"degC"`;
+/// default: the signal's SI unit), see [`crate::io::units`].
 ///
-/// `physical = raw × scale + offset`, so e.g. a pressure transmitter reporting kPa as an
-/// `i16` binds with `scale = 1000.0` to give Pa.
-#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
-#[serde(deny_unknown_fields)]
+/// `physical = raw × scale + offset` in `unit`, so e.g. a valve position in hundredths of
+/// a percent binds as `data_type = "u16", scale = 0.01, unit = "%"`.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize)]
 pub struct RegisterBinding {
     /// Modbus unit (slave) id. On TCP devices without a gateway this is usually 1 or 255.
     pub unit_id: u8,
@@ -123,22 +126,135 @@ pub struct RegisterBinding {
     pub table: RegisterTable,
     /// 0-based *protocol* address of the first register (what goes on the wire). Vendor
     /// documentation often uses 1-based "register numbers" such as 40001 for holding address
-    /// 0 or 30001 for input address 0: subtract the table prefix and 1.
+    /// 0 or 30001 for input address 0: give those as `register`.
     pub address: u16,
     /// Raw type; decides how many consecutive registers the binding spans.
     pub data_type: DataType,
     /// Byte order inside each register.
-    #[serde(default)]
     pub byte_order: ByteOrder,
     /// Register order for multi-register types (ignored for 16-bit types).
-    #[serde(default)]
     pub word_order: WordOrder,
-    /// SI units per raw count: `physical = raw × scale + offset`. Must be finite and non-zero.
-    #[serde(default = "default_scale")]
+    /// Units per raw count: `physical = raw × scale + offset`. Must be finite and non-zero.
     pub scale: f64,
-    /// SI value at raw zero. Must be finite.
-    #[serde(default)]
+    /// Physical value at raw zero. Must be finite.
     pub offset: f64,
+    /// Declared unit of the physical value (`None`: the signal's SI unit). The signal map
+    /// checks it and folds the conversion into `scale`/`offset`.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub unit: Option<&'static str>,
+    /// The binding was given as a protocol `address` that looks like a Modicon register
+    /// number (≥ 10001): probably a mistake, reported as a warning.
+    #[serde(skip)]
+    pub address_looks_modicon: bool,
+}
+
+/// The config form of a [`RegisterBinding`] (either `register` or `table` + `address`).
+#[derive(Debug, Clone, Deserialize)]
+#[serde(deny_unknown_fields)]
+struct RawRegisterBinding {
+    unit_id: u8,
+    #[serde(default)]
+    table: Option<RegisterTable>,
+    #[serde(default)]
+    address: Option<u16>,
+    #[serde(default)]
+    register: Option<u32>,
+    data_type: DataType,
+    #[serde(default)]
+    byte_order: ByteOrder,
+    #[serde(default)]
+    word_order: WordOrder,
+    #[serde(default = "default_scale")]
+    scale: f64,
+    #[serde(default)]
+    offset: f64,
+    #[serde(default)]
+    unit: Option<String>,
+}
+
+/// Table and 0-based protocol address of a Modicon register number (`40001` → holding 0,
+/// `30010` → input 9; six-digit numbers `400001` … as well).
+pub fn modicon(register: u32) -> Result<(RegisterTable, u16), String> {
+    let (prefix, n) = if register >= 100_000 {
+        (register / 100_000, register % 100_000)
+    } else {
+        (register / 10_000, register % 10_000)
+    };
+    let table = match prefix {
+        4 => RegisterTable::Holding,
+        3 => RegisterTable::Input,
+        0 | 1 => {
+            return Err(format!(
+                "register {register} is a coil or discrete input (0xxxx/1xxxx); only 3xxxx input and 4xxxx holding registers carry values"
+            ))
+        }
+        _ => {
+            return Err(format!(
+                "register {register} is not a Modicon number (3xxxx input, 4xxxx holding, 1-based)"
+            ))
+        }
+    };
+    if n == 0 || n > 65_536 {
+        return Err(format!(
+            "register {register}: Modicon numbers are 1-based (40001 is holding address 0)"
+        ));
+    }
+    Ok((table, (n - 1) as u16))
+}
+
+impl<'de> Deserialize<'de> for RegisterBinding {
+    fn deserialize<D: serde::Deserializer<'de>>(d: D) -> Result<Self, D::Error> {
+        RawRegisterBinding::deserialize(d)?
+            .try_into()
+            .map_err(serde::de::Error::custom)
+    }
+}
+
+impl TryFrom<RawRegisterBinding> for RegisterBinding {
+    type Error = String;
+
+    fn try_from(r: RawRegisterBinding) -> Result<Self, String> {
+        let (table, address, looks) = match (r.register, r.table, r.address) {
+            (Some(reg), None, None) => {
+                let (t, a) = modicon(reg)?;
+                (t, a, false)
+            }
+            (Some(_), _, _) => {
+                return Err(
+                    "give either `register` (Modicon number, e.g. 40004) or `table` + `address` (0-based protocol address), not both"
+                        .into(),
+                )
+            }
+            (None, Some(t), Some(a)) => (t, a, a >= 10_001),
+            (None, _, _) => {
+                return Err(
+                    "missing location: `register = 40001` (Modicon number) or `table` and `address` (0-based protocol address)"
+                        .into(),
+                )
+            }
+        };
+        let unit = match r.unit {
+            None => None,
+            Some(u) => Some(crate::io::units::Unit::static_name(&u).ok_or_else(|| {
+                format!(
+                    "unknown unit \"{u}\" (known: {})",
+                    crate::io::units::Unit::names()
+                )
+            })?),
+        };
+        Ok(RegisterBinding {
+            unit_id: r.unit_id,
+            table,
+            address,
+            data_type: r.data_type,
+            byte_order: r.byte_order,
+            word_order: r.word_order,
+            scale: r.scale,
+            offset: r.offset,
+            unit,
+            address_looks_modicon: looks,
+        })
+    }
 }
 
 /// Whether an encoded value fit the raw type.
@@ -213,6 +329,8 @@ impl RegisterBinding {
             word_order: WordOrder::Big,
             scale: 1.0,
             offset: 0.0,
+            unit: None,
+            address_looks_modicon: false,
         }
     }
 

@@ -156,7 +156,8 @@ impl HeartbeatTx {
         let hb = Heartbeat {
             mode: ControllerMode::from_raw(o.mode).unwrap_or(ControllerMode::FailSafe),
             active_law: o.law,
-            faults: o.faults,
+            // input faults of the control thread and the field faults of the I/O tasks
+            faults: o.faults | crate::faults::field::word(),
         };
         let data = self.codec.encode(&hb, self.alive.next_value());
         CanDataFrame::new(self.id, data.get(..usize::from(self.codec.dlc()))?)

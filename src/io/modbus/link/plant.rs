@@ -78,6 +78,8 @@ struct PlantState {
     sensor_valid: Vec<bool>,
     /// Client writes applied, for the inferred heartbeat's alive counter.
     writes: u64,
+    /// Last value of the watched watchdog register (alive counter or toggle).
+    watched: Option<f64>,
 }
 
 #[derive(Debug)]
@@ -87,6 +89,8 @@ struct Shared {
     sensors: Vec<(SensorId, RegisterBinding)>,
     actuators: Vec<(ActuatorId, RegisterBinding)>,
     heartbeat_register: Option<HeartbeatRegister>,
+    /// The map's watchdog contract: the device watchdog watches `alive` (else `toggle`).
+    watchdog: Option<crate::io::modbus::watchdog::ModbusWatchdog>,
     snapshots: Arc<SnapshotBoard>,
     commands: Arc<CommandBoard>,
     heartbeat: Arc<HeartbeatBoard>,
@@ -257,6 +261,12 @@ impl Shared {
                     t_ns,
                 }
             }
+            None if self.watchdog.is_some() => {
+                let Some(seen) = self.watchdog_seen(image, state, unit_id, addr, n, t_ns) else {
+                    return;
+                };
+                seen
+            }
             None => HeartbeatSeen {
                 mode: INFERRED_MODE,
                 law: 0,
@@ -267,6 +277,43 @@ impl Shared {
         };
         self.heartbeat.publish(&seen);
         c.heartbeats.fetch_add(1, Ordering::Relaxed);
+    }
+}
+
+impl Shared {
+    /// The device watchdog: a write that *changes* the watched register (alive counter or
+    /// toggle) is a sign of life; a write of the same value, or of other registers, is not.
+    fn watchdog_seen(
+        &self,
+        image: &RegisterImage,
+        state: &mut PlantState,
+        unit_id: u8,
+        addr: u16,
+        n: u16,
+        t_ns: u64,
+    ) -> Option<HeartbeatSeen> {
+        let wd = self.watchdog.as_ref()?;
+        let watched = wd.alive.or(wd.toggle)?;
+        if !binding_in(&watched, unit_id, RegisterTable::Holding, addr, n) {
+            return None;
+        }
+        let v = image.value(&watched).ok()?;
+        if state.watched == Some(v) {
+            return None;
+        }
+        state.watched = Some(v);
+        let read = |b: Option<RegisterBinding>, default: f64| {
+            b.and_then(|b| image.value(&b).ok())
+                .filter(|v| v.is_finite())
+                .unwrap_or(default)
+        };
+        Some(HeartbeatSeen {
+            mode: read(wd.mode, f64::from(INFERRED_MODE)) as u8,
+            law: read(wd.law, 0.0) as u8,
+            alive: v as u64 as u8,
+            faults: read(wd.faults, 0.0) as u32,
+            t_ns,
+        })
     }
 }
 
@@ -379,6 +426,9 @@ impl PlantServer {
         for (_, b) in &actuators {
             image.map_binding(b);
         }
+        for (_, b) in map.modbus_watchdog() {
+            image.map_binding(&b);
+        }
         if let Some(hb) = &cfg.heartbeat_register {
             image.map(
                 hb.unit_id,
@@ -399,6 +449,7 @@ impl PlantServer {
             snapshot: None,
             sensor_valid: vec![false; sensors.len()],
             writes: 0,
+            watched: None,
         };
         Ok(PlantServer {
             listener,
@@ -410,6 +461,7 @@ impl PlantServer {
                 sensors,
                 actuators,
                 heartbeat_register: cfg.heartbeat_register,
+                watchdog: map.watchdog.modbus,
                 snapshots,
                 commands,
                 heartbeat,

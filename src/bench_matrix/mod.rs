@@ -1,0 +1,620 @@
+//! The control benchmark matrix (`antisurge bench-matrix`): recycle-pi against the textbook
+//! `baseline-pi` on every recycle plant, at two control-line margins, through process events
+//! (throttle closure and step, feed drop, speed ramp, emergency shutdown) and signal faults
+//! (pressure and Δp noise, a frozen Δp, input blips, a link outage).
+//!
+//! Each case runs the simulated plant and a [`ControlCore`] in one loop, like `sim`, with the
+//! field between them modelled here: noise on the readings, a Δp transmitter repeating its
+//! last value (fresh, as a healthy Modbus server would), all inputs arriving late (blips), and
+//! a link outage in which no input arrives and no command reaches the valve (the positioner
+//! holds its last setpoint). Scored on the plant's true state: surge cycles, closest approach
+//! to the surge line during and after the event, recycle mass and energy, valve travel, time
+//! in fail-safe, and the largest valve step at a resume.
+//!
+//! Deterministic (fixed noise seeds), allocation outside the cycle only, a few seconds for the
+//! whole matrix on one core; cases run on std threads.
+
+use crate::control::core::{ControlCore, CoreSettings, Mode};
+use crate::control::measurements::{OperatorInputs, RawSensors};
+use crate::control::model::ControlModel;
+use crate::control::recycle_pi::RecyclePiConfig;
+use crate::control::surge_control_line::ControlLineForm;
+use crate::control::LawId;
+use crate::plant::file::PlantDescription;
+use crate::scenario::Scenario;
+use crate::signals::{ActuatorCommands, ActuatorId, SensorId};
+use crate::sim::{ControllerView, PlantRun, SimError};
+use std::fmt::Write as _;
+use std::path::Path;
+
+/// What the field does to the signals in a case.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub enum FieldFault {
+    /// Clean signals.
+    None,
+    /// White noise: uniform ±1 % of span on each pressure, ±2 % of span on Δp (spans: 1.5× the
+    /// initial pressure readings, 2× the initial Δp, i.e. design flow at ≈ 70 % of the flow
+    /// range). Fixed seed.
+    Noise {
+        /// Seed of the noise sequence.
+        seed: u64,
+    },
+    /// The Δp transmitter repeats its value (fresh age) from `at_s` for `for_s`.
+    DpFrozen {
+        /// Start, s.
+        at_s: f64,
+        /// Duration, s.
+        for_s: f64,
+    },
+    /// Every input arrives `len_s` late, `count` times, every `every_s` from `at_s`.
+    Blips {
+        /// First blip, s.
+        at_s: f64,
+        /// Period, s.
+        every_s: f64,
+        /// Length of each blip, s.
+        len_s: f64,
+        /// How many.
+        count: u32,
+    },
+    /// No input arrives and no command reaches the plant from `at_s` for `for_s`.
+    LinkOutage {
+        /// Start, s.
+        at_s: f64,
+        /// Duration, s.
+        for_s: f64,
+    },
+}
+
+/// One case of the matrix: a scenario file and what the field does.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Case {
+    /// Name in the table.
+    pub name: &'static str,
+    /// Scenario name in `config/scenarios`.
+    pub scenario: &'static str,
+    /// Field behaviour.
+    pub fault: FieldFault,
+}
+
+/// The cases, in table order.
+pub const CASES: [Case; 9] = [
+    Case {
+        name: "throttle closure",
+        scenario: "throttle-closure",
+        fault: FieldFault::None,
+    },
+    Case {
+        name: "throttle step",
+        scenario: "throttle-step",
+        fault: FieldFault::None,
+    },
+    Case {
+        name: "feed drop",
+        scenario: "feed-drop",
+        fault: FieldFault::None,
+    },
+    Case {
+        name: "speed ramp",
+        scenario: "speed-ramp",
+        fault: FieldFault::None,
+    },
+    Case {
+        name: "ESD rundown",
+        scenario: "emergency-shutdown",
+        fault: FieldFault::None,
+    },
+    Case {
+        name: "closure + noise",
+        scenario: "throttle-closure",
+        fault: FieldFault::Noise { seed: 20261125 },
+    },
+    Case {
+        name: "closure + Δp frozen 1 s",
+        scenario: "throttle-closure",
+        fault: FieldFault::DpFrozen {
+            at_s: 5.5,
+            for_s: 1.0,
+        },
+    },
+    Case {
+        name: "closure + 100 ms blips",
+        scenario: "throttle-closure",
+        fault: FieldFault::Blips {
+            at_s: 4.0,
+            every_s: 1.0,
+            len_s: 0.1,
+            count: 10,
+        },
+    },
+    Case {
+        name: "closure + 3 s link outage",
+        scenario: "throttle-closure",
+        fault: FieldFault::LinkOutage {
+            at_s: 12.0,
+            for_s: 3.0,
+        },
+    },
+];
+
+/// The laws compared.
+pub const LAWS: [LawId; 2] = [LawId::RecyclePi, LawId::BaselinePi];
+/// The control-line margins, percent of surge-line flow.
+pub const MARGINS_PCT: [f64; 2] = [10.0, 5.0];
+
+/// Scores of one run.
+#[derive(Debug, Clone, PartialEq)]
+pub struct CaseResult {
+    /// Plant name.
+    pub plant: String,
+    /// Case name.
+    pub case: &'static str,
+    /// Law.
+    pub law: LawId,
+    /// Control-line margin, %.
+    pub margin_pct: f64,
+    /// Surge cycles (true flow, the simulator's detector).
+    pub surge_cycles: u32,
+    /// Flow reversals.
+    pub flow_reversals: u32,
+    /// Closest approach to the surge line from the first event to 3 s after the last one,
+    /// fraction of surge-line flow (negative: left of it).
+    pub min_margin_during: f64,
+    /// Closest approach after that, fraction.
+    pub min_margin_after: f64,
+    /// Gas recycled, kg.
+    pub recycle_kg: f64,
+    /// Energy spent recycling (polytropic head × recycle flow), J.
+    pub recycle_energy_j: f64,
+    /// Valve travel, full strokes (sum of |Δ position|).
+    pub valve_travel: f64,
+    /// Time in fail-safe, s.
+    pub failsafe_s: f64,
+    /// Fail-safe entries.
+    pub failsafe_entries: u32,
+    /// Largest |first command − measured position| when the law (re)starts after the first
+    /// cycle, fraction of travel (0 if it never restarts).
+    pub resume_step: f64,
+}
+
+/// The controller configuration of a case: the plant's observer and detector settings, and
+/// recycle-pi with its built-in defaults (no per-plant tuning: the defaults must hold on every
+/// machine) on a control line `margin_pct` right of the surge line, which baseline-pi uses too.
+pub fn controller_for(model: &ControlModel, margin_pct: f64) -> crate::control::ControllerConfig {
+    let mut cfg = model.controller.clone();
+    cfg.recycle_pi = RecyclePiConfig {
+        control_line: ControlLineForm::Margin {
+            margin_pct,
+            offset: 0.0,
+        },
+        ..RecyclePiConfig::default()
+    };
+    cfg
+}
+
+/// xorshift64* uniform in [−1, 1].
+fn uniform(state: &mut u64) -> f64 {
+    *state ^= *state >> 12;
+    *state ^= *state << 25;
+    *state ^= *state >> 27;
+    let r = state.wrapping_mul(0x2545_F491_4F6C_DD1D);
+    (r >> 11) as f64 / (1u64 << 53) as f64 * 2.0 - 1.0
+}
+
+/// Run one case.
+pub fn run_case(
+    desc: &PlantDescription,
+    scenario: &Scenario,
+    case: &Case,
+    law: LawId,
+    margin_pct: f64,
+) -> Result<CaseResult, SimError> {
+    let mut pr = PlantRun::new(desc, scenario)?;
+    let model = crate::sim::control_model(desc);
+    let settings = CoreSettings::defaults_for(&model);
+    let nominal_speed = model.drive.nominal_speed_rad_s;
+    let t0_torque = pr.plant().truth().load_torque_nm;
+    let config = controller_for(&model, margin_pct);
+    let mut core = ControlCore::new(model.clone(), config, settings, law, t0_torque)?;
+    let dt = pr.dt_s();
+    let n = pr.n_steps();
+
+    let t_first = scenario
+        .actions
+        .iter()
+        .map(|(t, _)| *t)
+        .fold(f64::INFINITY, f64::min);
+    let t_first = match case.fault {
+        FieldFault::LinkOutage { at_s, .. } | FieldFault::Blips { at_s, .. } => t_first.min(at_s),
+        _ => t_first,
+    };
+    let t_end_fault = match case.fault {
+        FieldFault::DpFrozen { at_s, for_s } | FieldFault::LinkOutage { at_s, for_s } => {
+            at_s + for_s
+        }
+        FieldFault::Blips {
+            at_s,
+            every_s,
+            len_s,
+            count,
+        } => at_s + every_s * f64::from(count.saturating_sub(1)) + len_s,
+        _ => 0.0,
+    };
+    let t_after = scenario.last_event_s().max(t_end_fault) + 3.0;
+
+    let (_, raw0) = pr.sense(0.0);
+    let span = |id: SensorId, k: f64| k * raw0.values.get(id).abs();
+    let noise_amp = {
+        let mut a = [0.0; SensorId::COUNT];
+        a[SensorId::PSuction.index()] = 0.01 * span(SensorId::PSuction, 1.5);
+        a[SensorId::PDischarge.index()] = 0.01 * span(SensorId::PDischarge, 1.5);
+        a[SensorId::OrificeDp.index()] = 0.02 * span(SensorId::OrificeDp, 2.0);
+        a
+    };
+    let mut rng = match case.fault {
+        FieldFault::Noise { seed } => seed | 1,
+        _ => 1,
+    };
+
+    let mut res = CaseResult {
+        plant: desc.name().to_string(),
+        case: case.name,
+        law,
+        margin_pct,
+        surge_cycles: 0,
+        flow_reversals: 0,
+        min_margin_during: f64::INFINITY,
+        min_margin_after: f64::INFINITY,
+        recycle_kg: 0.0,
+        recycle_energy_j: 0.0,
+        valve_travel: 0.0,
+        failsafe_s: 0.0,
+        failsafe_entries: 0,
+        resume_step: 0.0,
+    };
+    let mut held_raw: Option<RawSensors> = None;
+    let mut frozen_dp = f64::NAN;
+    let mut delivered = ActuatorCommands::default();
+    let mut last_pos = pr.plant().truth().recycle_valve_position;
+    let mut last_mode = Mode::Init;
+    let mut seen_auto = false;
+    for k in 0..=n {
+        let t = k as f64 * dt;
+        let (st, mut raw) = pr.sense(t);
+        // the field between plant and controller
+        let mut link_down = false;
+        match case.fault {
+            FieldFault::None => {}
+            FieldFault::Noise { .. } => {
+                for id in [
+                    SensorId::PSuction,
+                    SensorId::PDischarge,
+                    SensorId::OrificeDp,
+                ] {
+                    let v = raw.values.get(id) + noise_amp[id.index()] * uniform(&mut rng);
+                    raw.values.set(id, v);
+                }
+            }
+            FieldFault::DpFrozen { at_s, for_s } => {
+                if t >= at_s && t < at_s + for_s {
+                    if frozen_dp.is_nan() {
+                        frozen_dp = raw.values.get(SensorId::OrificeDp);
+                    }
+                    raw.values.set(SensorId::OrificeDp, frozen_dp);
+                }
+            }
+            FieldFault::Blips {
+                at_s,
+                every_s,
+                len_s,
+                count,
+            } => {
+                let i = ((t - at_s) / every_s).floor();
+                let into = t - at_s - i * every_s;
+                if t >= at_s && i < f64::from(count) && into < len_s {
+                    let h = held_raw.get_or_insert(raw);
+                    let mut late = *h;
+                    for a in late.age_s.iter_mut() {
+                        *a += into;
+                    }
+                    raw = late;
+                } else {
+                    held_raw = None;
+                }
+            }
+            FieldFault::LinkOutage { at_s, for_s } => {
+                if t >= at_s && t < at_s + for_s {
+                    link_down = true;
+                    let h = held_raw.get_or_insert(raw);
+                    let mut late = *h;
+                    for a in late.age_s.iter_mut() {
+                        *a += t - at_s;
+                    }
+                    raw = late;
+                }
+            }
+        }
+        let op = OperatorInputs {
+            speed_setpoint_rad_s: nominal_speed * st.speed_setpoint,
+            throttle_demand: st.throttle,
+            flow_setpoint_kg_s: st.flow_setpoint_kg_s,
+            recycle_manual: st.recycle_manual,
+        };
+        let out = core.cycle(t, &raw, &op);
+        if let Some(e) = out.law_event {
+            pr.count_law_event(e);
+        }
+        // scoring
+        if out.mode == Mode::FailSafe {
+            res.failsafe_s += dt;
+            if last_mode != Mode::FailSafe {
+                res.failsafe_entries += 1;
+            }
+        }
+        if out.mode == Mode::Auto && last_mode != Mode::Auto {
+            if seen_auto {
+                let u = out.commands.get(ActuatorId::RecycleValve);
+                let pos = pr.plant().truth().recycle_valve_position;
+                if u.is_finite() && pos.is_finite() {
+                    res.resume_step = res.resume_step.max((u - pos).abs());
+                }
+            }
+            seen_auto = true;
+        }
+        last_mode = out.mode;
+        let truth = pr.plant().truth();
+        let margin = model.surge_margin(truth.flow_map, truth.pressure_ratio());
+        if margin.is_finite() && t >= t_first {
+            if t < t_after {
+                res.min_margin_during = res.min_margin_during.min(margin);
+            } else {
+                res.min_margin_after = res.min_margin_after.min(margin);
+            }
+        }
+        if truth.recycle_flow_kg_s > 0.0 {
+            res.recycle_kg += truth.recycle_flow_kg_s * dt;
+        }
+        let pos = truth.recycle_valve_position;
+        if pos.is_finite() && last_pos.is_finite() {
+            res.valve_travel += (pos - last_pos).abs();
+        }
+        last_pos = pos;
+        let m = &out.measurements;
+        let view = ControllerView {
+            m_measured_kg_s: m.m_measured_kg_s,
+            m_observer_kg_s: m.m_observer_kg_s,
+            m_used_kg_s: m.m_kg_s,
+            mode: f64::from(out.mode.code()),
+            law_diagnostic: out.law_diagnostic,
+        };
+        pr.record(k, t, dt, &raw, &out.commands, &view);
+        if k == n {
+            break;
+        }
+        if !link_down {
+            delivered = out.commands;
+        }
+        pr.advance(&st, &delivered, dt);
+    }
+    let s = pr.finish(law.name()).summary;
+    res.surge_cycles = s.surge_cycles;
+    res.flow_reversals = s.flow_reversals;
+    res.recycle_energy_j = s.recycle_energy_j;
+    Ok(res)
+}
+
+/// Run the whole matrix on the recycle plants among `plants`, on up to `threads` threads.
+/// Scenarios are loaded from `config_dir/scenarios`.
+pub fn run_matrix(
+    plants: &[PlantDescription],
+    config_dir: &Path,
+    threads: usize,
+) -> Result<Vec<CaseResult>, SimError> {
+    let mut scenarios = Vec::new();
+    for c in CASES {
+        let path = config_dir
+            .join("scenarios")
+            .join(format!("{}.toml", c.scenario.replace('-', "_")));
+        let sc = Scenario::load(&path).map_err(|e| SimError::Scenario {
+            scenario: c.scenario.to_string(),
+            message: e.to_string(),
+        })?;
+        scenarios.push(sc);
+    }
+    let mut jobs = Vec::new();
+    for p in plants
+        .iter()
+        .filter(|p| LawId::RecyclePi.supports(p.file.model))
+    {
+        for (ci, _) in CASES.iter().enumerate() {
+            for law in LAWS {
+                for m in MARGINS_PCT {
+                    jobs.push((p, ci, law, m));
+                }
+            }
+        }
+    }
+    let next = std::sync::atomic::AtomicUsize::new(0);
+    let results: std::sync::Mutex<Vec<(usize, Result<CaseResult, SimError>)>> =
+        std::sync::Mutex::new(Vec::new());
+    std::thread::scope(|s| {
+        for _ in 0..threads.max(1) {
+            s.spawn(|| loop {
+                let i = next.fetch_add(1, std::sync::atomic::Ordering::Relaxed);
+                let Some(&(p, ci, law, m)) = jobs.get(i) else {
+                    break;
+                };
+                let r = run_case(p, &scenarios[ci], &CASES[ci], law, m);
+                if let Ok(mut g) = results.lock() {
+                    g.push((i, r));
+                }
+            });
+        }
+    });
+    let mut all = results.into_inner().unwrap_or_default();
+    all.sort_by_key(|(i, _)| *i);
+    all.into_iter().map(|(_, r)| r).collect()
+}
+
+/// Whether the recycle valve's stroke suffices for an ESD rundown without surge (recycle-pi
+/// at a 10 % margin), and if not, the longest of the candidate stroke times (1, 0.5, 0.25 s)
+/// with which a variant of the plant holds it.
+#[derive(Debug, Clone, PartialEq)]
+pub struct EsdStroke {
+    /// Plant name.
+    pub plant: String,
+    /// The plant's recycle-valve stroke time, s.
+    pub stroke_time_s: f64,
+    /// Surge cycles of the ESD with that stroke.
+    pub surge_cycles: u32,
+    /// A stroke time that holds the ESD (None: the plant's own does, or none of the
+    /// candidates does).
+    pub holding_stroke_s: Option<f64>,
+}
+
+/// Check the ESD stroke of every recycle plant.
+pub fn esd_strokes(
+    plants: &[PlantDescription],
+    config_dir: &Path,
+) -> Result<Vec<EsdStroke>, SimError> {
+    let path = config_dir.join("scenarios").join("emergency_shutdown.toml");
+    let sc = Scenario::load(&path).map_err(|e| SimError::Scenario {
+        scenario: "emergency-shutdown".into(),
+        message: e.to_string(),
+    })?;
+    let case = CASES[4];
+    let mut out = Vec::new();
+    for p in plants
+        .iter()
+        .filter(|p| LawId::RecyclePi.supports(p.file.model))
+    {
+        let Some(rs) = p.file.recycle_system else {
+            continue;
+        };
+        let stroke = rs.recycle_valve.stroke_time_s;
+        let r = run_case(p, &sc, &case, LawId::RecyclePi, 10.0)?;
+        let mut holding = None;
+        if r.surge_cycles > 0 {
+            for cand in [1.0, 0.5, 0.25] {
+                if cand >= stroke {
+                    continue;
+                }
+                let mut v = p.clone();
+                if let Some(rs) = v.file.recycle_system.as_mut() {
+                    rs.recycle_valve.stroke_time_s = cand;
+                }
+                if run_case(&v, &sc, &case, LawId::RecyclePi, 10.0)?.surge_cycles == 0 {
+                    holding = Some(cand);
+                    break;
+                }
+            }
+        }
+        out.push(EsdStroke {
+            plant: p.name().to_string(),
+            stroke_time_s: stroke,
+            surge_cycles: r.surge_cycles,
+            holding_stroke_s: holding,
+        });
+    }
+    Ok(out)
+}
+
+/// The ESD verdicts as Markdown lines.
+pub fn esd_markdown(rows: &[EsdStroke]) -> String {
+    let mut s = String::new();
+    for r in rows {
+        let verdict = if r.surge_cycles == 0 {
+            "suffices (no surge cycle)".to_string()
+        } else {
+            match r.holding_stroke_s {
+                Some(t) => format!(
+                    "is too slow ({} surge cycles); a {t} s stroke holds the ESD without surge",
+                    r.surge_cycles
+                ),
+                None => format!(
+                    "is too slow ({} surge cycles); no stroke down to 0.25 s holds it",
+                    r.surge_cycles
+                ),
+            }
+        };
+        let _ = writeln!(
+            s,
+            "- {}: the recycle valve's {} s stroke {verdict}.",
+            r.plant, r.stroke_time_s
+        );
+    }
+    s
+}
+
+fn pct(x: f64) -> String {
+    if x.is_finite() {
+        format!("{:+.1} %", 100.0 * x)
+    } else {
+        "—".to_string()
+    }
+}
+
+/// Sum of recycle energy over the matrix for one plant, law and margin, J.
+pub fn energy_total(rows: &[CaseResult], plant: &str, law: LawId, margin_pct: f64) -> f64 {
+    rows.iter()
+        .filter(|r| r.plant == plant && r.law == law && r.margin_pct == margin_pct)
+        .map(|r| r.recycle_energy_j)
+        .sum()
+}
+
+/// The matrix as Markdown: one table per plant, then the energy totals.
+pub fn markdown(rows: &[CaseResult]) -> String {
+    let mut s = String::new();
+    let mut plants: Vec<&str> = Vec::new();
+    for r in rows {
+        if !plants.contains(&r.plant.as_str()) {
+            plants.push(&r.plant);
+        }
+    }
+    for p in &plants {
+        let _ = writeln!(s, "**{p}**\n");
+        s.push_str("| case | law | margin | surge cycles | closest approach during / after | recycle | recycle energy | valve travel | fail-safe | resume step |\n");
+        s.push_str("|---|---|---|---|---|---|---|---|---|---|\n");
+        for r in rows.iter().filter(|r| r.plant == *p) {
+            let _ = writeln!(
+                s,
+                "| {} | {} | {:.0} % | {} | {} / {} | {:.1} kg | {:.3} MJ | {:.0} % | {} | {:.1} % |",
+                r.case,
+                r.law.name(),
+                r.margin_pct,
+                r.surge_cycles,
+                pct(r.min_margin_during),
+                pct(r.min_margin_after),
+                r.recycle_kg,
+                r.recycle_energy_j / 1e6,
+                100.0 * r.valve_travel,
+                if r.failsafe_entries > 0 {
+                    format!("{:.2} s ({}×)", r.failsafe_s, r.failsafe_entries)
+                } else {
+                    "—".to_string()
+                },
+                100.0 * r.resume_step
+            );
+        }
+        s.push('\n');
+    }
+    s.push_str("| plant | recycle energy over the matrix | surge cycles |\n|---|---|---|\n");
+    for p in &plants {
+        for law in LAWS {
+            for m in MARGINS_PCT {
+                let cycles: u32 = rows
+                    .iter()
+                    .filter(|r| r.plant == *p && r.law == law && r.margin_pct == m)
+                    .map(|r| r.surge_cycles)
+                    .sum();
+                let _ = writeln!(
+                    s,
+                    "| {p} | {} @ {m:.0} %: {:.2} MJ | {cycles} |",
+                    law.name(),
+                    energy_total(rows, p, law, m) / 1e6
+                );
+            }
+        }
+    }
+    s
+}

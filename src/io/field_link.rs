@@ -1,0 +1,199 @@
+//! The `FieldLink` seam: what every field link (CAN interface, Modbus connection) reports,
+//! in one vocabulary, and the state→event wiring written once.
+//!
+//! A transport task keeps its own socket, retry and backoff, and tells a
+//! [`FieldLinkReporter`] what happened: link state changes ([`BusState`]) and faults
+//! ([`FaultCategory`] with a cause in words). The reporter drops repeats and turns every
+//! transition into one `bus_state` or `field_fault` event, one journal line and the active
+//! fault word ([`FieldLinkReporter::faults`]) that status shows.
+
+use std::sync::atomic::{AtomicU32, Ordering};
+use std::sync::Arc;
+
+use crate::events::event::{BusState, Event};
+use crate::faults::{FaultCategory, FaultSet};
+
+/// Where a reporter's events go (the daemon's event sender, or a test's vector).
+pub type EventSink = Arc<dyn Fn(Event) + Send + Sync>;
+
+/// Reports one link's transitions (see the module documentation).
+pub struct FieldLinkReporter {
+    link: String,
+    sink: EventSink,
+    last: Option<BusState>,
+    faults: Arc<AtomicU32>,
+    causes: [Option<String>; FaultCategory::ALL.len()],
+    /// Whether active faults go into the fault word on the wire ([`crate::faults::field`]).
+    on_wire: bool,
+}
+
+impl Drop for FieldLinkReporter {
+    fn drop(&mut self) {
+        if self.on_wire {
+            for c in FaultSet(self.faults.load(Ordering::Relaxed)).categories() {
+                crate::faults::field::clear(c);
+            }
+        }
+    }
+}
+
+impl std::fmt::Debug for FieldLinkReporter {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("FieldLinkReporter")
+            .field("link", &self.link)
+            .field("last", &self.last)
+            .field("faults", &self.faults.load(Ordering::Relaxed))
+            .finish()
+    }
+}
+
+impl FieldLinkReporter {
+    /// A reporter for `link` (e.g. `can0`, `modbus:10.0.0.5:502`) sending to `sink`.
+    pub fn new(link: impl Into<String>, sink: EventSink) -> FieldLinkReporter {
+        FieldLinkReporter {
+            link: link.into(),
+            sink,
+            last: None,
+            faults: Arc::new(AtomicU32::new(0)),
+            causes: Default::default(),
+            on_wire: true,
+        }
+    }
+
+    /// A reporter whose faults stay out of the fault word on the wire (tests, tools).
+    pub fn detached(link: impl Into<String>, sink: EventSink) -> FieldLinkReporter {
+        let mut r = FieldLinkReporter::new(link, sink);
+        r.on_wire = false;
+        r
+    }
+
+    /// The link's name.
+    pub fn link(&self) -> &str {
+        &self.link
+    }
+
+    /// The active fault word, shared (for status).
+    pub fn faults(&self) -> Arc<AtomicU32> {
+        Arc::clone(&self.faults)
+    }
+
+    /// A state change: one `bus_state` event and one journal line when it differs from the
+    /// last one; `detail` says why, in words. A link going down also raises
+    /// [`FaultCategory::FieldLinkDown`]; coming up clears it.
+    pub fn state(&mut self, state: BusState, detail: &str) {
+        if self.last == Some(state) {
+            return;
+        }
+        self.last = Some(state);
+        match state {
+            BusState::Up => {
+                tracing::info!(target: "field", link = %self.link, "link up {detail}")
+            }
+            _ => tracing::warn!(target: "field", link = %self.link, ?state, "link {detail}"),
+        }
+        (self.sink)(Event::BusState {
+            interface: self.link.clone(),
+            state,
+        });
+        let down = matches!(state, BusState::Down | BusState::BusOff);
+        if down {
+            self.fault(FaultCategory::FieldLinkDown, true, detail);
+        } else if state == BusState::Up {
+            self.fault(FaultCategory::FieldLinkDown, false, "link up");
+        }
+    }
+
+    /// Raise (`active`) or clear a fault with its cause. Repeats (same state and cause) are
+    /// dropped; a raised fault with a new cause is reported again.
+    pub fn fault(&mut self, fault: FaultCategory, active: bool, cause: &str) {
+        let i = usize::from(fault.code());
+        let was = FaultSet(self.faults.load(Ordering::Relaxed)).has(fault);
+        if active && was && self.causes[i].as_deref() == Some(cause) {
+            return;
+        }
+        if !active && !was {
+            return;
+        }
+        if active {
+            if !was && self.on_wire {
+                crate::faults::field::raise(fault);
+            }
+            self.faults.fetch_or(fault.bit(), Ordering::Relaxed);
+            self.causes[i] = Some(cause.to_string());
+            tracing::error!(target: "field", link = %self.link, fault = fault.name(), "{}: {cause}", fault.describe());
+        } else {
+            if self.on_wire {
+                crate::faults::field::clear(fault);
+            }
+            self.faults.fetch_and(!fault.bit(), Ordering::Relaxed);
+            self.causes[i] = None;
+            tracing::info!(target: "field", link = %self.link, fault = fault.name(), "cleared: {cause}");
+        }
+        (self.sink)(Event::FieldFault {
+            link: self.link.clone(),
+            fault,
+            active,
+            cause: cause.to_string(),
+        });
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use std::sync::Mutex;
+
+    fn reporter() -> (FieldLinkReporter, Arc<Mutex<Vec<Event>>>) {
+        let seen = Arc::new(Mutex::new(Vec::new()));
+        let s = Arc::clone(&seen);
+        let r =
+            FieldLinkReporter::detached("modbus:x", Arc::new(move |e| s.lock().unwrap().push(e)));
+        (r, seen)
+    }
+
+    #[test]
+    fn transitions_become_events_once() {
+        let (mut r, seen) = reporter();
+        r.state(BusState::Up, "");
+        r.state(BusState::Up, "");
+        r.state(BusState::Down, "connection refused");
+        r.state(BusState::Down, "connection refused");
+        r.state(BusState::Up, "");
+        let kinds: Vec<String> = seen
+            .lock()
+            .unwrap()
+            .iter()
+            .map(|e| match e {
+                Event::BusState { state, .. } => format!("{state:?}"),
+                Event::FieldFault { fault, active, .. } => format!("{}={active}", fault.name()),
+                other => other.kind().to_string(),
+            })
+            .collect();
+        assert_eq!(
+            kinds,
+            [
+                "Up",
+                "Down",
+                "field_link_down=true",
+                "Up",
+                "field_link_down=false"
+            ]
+        );
+        assert_eq!(r.faults().load(Ordering::Relaxed), 0);
+    }
+
+    #[test]
+    fn fault_with_new_cause_is_reported_again() {
+        let (mut r, seen) = reporter();
+        r.fault(FaultCategory::FieldWriteFailed, true, "exception 2");
+        r.fault(FaultCategory::FieldWriteFailed, true, "exception 2");
+        r.fault(FaultCategory::FieldWriteFailed, true, "timeout");
+        assert_eq!(
+            r.faults().load(Ordering::Relaxed),
+            FaultCategory::FieldWriteFailed.bit()
+        );
+        r.fault(FaultCategory::FieldWriteFailed, false, "acknowledged");
+        r.fault(FaultCategory::FieldWriteFailed, false, "acknowledged");
+        assert_eq!(seen.lock().unwrap().len(), 2 + 1);
+    }
+}
