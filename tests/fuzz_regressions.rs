@@ -18,6 +18,8 @@ fn subnormal_scale_is_refused() {
         word_order: WordOrder::Little,
         scale: 5.432226334406e-312,
         offset: 3.326468099824247e-294,
+        unit: None,
+        address_looks_modicon: false,
     };
     assert!(matches!(b.validate(), Err(BindingError::BadScale(_))));
     // the smallest normal scale is still accepted

@@ -45,6 +45,8 @@ fuzz_target!(|data: &[u8]| {
         },
         scale: f(6),
         offset: f(14),
+        unit: None,
+        address_looks_modicon: false,
     };
     if b.validate().is_err() {
         return;
