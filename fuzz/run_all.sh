@@ -65,7 +65,7 @@ for t in $targets; do
     (cd fuzz && cargo +nightly fuzz run -s "$san" "$t" -- -max_total_time="$secs" -max_len=65536 \
         -rss_limit_mb=2048 -print_final_stats=1 "${par[@]}") \
         >"$log" 2>&1 || { result="CRASH (see fuzz/artifacts/$t)"; status=1; tail -n 40 "$log" >&2; }
-    execs=$(grep -h 'stat::number_of_executed_units' "$log" fuzz/fuzz-*.log 2>/dev/null |
+    execs=$({ grep -h 'stat::number_of_executed_units' "$log" fuzz/fuzz-*.log 2>/dev/null || true; } |
         awk '{s += $2} END {print s + 0}')
     printf '%-24s %14s %8s %s\n' "$t" "$execs" "$secs" "$result"
     rm -f "$log" fuzz/fuzz-*.log
