@@ -111,6 +111,10 @@ fn populated() -> DaemonConfig {
             modbus_server: Some(ModbusServerConfig {
                 listen: "127.0.0.1:5020".parse().expect("listen"),
                 heartbeat_register: Some(hb),
+                allow_writes_from: vec![
+                    "127.0.0.1".parse().expect("ip"),
+                    "::1".parse().expect("ip"),
+                ],
             }),
         },
         status: StatusSection {

@@ -6,122 +6,9 @@
 mod common;
 
 use common::daemon::*;
+use common::faults::*;
 use std::io::Write;
-use std::os::unix::net::UnixDatagram;
-use std::path::{Path, PathBuf};
-use std::sync::{Arc, Mutex};
 use std::time::{Duration, Instant};
-
-/// A config for the in-process plant, with its plant file copied into `dir` (so the test can
-/// replace it) and `extra` appended.
-fn config(dir: &Path, extra: &str) -> (PathBuf, String) {
-    let plant = plant_file(dir);
-    std::fs::create_dir_all(dir.join("plants")).expect("plants dir");
-    for d in ["maps", "scenarios"] {
-        // the plant file names its maps relative to itself; scenarios are looked up beside it
-        if !dir.join(d).exists() {
-            std::os::unix::fs::symlink(common::root().join("config").join(d), dir.join(d))
-                .expect("link");
-        }
-    }
-    std::fs::copy(shipped("plants/kvangardsnes2009_recycle.toml"), &plant).expect("copy plant");
-    let text = format!(
-        r#"[plant]
-file = "{plant}"
-[control]
-law = "recycle-pi"
-[cycle]
-rate_hz = 200.0
-lock_memory = false
-[event_log]
-path = "{events}"
-fsync = "always"
-[simulation]
-scenario = "hold"
-{extra}"#,
-        plant = plant.display(),
-        events = dir.join("events.jsonl").display(),
-    );
-    let path = dir.join("antisurge.toml");
-    std::fs::write(&path, &text).expect("write config");
-    (path, text)
-}
-
-fn plant_file(dir: &Path) -> PathBuf {
-    dir.join("plants").join("plant.toml")
-}
-
-fn events(dir: &Path) -> String {
-    std::fs::read_to_string(dir.join("events.jsonl")).unwrap_or_default()
-}
-
-fn mkfifo(p: &Path) {
-    let c = std::ffi::CString::new(p.to_str().expect("utf-8")).expect("cstr");
-    // SAFETY: mkfifo on a path in our temporary directory.
-    assert_eq!(unsafe { libc::mkfifo(c.as_ptr(), 0o600) }, 0, "mkfifo");
-}
-
-/// A fake systemd notification socket: every datagram with its arrival time.
-struct FakeNotify {
-    path: PathBuf,
-    got: Arc<Mutex<Vec<(Instant, String)>>>,
-}
-
-impl FakeNotify {
-    fn new(dir: &Path) -> FakeNotify {
-        let path = dir.join("notify.sock");
-        let sock = UnixDatagram::bind(&path).expect("bind notify socket");
-        sock.set_read_timeout(Some(Duration::from_millis(100)))
-            .expect("timeout");
-        let got = Arc::new(Mutex::new(Vec::new()));
-        let g = Arc::clone(&got);
-        std::thread::spawn(move || {
-            let mut buf = [0u8; 4096];
-            loop {
-                match sock.recv(&mut buf) {
-                    Ok(n) => g
-                        .lock()
-                        .expect("lock")
-                        .push((Instant::now(), String::from_utf8_lossy(&buf[..n]).into())),
-                    Err(e) if e.kind() == std::io::ErrorKind::WouldBlock => {}
-                    Err(e) if e.kind() == std::io::ErrorKind::TimedOut => {}
-                    Err(_) => return,
-                }
-            }
-        });
-        FakeNotify { path, got }
-    }
-
-    fn watchdog_times(&self) -> Vec<Instant> {
-        self.got
-            .lock()
-            .expect("lock")
-            .iter()
-            .filter(|(_, m)| m.lines().any(|l| l == "WATCHDOG=1"))
-            .map(|(t, _)| *t)
-            .collect()
-    }
-}
-
-fn spawn_notified(
-    dir: &Path,
-    args: &[&str],
-    notify: &FakeNotify,
-    wd_usec: u64,
-) -> std::process::Child {
-    let log = std::fs::File::create(dir.join("run.log")).expect("log file");
-    std::process::Command::new(env!("CARGO_BIN_EXE_antisurge"))
-        .args(args)
-        .env("ANTISURGE_LOG", "info")
-        .env_remove("LOGS_DIRECTORY")
-        .env_remove("WATCHDOG_PID")
-        .env("NOTIFY_SOCKET", &notify.path)
-        .env("WATCHDOG_USEC", wd_usec.to_string())
-        .stdout(std::process::Stdio::from(log.try_clone().expect("clone")))
-        .stderr(std::process::Stdio::from(log))
-        .spawn()
-        .expect("spawn antisurge")
-}
 
 /// Issue 12, item 1: a FIFO as plant file, `/dev/zero`, a 128 MiB config and a SIGHUP storm
 /// during reloads; the gap between two `WATCHDOG=1` stays under half of `WatchdogSec`, every
@@ -297,38 +184,6 @@ fn config_errors_exit_78_at_once_in_every_command() {
     let ctx = logs(dir);
     assert_eq!(st.code(), Some(78), "{ctx}");
     assert!(ctx.contains("cycle.cpu"), "{ctx}");
-}
-
-/// `antisurge run` with piped output (not a file: a file-size limit would cut it).
-fn run_piped(cfg: &Path, secs: &str, fsize_limit: Option<u64>) -> std::process::Output {
-    use std::os::unix::process::CommandExt;
-    let mut cmd = std::process::Command::new(env!("CARGO_BIN_EXE_antisurge"));
-    cmd.args([
-        "run",
-        "--config",
-        cfg.to_str().expect("utf-8"),
-        "--duration-s",
-        secs,
-    ])
-    .env("ANTISURGE_LOG", "info")
-    .env_remove("LOGS_DIRECTORY")
-    .env_remove("NOTIFY_SOCKET");
-    if let Some(limit) = fsize_limit {
-        // SAFETY: setrlimit is async-signal-safe; it only lowers this child's own limit.
-        unsafe {
-            cmd.pre_exec(move || {
-                let r = libc::rlimit {
-                    rlim_cur: limit,
-                    rlim_max: limit,
-                };
-                if libc::setrlimit(libc::RLIMIT_FSIZE, &r) != 0 {
-                    return Err(std::io::Error::last_os_error());
-                }
-                Ok(())
-            });
-        }
-    }
-    cmd.output().expect("run antisurge")
 }
 
 /// Issue 12, items 6 and 7: an event log that cannot be opened at start, or a file-size limit

@@ -197,6 +197,7 @@ impl Plant {
         let cfg = ModbusServerConfig {
             listen: "127.0.0.1:0".parse().unwrap(),
             heartbeat_register,
+            ..ModbusServerConfig::default()
         };
         let mut p = Plant {
             snapshots: Arc::default(),
@@ -894,6 +895,7 @@ async fn misconfiguration_is_refused_and_a_map_without_modbus_returns_at_once() 
     let server_cfg = ModbusServerConfig {
         listen: "127.0.0.1:0".parse().unwrap(),
         heartbeat_register: cfg.heartbeat_register,
+        ..ModbusServerConfig::default()
     };
     let e = PlantServer::bind(
         &server_cfg,

@@ -67,3 +67,4 @@ pub fn simulate_with(
 }
 
 pub mod daemon;
+pub mod faults;

@@ -289,7 +289,9 @@ fn default_listen() -> std::net::SocketAddr {
 /// Config keys: `listen` (socket address, default `"127.0.0.1:5020"`; port 0 picks a free
 /// port), `heartbeat_register` (optional `{ unit_id, address }`, see [`HeartbeatRegister`]:
 /// when set, only writes to that block count as controller heartbeats; when absent, every
-/// client write does, reported as mode 2 (auto) with the write count as alive counter).
+/// client write does, reported as mode 2 (auto) with the write count as alive counter),
+/// `allow_writes_from` (client IP addresses allowed to write, default loopback only:
+/// `["127.0.0.1", "::1"]`).
 #[derive(Debug, Clone, PartialEq, Eq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct ModbusServerConfig {
@@ -299,6 +301,13 @@ pub struct ModbusServerConfig {
     /// Heartbeat block, if the controller writes one.
     #[serde(default)]
     pub heartbeat_register: Option<HeartbeatRegister>,
+    /// Client IP addresses whose writes (actuator setpoints, heartbeat) are applied. Any
+    /// client may read; a write from any other address is answered with exception 0x01
+    /// (illegal function), changes nothing and is logged (rate-limited). A third client
+    /// must not be able to close the valve or forge the controller's heartbeat (issue 12,
+    /// item 8). An IPv4-mapped IPv6 peer (`::ffff:a.b.c.d`) counts as its IPv4 address.
+    #[serde(default = "default_allow_writes_from")]
+    pub allow_writes_from: Vec<std::net::IpAddr>,
 }
 
 impl Default for ModbusServerConfig {
@@ -306,8 +315,26 @@ impl Default for ModbusServerConfig {
         ModbusServerConfig {
             listen: default_listen(),
             heartbeat_register: None,
+            allow_writes_from: default_allow_writes_from(),
         }
     }
+}
+
+impl ModbusServerConfig {
+    /// Whether a client at `ip` may write.
+    pub fn may_write(&self, ip: std::net::IpAddr) -> bool {
+        let ip = ip.to_canonical();
+        self.allow_writes_from
+            .iter()
+            .any(|a| a.to_canonical() == ip)
+    }
+}
+
+fn default_allow_writes_from() -> Vec<std::net::IpAddr> {
+    vec![
+        std::net::IpAddr::from([127, 0, 0, 1]),
+        std::net::IpAddr::from(std::net::Ipv6Addr::LOCALHOST),
+    ]
 }
 
 /// Why a link task could not start or had to stop.

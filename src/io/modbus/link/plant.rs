@@ -63,6 +63,8 @@ counters! {
         commands,
         /// Heartbeats published into the heartbeat board.
         heartbeats,
+        /// Writes refused because the client is not in `allow_writes_from`.
+        refused_writes,
     }
 }
 
@@ -317,9 +319,50 @@ impl Shared {
 
 type ServiceFuture = Pin<Box<dyn Future<Output = Result<Option<Response>, ExceptionCode>> + Send>>;
 
-/// tokio-modbus service of the plant server.
+/// tokio-modbus service of the plant server, one per connection: `may_write` says whether
+/// the peer is in `allow_writes_from`.
 #[derive(Debug, Clone)]
-struct PlantService(Arc<Shared>);
+struct PlantService {
+    shared: Arc<Shared>,
+    may_write: bool,
+    peer: SocketAddr,
+}
+
+/// Whether `request` writes (any function that changes registers or coils).
+fn is_write(request: &Request<'_>) -> bool {
+    matches!(
+        request,
+        Request::WriteSingleRegister(..)
+            | Request::WriteMultipleRegisters(..)
+            | Request::WriteSingleCoil(..)
+            | Request::WriteMultipleCoils(..)
+            | Request::MaskWriteRegister(..)
+            | Request::ReadWriteMultipleRegisters(..)
+    )
+}
+
+/// Log a refused write at most once per [`REFUSED_LOG_EVERY_S`], with the count since.
+fn log_refused_write(peer: SocketAddr) {
+    static LAST_S: AtomicU64 = AtomicU64::new(0);
+    static SUPPRESSED: AtomicU64 = AtomicU64::new(0);
+    let now = std::time::SystemTime::now()
+        .duration_since(std::time::UNIX_EPOCH)
+        .map_or(0, |d| d.as_secs());
+    let last = LAST_S.load(Ordering::Relaxed);
+    if (last == 0 || now >= last + REFUSED_LOG_EVERY_S)
+        && LAST_S
+            .compare_exchange(last, now, Ordering::Relaxed, Ordering::Relaxed)
+            .is_ok()
+    {
+        let more = SUPPRESSED.swap(0, Ordering::Relaxed);
+        tracing::warn!(target: "modbus", %peer, "plant server: write refused, client not in allow_writes_from ({more} more refused since the last message)");
+    } else {
+        SUPPRESSED.fetch_add(1, Ordering::Relaxed);
+    }
+}
+
+/// Refused writes are logged at most this often, seconds.
+const REFUSED_LOG_EVERY_S: u64 = 10;
 
 impl Service for PlantService {
     type Request = SlaveRequest<'static>;
@@ -328,8 +371,16 @@ impl Service for PlantService {
     type Future = ServiceFuture;
 
     fn call(&self, req: Self::Request) -> Self::Future {
+        if !self.may_write && is_write(&req.request) {
+            let c = &self.shared.counters;
+            c.requests.fetch_add(1, Ordering::Relaxed);
+            c.refused_writes.fetch_add(1, Ordering::Relaxed);
+            c.exceptions.fetch_add(1, Ordering::Relaxed);
+            log_refused_write(self.peer);
+            return Box::pin(std::future::ready(Err(ExceptionCode::IllegalFunction)));
+        }
         let t_ns = monotonic_ns();
-        let (mode, result) = self.0.handle(req.slave, &req.request, t_ns);
+        let (mode, result) = self.shared.handle(req.slave, &req.request, t_ns);
         match mode {
             ResponseMode::Delay(d) => Box::pin(async move {
                 tokio::time::sleep(d).await;
@@ -348,6 +399,7 @@ pub struct PlantServer {
     listener: TcpListener,
     local_addr: SocketAddr,
     shared: Arc<Shared>,
+    cfg: ModbusServerConfig,
 }
 
 impl PlantServer {
@@ -402,6 +454,7 @@ impl PlantServer {
         Ok(PlantServer {
             listener,
             local_addr,
+            cfg: cfg.clone(),
             shared: Arc::new(Shared {
                 image: image.into_shared(),
                 state: Mutex::new(state),
@@ -439,14 +492,21 @@ impl PlantServer {
     /// Errors: accepting a connection failed (e.g. out of file descriptors).
     pub async fn run(self, shutdown: impl Future<Output = ()>) -> Result<(), LinkError> {
         let server = tokio_modbus::server::tcp::Server::new(self.listener);
-        let service = PlantService(Arc::clone(&self.shared));
+        let shared = Arc::clone(&self.shared);
         let counters = Arc::clone(&self.shared.counters);
+        let cfg = self.cfg;
         let on_connected = move |stream: TcpStream, peer: SocketAddr| {
-            let service = service.clone();
+            let service = PlantService {
+                shared: Arc::clone(&shared),
+                may_write: cfg.may_write(peer.ip()),
+                peer,
+            };
             counters.connections.fetch_add(1, Ordering::Relaxed);
             async move {
                 let _ = stream.set_nodelay(true);
-                tracing::debug!(target: "modbus", %peer, "plant server: client connected");
+                tracing::debug!(target: "modbus", %peer, may_write = service.may_write, "plant server: client connected");
+                // malformed requests never reach tokio-modbus's decoder (issue 12, item 9)
+                let stream = crate::io::modbus::request_guard::guard_connection(stream, peer);
                 Ok(Some((service, stream)))
             }
         };
