@@ -180,7 +180,9 @@ pub struct RecyclePiConfig {
     /// Cut-off of a first-order low-pass on z before the PI, Hz (0: none). Default 1 Hz.
     pub z_filter_hz: f64,
     /// Open-loop step of the trip, valve opening fraction added to the current command
-    /// (seed 002 §2.2.2 [11], [13]); 0 disables the trip. Default 0.3.
+    /// (seed 002 §2.2.2 [11], [13]), for an approach that just reaches the trip line; a
+    /// faster approach, predicted to pass the trip line by more, gets a proportionally larger
+    /// step. 0 disables the trip. Default 0.15.
     pub trip_step: f64,
     /// Time the tripped opening is held before the PI takes over, s. Default 1 s.
     pub trip_hold_s: f64,
@@ -584,6 +586,15 @@ impl RecyclePi {
 
     /// Trip line at a pressure ratio, fraction of surge-line flow: `trip_margin_pct`, or
     /// halfway to the control line.
+    /// Whether the rate-of-approach trip is armed: at or left of the control line (z ≥ 0),
+    /// and right of it too unless a trip is being held or its valve is still closing back
+    /// (that closing is an approach as well, and must not re-trip). A fast approach from
+    /// far right (a throttle slam) must trip before the control line: seconds-long valve
+    /// strokes cannot catch it there.
+    fn approach_armed(&self, z: f64) -> bool {
+        z >= 0.0 || (self.trip_left_s <= 0.0 && self.u_last <= self.limits().0 + 1e-9)
+    }
+
     fn trip_margin_at(&self, ratio: f64) -> f64 {
         if self.cfg.trip_margin_pct > 0.0 {
             return 0.01 * self.cfg.trip_margin_pct;
@@ -727,7 +738,7 @@ impl SurgeLaw for RecyclePi {
         let predicted = margin + self.cfg.trip_lead_time_s * d_margin.min(0.0);
         let trip_cond = margin.is_finite()
             && (margin < trip_margin - allowance
-                || (z >= 0.0 && predicted < trip_margin - allowance));
+                || (self.approach_armed(z) && predicted < trip_margin - allowance));
         self.trip_agree = if trip_cond {
             self.trip_agree.saturating_add(1)
         } else {
@@ -738,7 +749,16 @@ impl SurgeLaw for RecyclePi {
         let mut event = None;
         if trip_now && self.trip_left_s <= 0.0 && self.cfg.trip_step > 0.0 {
             let (_, hi) = self.limits();
-            self.trip_level = (self.u_last + self.cfg.trip_step).min(hi);
+            // the step grows with the predicted penetration past the trip line (seed 002
+            // §2.2.2 [11]: the faster the approach, the larger the open-loop step): a slow
+            // drift gets `trip_step`, a throttle slam that would cross the whole trip margin
+            // within the lead time gets a multiple of it (a soft PI cannot catch that alone)
+            let depth = if trip_margin > 0.0 {
+                ((trip_margin - predicted) / trip_margin).max(1.0)
+            } else {
+                1.0
+            };
+            self.trip_level = (self.u_last + self.cfg.trip_step * depth).min(hi);
             self.trip_left_s = self.cfg.trip_hold_s.max(dt);
             self.trips = self.trips.saturating_add(1);
             event = Some(LawEvent::RecycleTrip {
