@@ -13,37 +13,12 @@ use antisurge::plant::{PlantInputs, SimPlant};
 use antisurge::runtime::handoff::{monotonic_ns, OutputBoard, SensorBoard, Wakeup};
 use antisurge::runtime::rt_loop::{CycleStats, Tick};
 use antisurge::signals::SensorId;
-use std::alloc::{GlobalAlloc, Layout, System};
-use std::cell::Cell;
+use common::counting_alloc::{allocations, Counting};
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::Arc;
 
-struct Counting;
-
-thread_local! {
-    static COUNT: Cell<u64> = const { Cell::new(0) };
-}
-
-unsafe impl GlobalAlloc for Counting {
-    unsafe fn alloc(&self, layout: Layout) -> *mut u8 {
-        COUNT.with(|c| c.set(c.get() + 1));
-        unsafe { System.alloc(layout) }
-    }
-    unsafe fn dealloc(&self, ptr: *mut u8, layout: Layout) {
-        unsafe { System.dealloc(ptr, layout) }
-    }
-    unsafe fn realloc(&self, ptr: *mut u8, layout: Layout, new_size: usize) -> *mut u8 {
-        COUNT.with(|c| c.set(c.get() + 1));
-        unsafe { System.realloc(ptr, layout, new_size) }
-    }
-}
-
 #[global_allocator]
 static GLOBAL: Counting = Counting;
-
-fn allocations() -> u64 {
-    COUNT.with(|c| c.get())
-}
 
 #[test]
 fn control_node_cycle_with_live_snapshot_allocates_nothing_while_polled() {

@@ -15,38 +15,12 @@ use antisurge::plant::{PlantInputs, SimPlant};
 use antisurge::runtime::handoff::{monotonic_ns, OutputBoard, SensorBoard, Wakeup};
 use antisurge::runtime::rt_loop::{CycleStats, Tick};
 use antisurge::signals::SensorId;
-use std::alloc::{GlobalAlloc, Layout, System};
-use std::cell::Cell;
+use common::counting_alloc::{heap_ops, Counting};
 use std::sync::atomic::Ordering;
 use std::sync::Arc;
 
-struct Counting;
-
-thread_local! {
-    static COUNT: Cell<u64> = const { Cell::new(0) };
-}
-
-unsafe impl GlobalAlloc for Counting {
-    unsafe fn alloc(&self, layout: Layout) -> *mut u8 {
-        COUNT.with(|c| c.set(c.get() + 1));
-        unsafe { System.alloc(layout) }
-    }
-    unsafe fn dealloc(&self, ptr: *mut u8, layout: Layout) {
-        COUNT.with(|c| c.set(c.get() + 1)); // freeing on the control thread counts too
-        unsafe { System.dealloc(ptr, layout) }
-    }
-    unsafe fn realloc(&self, ptr: *mut u8, layout: Layout, new_size: usize) -> *mut u8 {
-        COUNT.with(|c| c.set(c.get() + 1));
-        unsafe { System.realloc(ptr, layout, new_size) }
-    }
-}
-
 #[global_allocator]
 static GLOBAL: Counting = Counting;
-
-fn heap_ops() -> u64 {
-    COUNT.with(|c| c.get())
-}
 
 #[test]
 fn reloads_allocate_nothing_on_the_control_thread_for_every_law_and_plant() {

@@ -66,5 +66,6 @@ pub fn simulate_with(
     .unwrap_or_else(|e| panic!("{e}"))
 }
 
+pub mod counting_alloc;
 pub mod daemon;
 pub mod faults;
