@@ -156,7 +156,7 @@ put_file() { # src dest-path mode owner:group
     fi
 }
 
-# Shipped configuration (DBC, signal map, plants, maps, scenarios): replaced by the
+# Shipped configuration (DBC, signal map, plants, machines, maps, scenarios): replaced by the
 # new version; a differing old one is kept as FILE.old.
 put_shipped_config() { # src dest-path
     local dst="$ROOT$2"
@@ -322,6 +322,8 @@ for m in "$CONFIG_SRC"/signals*.toml; do
     [[ -f $m ]] && shipped_files+=("$(basename "$m")")
 done
 [[ -f $CONFIG_SRC/signals.toml ]] || shipped_files+=(signals.toml)
+# the example daemon config for a machine known only from vendor data (config/machines/)
+[[ -f $CONFIG_SRC/vendor_example.toml ]] && shipped_files+=(vendor_example.toml)
 for f in "${shipped_files[@]}"; do
     if [[ -f $CONFIG_SRC/$f ]]; then
         put_shipped_config "$CONFIG_SRC/$f" "$CONF_DIR/$f"
@@ -332,7 +334,7 @@ done
 # conf.d/: the operator's overrides; example files from the repository are added if
 # missing but an existing file is never touched.
 put_config_tree "$CONFIG_SRC/conf.d" "$CONF_DIR/conf.d" operator
-for d in plants maps scenarios; do
+for d in plants machines maps scenarios; do
     if [[ -d $CONFIG_SRC/$d ]]; then
         put_config_tree "$CONFIG_SRC/$d" "$CONF_DIR/$d" shipped
     else
