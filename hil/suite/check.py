@@ -116,9 +116,19 @@ if case in ("link_bounce", "malformed", "recycle_pi"):
     rows = [(a, b) for a, b in zip(tr, tr[1:]) if a["t_s"] > 0.5 and b["t_s"] < t_stop]
     into_fs = {b["t_s"] for a, b in rows
                if b["cmd_recycle_valve"] >= 0.999 and not a["cmd_recycle_valve"] >= 0.999}
+    # the return from fail-safe takes over from the *measured* valve position (issue 10): the
+    # command steps from the safe opening to where the valve is, which moves nothing; that
+    # step is checked against the valve position (< 2 % of travel), every other one against
+    # the previous command (< 1 %)
+    out_of_fs = {b["t_s"] for a, b in rows
+                 if a["cmd_recycle_valve"] >= 0.999 and b["cmd_recycle_valve"] < 0.999}
     steps_v = [(abs(b["cmd_recycle_valve"] - a["cmd_recycle_valve"]), b["t_s"]) for a, b in rows
-               if b["t_s"] not in into_fs
+               if b["t_s"] not in into_fs and b["t_s"] not in out_of_fs
                and not math.isnan(a["cmd_recycle_valve"]) and not math.isnan(b["cmd_recycle_valve"])]
+    resume = [(abs(b["cmd_recycle_valve"] - b["recycle_valve_position"]), b["t_s"]) for a, b in rows
+              if b["t_s"] in out_of_fs]
+    worst_r = max(resume, default=(0.0, 0.0))
+    check(worst_r[0] < 0.02, f"resume from fail-safe: command {100 * worst_r[0]:.3f} % from the measured valve position at t = {worst_r[1]:.3f} s (< 2 %)")
     worst_v = max(steps_v, default=(0.0, 0.0))
     if into_fs:
         print(f"  (fail-safe entered at t = {', '.join(f'{t:.3f}' for t in sorted(into_fs))} s: that step is the safe state, not a bump)")

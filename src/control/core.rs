@@ -248,6 +248,11 @@ pub struct ControlCore {
     failing_since_s: f64,
     /// Since when inputs have been healthy in fail-safe (exit hysteresis), s; NaN: not.
     healthy_since_s: f64,
+    /// The drive torque the drive reports this cycle (fresh and in range), N·m; NaN if none.
+    reported_torque_nm: f64,
+    /// Whether fail-safe has taken the drive's reported torque as its held torque since the
+    /// report became fresh.
+    failsafe_torque_latched: bool,
     /// The law's own torque of the last computing cycle (repeated by a holding cycle), N·m.
     last_law_torque_nm: f64,
 }
@@ -293,6 +298,8 @@ impl ControlCore {
             law_started: false,
             failing_since_s: f64::NAN,
             healthy_since_s: f64::NAN,
+            reported_torque_nm: f64::NAN,
+            failsafe_torque_latched: false,
             last_law_torque_nm: f64::NAN,
             model,
             config,
@@ -610,10 +617,18 @@ impl ControlCore {
         if self.model.spool.is_some() {
             cmd.set(ActuatorId::CloseCoupledValve, 0.0);
         }
-        cmd.set(
-            ActuatorId::DriveTorque,
-            self.last.get(ActuatorId::DriveTorque),
-        );
+        // the torque held is the one the drive reports delivering while that report is fresh
+        // (a link back up during the fail-safe exit hysteresis must not override the drive's
+        // own governor with a stale command), else the last command
+        // (taken once per fresh report stretch: the drive then follows the held command, and
+        // re-tracking its lagging report would make the command chatter)
+        let held = if self.reported_torque_nm.is_finite() && !self.failsafe_torque_latched {
+            self.failsafe_torque_latched = true;
+            self.reported_torque_nm
+        } else {
+            self.last.get(ActuatorId::DriveTorque)
+        };
+        cmd.set(ActuatorId::DriveTorque, held);
         self.history.push(cmd.get(ActuatorId::DriveTorque));
         self.last = cmd;
         self.passive_output(cmd, meas, validity)
@@ -622,6 +637,14 @@ impl ControlCore {
     /// Run one cycle at time `t_s`.
     pub fn cycle(&mut self, t_s: f64, raw: &RawSensors, op: &OperatorInputs) -> CycleOutput {
         let validity = self.settings.supervisor.check(raw);
+        self.reported_torque_nm = if validity.ok(SensorId::DriveTorque) {
+            raw.values.get(SensorId::DriveTorque)
+        } else {
+            f64::NAN
+        };
+        if !self.reported_torque_nm.is_finite() || self.mode != Mode::FailSafe {
+            self.failsafe_torque_latched = false;
+        }
         // speed is essential when the controller runs the speed loop or the law reads it
         // (law registry); a recycle-pi skid whose drive keeps its own speed may not bind it
         let speed_needed = self.model.owns_drive

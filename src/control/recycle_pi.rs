@@ -307,6 +307,9 @@ pub struct RecyclePi {
     trip_left_s: f64,
     /// Consecutive samples the trip condition held.
     trip_agree: u32,
+    /// Whether the closing-rate limit held the valve above the PI's demand last cycle (the
+    /// law is closing the valve).
+    closing: bool,
     /// Running mean absolute deviation of the surge margin from its filtered value (noise).
     margin_noise: f64,
     /// The two previous raw margins (for the noise estimate).
@@ -438,6 +441,7 @@ impl RecyclePi {
             margin_f2_last: f64::NAN,
             trip_left_s: 0.0,
             trip_agree: 0,
+            closing: false,
             margin_noise: 0.0,
             margin_prev: [f64::NAN; 2],
             omega_f: f64::NAN,
@@ -591,8 +595,13 @@ impl RecyclePi {
     /// (that closing is an approach as well, and must not re-trip). A fast approach from
     /// far right (a throttle slam) must trip before the control line: seconds-long valve
     /// strokes cannot catch it there.
+    ///
+    /// Never while the closing-rate limit is closing the valve: that approach is the law's
+    /// own doing (after a trip, a fail-safe resume or a load change); the PI stops closing as
+    /// soon as the point reaches the line, and the level trip stays armed throughout.
     fn approach_armed(&self, z: f64) -> bool {
-        z >= 0.0 || (self.trip_left_s <= 0.0 && self.u_last <= self.limits().0 + 1e-9)
+        !self.closing
+            && (z >= 0.0 || (self.trip_left_s <= 0.0 && self.u_last <= self.limits().0 + 1e-9))
     }
 
     fn trip_margin_at(&self, ratio: f64) -> f64 {
@@ -821,6 +830,7 @@ impl SurgeLaw for RecyclePi {
             integ_next
         };
         self.u_last = u;
+        self.closing = u > demand;
 
         if event.is_none() && self.shift_pending {
             self.shift_pending = false;
