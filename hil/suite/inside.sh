@@ -71,6 +71,9 @@ run_case() {
     echo "case $name: starting (+$((t0 - t_suite)) s)" >&2
     export ANTISURGE_EVENT_LOG__PATH="$PWD/$dir/events.jsonl"
     export ANTISURGE_STATUS__STATS_FILE="$PWD/$dir/controller_stats.json"
+    # each case its own persistent state: surge counter and safety-on shifts kept by an
+    # earlier case (or by the test suite in ./out/state) would move this case's control line
+    export ANTISURGE_STATUS__STATE_DIR="$PWD/$dir/state"
     "$bin" plant --config "$cfg" --out "$dir/plant" >"$dir/plant.log" 2>&1 &
     local plant=$!
     sleep 0.5
@@ -101,7 +104,7 @@ run_case() {
         wait_bounded "$p" "$stop_limit_s" "the $action action ($name)" "$dir/action.log" || true
     done
     [[ ! -f $tmp_candump ]] || mv "$tmp_candump" "$dir/candump.log"
-    unset ANTISURGE_EVENT_LOG__PATH ANTISURGE_STATUS__STATS_FILE
+    unset ANTISURGE_EVENT_LOG__PATH ANTISURGE_STATUS__STATS_FILE ANTISURGE_STATUS__STATE_DIR
     echo "case $name: scenario over after $((SECONDS - t0)) s" >&2
     if [[ $rc -ne 0 ]]; then
         echo "FAIL $name: plant exit $rc"; tail -n 20 "$dir/plant.log" "$dir/run.log"; return 1

@@ -27,6 +27,10 @@ pub fn spawn(dir: &Path, name: &str, args: &[&str]) -> Child {
         .args(args)
         .env("ANTISURGE_LOG", "info")
         .env_remove("LOGS_DIRECTORY")
+        // every test keeps its own persistent state (surge counter, safety-on shifts): the
+        // default ./out/state is shared by every run from the checkout
+        .env_remove("STATE_DIRECTORY")
+        .env("ANTISURGE_STATUS__STATE_DIR", dir.join("state"))
         .stdout(Stdio::from(log.try_clone().expect("clone")))
         .stderr(Stdio::from(log))
         .spawn()
