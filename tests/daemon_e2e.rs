@@ -14,35 +14,7 @@ fn modbus_config(dir: &Path, port: u16, scenario: &str) -> std::path::PathBuf {
         r#"
 [plant]
 file = "{plant}"
-[control]
-law = "recycle-pi"
-[cycle]
-rate_hz = 50.0
-lock_memory = false
-[inputs.p_suction]
-min = 1.0e4
-max = 1.2e7
-timeout_ms = 200.0
-[inputs.p_discharge]
-min = 1.0e4
-max = 1.2e7
-timeout_ms = 200.0
-[inputs.shaft_speed]
-min = 0.0
-max = 2000.0
-timeout_ms = 200.0
-[inputs.orifice_dp]
-min = -1.0e5
-max = 1.0e6
-timeout_ms = 200.0
-[inputs.recycle_valve_position]
-min = -0.05
-max = 1.05
-timeout_ms = 200.0
-[inputs.throttle_position]
-min = -0.05
-max = 1.05
-timeout_ms = 200.0
+{recycle_pi_50hz}
 [bus]
 transport = "field"
 signal_map = "{map}"
@@ -63,6 +35,7 @@ heartbeat_register = {{ unit_id = 1, address = 300 }}
 [status]
 log_interval_s = 5.0
 "#,
+        recycle_pi_50hz = RECYCLE_PI_50HZ,
         plant = shipped("plants/kvangardsnes2009_recycle.toml"),
         map = shipped("signals_modbus.toml"),
         events = dir.join("events.jsonl").display(),

@@ -6,6 +6,38 @@ use std::path::{Path, PathBuf};
 use std::process::{Child, Command, Stdio};
 use std::time::{Duration, Instant};
 
+/// The controller part of a 50-Hz recycle-pi daemon config on the kvangardsnes2009 skid
+/// over a field bus: law, cycle and input supervision (200 ms freshness for a 50 Hz poll).
+pub const RECYCLE_PI_50HZ: &str = r#"[control]
+law = "recycle-pi"
+[cycle]
+rate_hz = 50.0
+lock_memory = false
+[inputs.p_suction]
+min = 1.0e4
+max = 1.2e7
+timeout_ms = 200.0
+[inputs.p_discharge]
+min = 1.0e4
+max = 1.2e7
+timeout_ms = 200.0
+[inputs.shaft_speed]
+min = 0.0
+max = 2000.0
+timeout_ms = 200.0
+[inputs.orifice_dp]
+min = -1.0e5
+max = 1.0e6
+timeout_ms = 200.0
+[inputs.recycle_valve_position]
+min = -0.05
+max = 1.05
+timeout_ms = 200.0
+[inputs.throttle_position]
+min = -0.05
+max = 1.05
+timeout_ms = 200.0"#;
+
 /// A free TCP port on 127.0.0.1 (bound, then released).
 pub fn free_port() -> u16 {
     std::net::TcpListener::bind("127.0.0.1:0")
