@@ -1,7 +1,8 @@
 //! Modbus register codec: a binding drawn from the input (unit, table, address, data type,
 //! byte and word order, scale, offset) decodes arbitrary register words and encodes
-//! arbitrary values. Invalid bindings are refused by `validate`; valid ones must never
-//! panic, and an encoded in-range integer value must decode to itself within resolution.
+//! arbitrary values. Invalid or implausible bindings are refused by `validate` (as config
+//! refuses them); valid ones must never panic, and an encoded in-range value must decode to
+//! itself within half a resolution plus the f64 rounding of `raw × scale + offset`.
 #![no_main]
 use antisurge::io::modbus::register::{
     ByteOrder, DataType, EncodeOutcome, RegisterBinding, RegisterTable, WordOrder,
@@ -64,7 +65,10 @@ fuzz_target!(|data: &[u8]| {
         let _ = b.encode(value, &mut out[..n.saturating_sub(usize::from(rest[0] & 1))]);
         if let Ok(EncodeOutcome::InRange) = b.encode(value, &mut out[..n]) {
             let back = b.decode(&out[..n]).expect("decode of an encoded value");
-            let tol = b.resolution(value).abs() + 1e-9 * value.abs();
+            // the documented bound (half a resolution plus the f64 rounding of
+            // `raw × scale + offset`, tests/fuzz_regressions.rs) with a factor 2 of margin
+            let tol = b.resolution(value).abs()
+                + 8.0 * f64::EPSILON * (b.offset.abs() + value.abs());
             assert!(
                 !value.is_finite() || !back.is_finite() || (back - value).abs() <= tol || !tol.is_finite(),
                 "{b:?}: {value} encoded and decoded to {back}"

@@ -1,13 +1,17 @@
-//! Plant file loading: any text through `PlantDescription::load` (TOML, schema, model
-//! validation, compressor map fit). Must return a plant or a located error, never panic.
+//! Plant file loading: any text through `PlantDescription::from_text` (TOML, schema, model
+//! validation, compressor map fit), from memory (the same checks as `load`). Must return a
+//! plant or a located error, never panic.
 #![no_main]
-#[path = "../scratch.rs"]
-mod scratch;
+use std::path::Path;
 
 use antisurge::plant::file::PlantDescription;
 use libfuzzer_sys::fuzz_target;
 
 fuzz_target!(|data: &[u8]| {
-    let path = scratch::write("plant.toml", data);
-    let _ = PlantDescription::load(&path);
+    let Ok(text) = std::str::from_utf8(data) else {
+        return;
+    };
+    // a relative map table is looked up beside the file: the repository's config/plants/
+    let path = Path::new(concat!(env!("CARGO_MANIFEST_DIR"), "/../config/plants/fuzz.toml"));
+    let _ = PlantDescription::from_text(text, path);
 });

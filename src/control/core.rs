@@ -255,6 +255,9 @@ pub struct ControlCore {
     failsafe_torque_latched: bool,
     /// The law's own torque of the last computing cycle (repeated by a holding cycle), N·m.
     last_law_torque_nm: f64,
+    /// The law was rebuilt by a reload while it ran (same law, new settings): its restart
+    /// takes over the extra torque it applied last instead of starting from none.
+    reload_restart: bool,
 }
 
 impl ControlCore {
@@ -301,6 +304,7 @@ impl ControlCore {
             reported_torque_nm: f64::NAN,
             failsafe_torque_latched: false,
             last_law_torque_nm: f64::NAN,
+            reload_restart: false,
             model,
             config,
             settings,
@@ -341,6 +345,7 @@ impl ControlCore {
         self.law = Law::new(law, &self.config, &self.model)?;
         self.requested_law = law;
         self.law_started = false;
+        self.reload_restart = false;
         Ok(())
     }
 
@@ -364,6 +369,7 @@ impl ControlCore {
             self.d_suction = Differentiator::new(config.derivative_filter_hz);
             self.d_discharge = Differentiator::new(config.derivative_filter_hz);
         }
+        self.reload_restart = self.law_started && !carried;
         self.law = law;
         self.config = config;
         self.law_started = carried;
@@ -411,6 +417,7 @@ impl ControlCore {
         std::mem::swap(&mut self.law, &mut r.law);
         std::mem::swap(&mut self.config, &mut r.config);
         self.requested_law = self.law.id();
+        self.reload_restart = same_law && self.law_started && !carried;
         self.law_started = same_law && carried;
         r
     }
@@ -442,6 +449,7 @@ impl ControlCore {
         }
         if !self.auto_requested && auto {
             self.law_started = false;
+            self.reload_restart = false;
         }
         self.auto_requested = auto;
     }
@@ -604,6 +612,7 @@ impl ControlCore {
         // recycle valve to its safe opening, thrust to centre, CCV neutral, torque held
         self.mode = Mode::FailSafe;
         self.law_started = false;
+        self.reload_restart = false;
         let mut cmd = ActuatorCommands::default();
         if self.model.has_recycle_valve() {
             cmd.set(
@@ -776,11 +785,20 @@ impl ControlCore {
         match self.mode {
             Mode::Auto => {
                 if !self.law_started {
-                    // bumpless: the law's integrators start from the outputs applied now
+                    // bumpless: the law's integrators start from the outputs applied now;
+                    // its torque is extra torque on top of the speed loop: none from another
+                    // law or mode, the running law's own after a reload of its settings (a
+                    // drive-torque gain change stepped 16 % of the drive's range)
                     let mut cur = current;
-                    cur.set(ActuatorId::DriveTorque, 0.0); // extra torque on top of the speed loop
+                    let extra = if self.reload_restart && self.last_law_torque_nm.is_finite() {
+                        self.last_law_torque_nm
+                    } else {
+                        0.0
+                    };
+                    cur.set(ActuatorId::DriveTorque, extra);
                     self.law.start(&inputs, &cur);
                     self.law_started = true;
+                    self.reload_restart = false;
                 }
                 let out = self.law.update(&inputs, dt);
                 cmd = out.commands;

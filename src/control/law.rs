@@ -568,6 +568,20 @@ impl Law {
     pub fn take_over_from(&mut self, running: &Law) -> bool {
         match (self, running) {
             (Law::RecyclePi(new), Law::RecyclePi(old)) => new.take_over_from(old),
+            // the spool laws keep their torque reference and trim, and are then started
+            // bumplessly from the applied outputs (false: the caller starts them)
+            (Law::Ccv(new), Law::Ccv(old)) => {
+                new.take_over_from(old);
+                false
+            }
+            (Law::ThrottleBackstep(new), Law::ThrottleBackstep(old)) => {
+                new.take_over_from(old);
+                false
+            }
+            (Law::Robust(new), Law::Robust(old)) => {
+                new.take_over_from(old);
+                false
+            }
             _ => false,
         }
     }

@@ -448,6 +448,8 @@ struct Common {
     /// Bumpless offsets: drive torque (N·m), the law's valve (CCV ψ units or throttle opening).
     offset_torque_nm: f64,
     offset_valve: f64,
+    /// τ_ref and the trim were taken over from the running law (a reload): `start` keeps them.
+    taken_over: bool,
 }
 
 impl Common {
@@ -465,6 +467,7 @@ impl Common {
             trim_nm: 0.0,
             offset_torque_nm: 0.0,
             offset_valve: 0.0,
+            taken_over: false,
         }
     }
 
@@ -553,11 +556,45 @@ impl Common {
     /// instant: take τ_ref = τ⁰ (the speed loop is taken to hold the eq. 7 torque of the operating
     /// point in force now), reset the trim, and set the offsets so that the first output is the
     /// current one (extra torque 0, valve `current_valve`).
-    fn start(&mut self, fr: &Frame, u1: f64, raw_valve: f64, current_valve: f64) {
-        self.tau_ref = fr.tau0;
-        self.trim_nm = 0.0;
-        self.offset_torque_nm = -self.raw_torque_nm(fr, u1);
+    /// Bumpless start: the offsets make the first outputs equal the applied extra torque
+    /// `current_torque_nm` (N·m; 0 from another law) and valve. A fresh law takes τ_ref from
+    /// the operating point and starts the trim at 0; one that took over a running law's state
+    /// ([`take_over`](Self::take_over)) keeps both.
+    fn start(
+        &mut self,
+        fr: &Frame,
+        u1: f64,
+        raw_valve: f64,
+        current_valve: f64,
+        current_torque_nm: f64,
+    ) {
+        if !self.taken_over {
+            self.tau_ref = fr.tau0;
+            self.trim_nm = 0.0;
+        }
+        self.taken_over = false;
+        let applied = if current_torque_nm.is_finite() {
+            current_torque_nm
+        } else {
+            0.0
+        };
+        self.offset_torque_nm = applied - self.raw_torque_nm(fr, u1);
         self.offset_valve = current_valve - raw_valve;
+    }
+
+    /// A reload of the running law (new settings): keep the torque reference τ_ref (the eq. 7
+    /// schedule would otherwise restart from the operating point of the reload and its torque
+    /// decay away with the offset), the integral trim and the equilibrium cache; `start` then
+    /// re-bases the offsets, so the gain change moves no output in its first cycle.
+    fn take_over(&mut self, running: &Common) {
+        if running.tau_ref.is_finite() {
+            self.tau_ref = running.tau_ref;
+            let (lo, hi) = self.torque_limits_nm();
+            self.trim_nm = running.trim_nm.clamp(lo, hi);
+            self.key = running.key;
+            self.eq = running.eq;
+            self.taken_over = true;
+        }
     }
 
     /// Final torque command: raw + offset, limited; then advance the trim (anti-windup) and the
@@ -600,6 +637,16 @@ fn ccv_nominal(sp: &Spool, fr: &Frame, k: f64) -> f64 {
 
 /// CCV current output: NaN (not driven) means the valve sits at its neutral 0.
 #[inline]
+/// The extra drive torque applied now (N·m, on top of the speed loop), 0 if none.
+fn current_torque(current: &ActuatorCommands) -> f64 {
+    let t = current.get(ActuatorId::DriveTorque);
+    if t.is_finite() {
+        t
+    } else {
+        0.0
+    }
+}
+
 fn current_ccv(current: &ActuatorCommands) -> f64 {
     let c = current.get(ActuatorId::CloseCoupledValve);
     if c.is_finite() {
@@ -622,6 +669,12 @@ pub struct Ccv {
 }
 
 impl Ccv {
+    /// A reload of the running law: take over its torque reference, trim and equilibrium
+    /// cache (see `Common::take_over`); the core still starts it bumplessly.
+    pub(crate) fn take_over_from(&mut self, running: &Ccv) {
+        self.c.take_over(&running.c);
+    }
+
     /// Build for a machine.
     pub fn new(cfg: &CcvConfig, model: &ControlModel) -> Result<Self, LawError> {
         let sp = Spool::from_model(LawId::Ccv, model)?;
@@ -652,7 +705,8 @@ impl SurgeLaw for Ccv {
     fn start(&mut self, inputs: &LawInputs<'_>, current: &ActuatorCommands) {
         if let Some(fr) = self.c.frame(inputs) {
             let raw = self.raw_ccv(&fr);
-            self.c.start(&fr, 0.0, raw, current_ccv(current));
+            self.c
+                .start(&fr, 0.0, raw, current_ccv(current), current_torque(current));
         }
     }
 
@@ -663,7 +717,7 @@ impl SurgeLaw for Ccv {
         if !self.c.tau_ref.is_finite() {
             // started without measurements: start now
             let raw = self.raw_ccv(&fr);
-            self.c.start(&fr, 0.0, raw, 0.0);
+            self.c.start(&fr, 0.0, raw, 0.0, 0.0);
         }
         let sp = self.c.sp;
         let u2 = (self.raw_ccv(&fr) + self.c.offset_valve).clamp(-sp.ccv_max, sp.ccv_max);
@@ -704,6 +758,12 @@ struct Backstep {
 }
 
 impl ThrottleBackstep {
+    /// A reload of the running law: take over its torque reference, trim and equilibrium
+    /// cache (see `Common::take_over`); the core still starts it bumplessly.
+    pub(crate) fn take_over_from(&mut self, running: &ThrottleBackstep) {
+        self.c.take_over(&running.c);
+    }
+
     /// Build for a machine.
     pub fn new(cfg: &ThrottleBackstepConfig, model: &ControlModel) -> Result<Self, LawError> {
         let law = LawId::ThrottleBackstep;
@@ -777,7 +837,7 @@ impl SurgeLaw for ThrottleBackstep {
             let raw = self.law(&fr).opening;
             let cur = current.get(ActuatorId::Throttle);
             let cur = if cur.is_finite() { cur } else { raw };
-            self.c.start(&fr, 0.0, raw, cur);
+            self.c.start(&fr, 0.0, raw, cur, current_torque(current));
         }
     }
 
@@ -789,7 +849,7 @@ impl SurgeLaw for ThrottleBackstep {
         if !self.c.tau_ref.is_finite() {
             let cur = inputs.m.throttle_position;
             let cur = if cur.is_finite() { cur } else { b.opening };
-            self.c.start(&fr, 0.0, b.opening, cur);
+            self.c.start(&fr, 0.0, b.opening, cur, 0.0);
         }
         let opening = (b.opening + self.c.offset_valve).clamp(0.0, 1.0);
         let torque = self.c.torque_out(&fr, 0.0, dt_s); // u₁ = 0 (Theorem 2)
@@ -823,6 +883,12 @@ pub struct Robust {
 }
 
 impl Robust {
+    /// A reload of the running law: take over its torque reference, trim and equilibrium
+    /// cache (see `Common::take_over`); the core still starts it bumplessly.
+    pub(crate) fn take_over_from(&mut self, running: &Robust) {
+        self.c.take_over(&running.c);
+    }
+
     /// Build for a machine.
     pub fn new(cfg: &RobustConfig, model: &ControlModel) -> Result<Self, LawError> {
         let law = LawId::Robust;
@@ -880,7 +946,8 @@ impl SurgeLaw for Robust {
     fn start(&mut self, inputs: &LawInputs<'_>, current: &ActuatorCommands) {
         if let Some(fr) = self.c.frame(inputs) {
             let (u1, u2) = self.law(&fr);
-            self.c.start(&fr, u1, u2, current_ccv(current));
+            self.c
+                .start(&fr, u1, u2, current_ccv(current), current_torque(current));
         }
     }
 
@@ -890,7 +957,7 @@ impl SurgeLaw for Robust {
         };
         let (u1, u2) = self.law(&fr);
         if !self.c.tau_ref.is_finite() {
-            self.c.start(&fr, u1, u2, 0.0);
+            self.c.start(&fr, u1, u2, 0.0, 0.0);
         }
         let sp = self.c.sp;
         let u2 = (u2 + self.c.offset_valve).clamp(-sp.ccv_max, sp.ccv_max);

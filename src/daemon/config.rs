@@ -396,6 +396,11 @@ fn read_layer(path: &Path) -> Result<Layer, FileError> {
         message: format!("cannot read: {e}"),
         hint: Some("check the path and that the antisurge user may read it".into()),
     })?;
+    layer_of_text(path, text)
+}
+
+/// A layer from text already read (`path` names it in messages).
+fn layer_of_text(path: &Path, text: String) -> Result<Layer, FileError> {
     let table: toml::Table =
         crate::config::toml_file::parse(&text, path).map_err(|e| with_line_key(e, &text))?;
     Ok(Layer {
@@ -785,7 +790,16 @@ pub fn output_path(p: &Path) -> PathBuf {
 
 /// Read the layers of `main`: the file, `conf.d/*.toml`, then the environment `vars`.
 pub fn read_layers(main: &Path, vars: &[(String, String)]) -> Result<Vec<Layer>, FileError> {
-    let mut layers = vec![read_layer(main)?];
+    read_layers_after(read_layer(main)?, main, vars)
+}
+
+/// The layers after the main file's `first`: `conf.d/*.toml`, then the environment `vars`.
+fn read_layers_after(
+    first: Layer,
+    main: &Path,
+    vars: &[(String, String)],
+) -> Result<Vec<Layer>, FileError> {
+    let mut layers = vec![first];
     let dir = conf_d(main);
     if dir.is_dir() {
         let mut files: Vec<PathBuf> = std::fs::read_dir(&dir)
@@ -982,6 +996,23 @@ fn err(e: FileError) -> Vec<Problem> {
 /// Load with an explicit environment (tests).
 pub fn load_with_env(main: &Path, vars: &[(String, String)]) -> Result<Loaded, Vec<Problem>> {
     let layers = read_layers(main, vars).map_err(err)?;
+    load_layers(main, layers)
+}
+
+/// Load with the main file's `text` given instead of read from `main` (`main` still names it
+/// and places `conf.d/` and relative paths). The fuzz target `config_layers` parses from
+/// memory through here: the same checks as [`load_with_env`], no file per input.
+pub fn load_text_with_env(
+    main: &Path,
+    text: &str,
+    vars: &[(String, String)],
+) -> Result<Loaded, Vec<Problem>> {
+    let first = layer_of_text(main, text.to_string()).map_err(err)?;
+    let layers = read_layers_after(first, main, vars).map_err(err)?;
+    load_layers(main, layers)
+}
+
+fn load_layers(main: &Path, layers: Vec<Layer>) -> Result<Loaded, Vec<Problem>> {
     let (config, merged) = merge(&layers).map_err(err)?;
     let at = |key: &str, msg: String| locate(&layers, key, msg);
 

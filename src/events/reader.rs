@@ -417,86 +417,135 @@ pub fn read_files(
             Err(e) => return Err(EventLogError::io(path, "open for reading", e)),
         };
         let mut reader = BufReader::with_capacity(64 * 1024, file);
-        let mut line_no = 0u64;
-        loop {
-            buf.clear();
-            // at most MAX_READ_LINE_BYTES per line are kept in memory (a 1 GiB line cost 1 GB)
-            let n = (&mut reader)
-                .take(MAX_READ_LINE_BYTES as u64 + 1)
-                .read_until(b'\n', &mut buf)
-                .map_err(|e| EventLogError::io(path, "read", e))?;
-            if n == 0 {
-                break;
-            }
-            line_no += 1;
-            if n > MAX_READ_LINE_BYTES && buf.last() != Some(&b'\n') {
-                let skipped =
-                    skip_line(&mut reader).map_err(|e| EventLogError::io(path, "read", e))?;
-                let total = n as u64 + skipped;
+        read_records(
+            &mut reader,
+            path,
+            newest,
+            filter,
+            &mut stats,
+            &mut buf,
+            &mut on_record,
+        )?;
+    }
+    Ok(stats)
+}
+
+/// Read one log's `bytes` from memory as the newest (only) file of a set, `path` naming it
+/// in reports: the same line handling as [`read_files`] (the fuzz target `event_reader`
+/// reads from memory through here, no file per input).
+pub fn read_bytes(
+    bytes: &[u8],
+    path: &Path,
+    filter: &EventFilter,
+    mut on_record: impl FnMut(&Path, &Record) -> Result<(), EventLogError>,
+) -> Result<ReadStats, EventLogError> {
+    let mut stats = ReadStats {
+        files: vec![path.to_path_buf()],
+        ..ReadStats::default()
+    };
+    let mut buf = Vec::with_capacity(1024);
+    let mut reader = bytes;
+    read_records(
+        &mut reader,
+        path,
+        true,
+        filter,
+        &mut stats,
+        &mut buf,
+        &mut on_record,
+    )?;
+    Ok(stats)
+}
+
+/// The records of one file from `reader` (see [`read_files`]; `newest`: its last line may
+/// be a torn tail).
+fn read_records<R: BufRead>(
+    reader: &mut R,
+    path: &Path,
+    newest: bool,
+    filter: &EventFilter,
+    stats: &mut ReadStats,
+    buf: &mut Vec<u8>,
+    on_record: &mut impl FnMut(&Path, &Record) -> Result<(), EventLogError>,
+) -> Result<(), EventLogError> {
+    let mut line_no = 0u64;
+    loop {
+        buf.clear();
+        // at most MAX_READ_LINE_BYTES per line are kept in memory (a 1 GiB line cost 1 GB)
+        let n = (&mut *reader)
+            .take(MAX_READ_LINE_BYTES as u64 + 1)
+            .read_until(b'\n', buf)
+            .map_err(|e| EventLogError::io(path, "read", e))?;
+        if n == 0 {
+            break;
+        }
+        line_no += 1;
+        if n > MAX_READ_LINE_BYTES && buf.last() != Some(&b'\n') {
+            let skipped = skip_line(reader).map_err(|e| EventLogError::io(path, "read", e))?;
+            let total = n as u64 + skipped;
+            stats.note_invalid(
+                path,
+                line_no,
+                &format!("line of {total} bytes, longer than {MAX_READ_LINE_BYTES}: skipped"),
+                &buf[..64],
+            );
+            continue;
+        }
+        let terminated = buf.last() == Some(&b'\n');
+        let content = if terminated { &buf[..n - 1] } else { &buf[..] };
+        let last_line = !terminated
+            || reader
+                .fill_buf()
+                .map_err(|e| EventLogError::io(path, "read", e))?
+                .is_empty();
+        let parsed = parse_line(content, line_no);
+        if newest && last_line && (!terminated || parsed.is_err()) {
+            stats.torn_tail = Some(TornTail {
+                file: path.to_path_buf(),
+                line: line_no,
+                bytes: content.len() as u64,
+                terminated,
+            });
+            continue;
+        }
+        let record = match (parsed, terminated) {
+            (Ok(r), true) => r,
+            (Ok(_), false) => {
                 stats.note_invalid(
                     path,
                     line_no,
-                    &format!("line of {total} bytes, longer than {MAX_READ_LINE_BYTES}: skipped"),
-                    &buf[..64],
+                    "no newline at end of a rotated file",
+                    content,
                 );
                 continue;
             }
-            let terminated = buf.last() == Some(&b'\n');
-            let content = if terminated { &buf[..n - 1] } else { &buf[..] };
-            let last_line = !terminated
-                || reader
-                    .fill_buf()
-                    .map_err(|e| EventLogError::io(path, "read", e))?
-                    .is_empty();
-            let parsed = parse_line(content, line_no);
-            if newest && last_line && (!terminated || parsed.is_err()) {
-                stats.torn_tail = Some(TornTail {
-                    file: path.clone(),
-                    line: line_no,
-                    bytes: content.len() as u64,
-                    terminated,
-                });
+            (Err(message), _) => {
+                stats.note_invalid(path, line_no, &message, content);
                 continue;
             }
-            let record = match (parsed, terminated) {
-                (Ok(r), true) => r,
-                (Ok(_), false) => {
-                    stats.note_invalid(
-                        path,
-                        line_no,
-                        "no newline at end of a rotated file",
-                        content,
-                    );
-                    continue;
+        };
+        stats.records += 1;
+        if let Some(prev) = stats.last_seq {
+            if record.seq != prev.wrapping_add(1) {
+                stats.seq_breaks_total += 1;
+                if stats.seq_breaks.len() < MAX_REPORTED {
+                    stats.seq_breaks.push(SeqBreak {
+                        file: path.to_path_buf(),
+                        line: line_no,
+                        previous: prev,
+                        found: record.seq,
+                    });
                 }
-                (Err(message), _) => {
-                    stats.note_invalid(path, line_no, &message, content);
-                    continue;
-                }
-            };
-            stats.records += 1;
-            if let Some(prev) = stats.last_seq {
-                if record.seq != prev.wrapping_add(1) {
-                    stats.seq_breaks_total += 1;
-                    if stats.seq_breaks.len() < MAX_REPORTED {
-                        stats.seq_breaks.push(SeqBreak {
-                            file: path.clone(),
-                            line: line_no,
-                            previous: prev,
-                            found: record.seq,
-                        });
-                    }
-                }
-            }
-            stats.first_seq.get_or_insert(record.seq);
-            stats.last_seq = Some(record.seq);
-            if filter.matches(&record) {
-                stats.matched += 1;
-                on_record(path, &record)?;
             }
         }
+        stats.first_seq.get_or_insert(record.seq);
+        stats.last_seq = Some(record.seq);
+        if filter.matches(&record) {
+            stats.matched += 1;
+            on_record(path, &record)?;
+        }
     }
-    Ok(stats)
+    Ok(())
 }
 
 impl ReadStats {

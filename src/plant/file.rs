@@ -125,6 +125,18 @@ impl PlantDescription {
     /// Load and validate a plant file; errors name file, key and line.
     pub fn load(path: &Path) -> Result<PlantDescription, FileError> {
         let (file, text): (PlantFile, String) = crate::config::toml_file::load(path)?;
+        Self::from_file(file, path, &text)
+    }
+
+    /// Parse and validate plant-file `text` already in memory; `path` names it in messages
+    /// and places a relative map table. Same checks as [`load`](Self::load) (the fuzz
+    /// target `plant_file` parses from memory through here).
+    pub fn from_text(text: &str, path: &Path) -> Result<PlantDescription, FileError> {
+        let file: PlantFile = crate::config::toml_file::parse(text, path)?;
+        Self::from_file(file, path, text)
+    }
+
+    fn from_file(file: PlantFile, path: &Path, text: &str) -> Result<PlantDescription, FileError> {
         let at = |key: &str, msg: String| FileError::at_key(path, &text, key, msg);
         let section_present = match file.model {
             ModelKind::PlenumDuct => file.plenum_duct.is_some(),

@@ -223,6 +223,13 @@ impl Scenario {
         Self::from_file(file, path, &text)
     }
 
+    /// Parse and validate scenario `text` already in memory; `path` names it in messages.
+    /// Same checks as [`load`](Self::load) (the fuzz target `scenario_file` uses it).
+    pub fn from_text(text: &str, path: &Path) -> Result<Scenario, FileError> {
+        let file: ScenarioFile = crate::config::toml_file::parse(text, path)?;
+        Self::from_file(file, path, text)
+    }
+
     /// Validate a parsed file (`text` is used to locate keys in messages).
     ///
     /// `duration_s` is bounded by [`MAX_DURATION_S`]: the trace's memory follows from it.

@@ -300,12 +300,15 @@ pub enum DecodeError {
 /// A binding that cannot be used.
 #[derive(Debug, Clone, Copy, PartialEq, Error)]
 pub enum BindingError {
-    /// `scale` is zero, NaN, infinite or subnormal (below 2.2e-308: its products lose the
-    /// precision a round trip needs; found by the fuzz target `modbus_register_codec`).
-    #[error("scale must be finite, non-zero and at least 2.2e-308 in magnitude, got {0}")]
+    /// `scale` is NaN, infinite or outside the plausible magnitudes
+    /// [`MIN_SCALE`]..=[`MAX_SCALE`] (a subnormal scale broke the round trip, and a scale of
+    /// 6.3e-299 left only the rounding of its products: fuzz target `modbus_register_codec`).
+    #[error(
+        "scale must be finite with a magnitude in 1e-12..=1e12 (units per raw count), got {0}"
+    )]
     BadScale(f64),
-    /// `offset` is NaN or infinite.
-    #[error("offset must be finite, got {0}")]
+    /// `offset` is NaN, infinite or beyond ±[`MAX_OFFSET`].
+    #[error("offset must be finite and within ±1e12 (SI units), got {0}")]
     BadOffset(f64),
     /// The binding runs past protocol address 65535.
     #[error("{count} registers starting at {address} run past address 65535")]
@@ -316,6 +319,15 @@ pub enum BindingError {
         count: u16,
     },
 }
+
+/// Smallest plausible `|scale|` (units per raw count). Field devices scale by powers of ten
+/// around 1 (0.001 bar per count is 100 Pa); 1e-12 leaves six orders of margin and keeps every
+/// product of a round trip far from the subnormal range.
+pub const MIN_SCALE: f64 = 1e-12;
+/// Largest plausible `|scale|` (units per raw count).
+pub const MAX_SCALE: f64 = 1e12;
+/// Largest plausible `|offset|`, SI units (1e12 Pa is 10 million bar).
+pub const MAX_OFFSET: f64 = 1e12;
 
 impl RegisterBinding {
     /// A binding with standard (big/big) order, scale 1 and offset 0.
@@ -360,10 +372,10 @@ impl RegisterBinding {
 
     /// Check scale, offset and address range.
     pub fn validate(&self) -> Result<(), BindingError> {
-        if !self.scale.is_normal() {
+        if !(MIN_SCALE..=MAX_SCALE).contains(&self.scale.abs()) {
             return Err(BindingError::BadScale(self.scale));
         }
-        if !self.offset.is_finite() {
+        if !(self.offset.abs() <= MAX_OFFSET) {
             return Err(BindingError::BadOffset(self.offset));
         }
         if self.end_address() > 1 << 16 {
@@ -379,7 +391,9 @@ impl RegisterBinding {
     ///
     /// For integer types this is `|scale|`; for float types it is one unit in the last place
     /// of the raw value, times `|scale|`. A round trip through [`encode`](Self::encode) and
-    /// [`decode`](Self::decode) is exact to within half of this (plus f64 rounding).
+    /// [`decode`](Self::decode) is exact to within half of this plus the f64 rounding of
+    /// `raw × scale + offset` (a few ulp of `|offset| + |value|`: a small value read through a
+    /// large offset keeps only the offset's precision).
     pub fn resolution(&self, value: f64) -> f64 {
         let scale = self.scale.abs();
         let raw = ((value - self.offset) / self.scale).abs();
@@ -796,6 +810,21 @@ mod tests {
         ));
         assert!(matches!(
             ok.with_scaling(1.0, f64::NAN).validate(),
+            Err(BindingError::BadOffset(_))
+        ));
+        // plausibility bounds: inclusive at the limits, either sign
+        for s in [MIN_SCALE, -MIN_SCALE, MAX_SCALE, -MAX_SCALE, 0.01, -1e5] {
+            assert_eq!(ok.with_scaling(s, 0.0).validate(), Ok(()), "{s}");
+        }
+        for s in [MIN_SCALE / 2.0, 6.3e-299, MAX_SCALE * 2.0, -1e300] {
+            assert_eq!(
+                ok.with_scaling(s, 0.0).validate(),
+                Err(BindingError::BadScale(s))
+            );
+        }
+        assert_eq!(ok.with_scaling(1.0, -MAX_OFFSET).validate(), Ok(()));
+        assert!(matches!(
+            ok.with_scaling(1.0, 2e12).validate(),
             Err(BindingError::BadOffset(_))
         ));
     }
