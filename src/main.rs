@@ -54,6 +54,11 @@ enum Command {
 }
 
 fn main() -> std::process::ExitCode {
+    // a panic repeated per request or per cycle must not flood the journal (issue 12)
+    antisurge::runtime::panic_log::install(
+        antisurge::runtime::panic_log::MAX_REPORTS_PER_WINDOW,
+        antisurge::runtime::panic_log::REPORT_WINDOW,
+    );
     let cli = Cli::parse();
     let result = match cli.command {
         Some(Command::Sim(args)) => cli::sim::run(&args),
