@@ -137,7 +137,7 @@ impl PlantDescription {
     }
 
     fn from_file(file: PlantFile, path: &Path, text: &str) -> Result<PlantDescription, FileError> {
-        let at = |key: &str, msg: String| FileError::at_key(path, &text, key, msg);
+        let at = |key: &str, msg: String| FileError::at_key(path, text, key, msg);
         let section_present = match file.model {
             ModelKind::PlenumDuct => file.plenum_duct.is_some(),
             ModelKind::RecycleSystem => file.recycle_system.is_some(),

@@ -375,7 +375,7 @@ impl RegisterBinding {
         if !(MIN_SCALE..=MAX_SCALE).contains(&self.scale.abs()) {
             return Err(BindingError::BadScale(self.scale));
         }
-        if !(self.offset.abs() <= MAX_OFFSET) {
+        if !self.offset.is_finite() || self.offset.abs() > MAX_OFFSET {
             return Err(BindingError::BadOffset(self.offset));
         }
         if self.end_address() > 1 << 16 {
