@@ -200,10 +200,13 @@ pub struct StatusSection {
     /// Allow the metrics endpoint on a non-loopback address (read-only data).
     #[serde(default)]
     pub metrics_allow_remote: bool,
-    /// Web HMI `host:port` (default `127.0.0.1:9651`; empty: off). Loopback only: this build
-    /// does not terminate TLS.
+    /// Web HMI `host:port` (default `127.0.0.1:9651`; empty: off). Beyond loopback only
+    /// with `[status.tls]` and the operator token file in place.
     #[serde(default)]
     pub hmi_listen: Option<String>,
+    /// `[status.tls]`: serve the HMI over HTTPS (certificate and key, PEM).
+    #[serde(default)]
+    pub tls: Option<super::config_tls::TlsSection>,
     /// Modbus TCP server block for the DCS, `host:port` (default: off). Read-only input
     /// registers; register map in README.md.
     #[serde(default)]
@@ -228,6 +231,7 @@ impl Default for StatusSection {
             metrics_listen: None,
             metrics_allow_remote: false,
             hmi_listen: None,
+            tls: None,
             modbus_listen: None,
             operator_token_file: None,
         }
@@ -1051,6 +1055,7 @@ pub fn load_with_env(main: &Path, vars: &[(String, String)]) -> Result<Loaded, V
     let mut config = config;
     config.event_log.path = output_path(&config.event_log.path);
     config.status.stats_file = config.status.stats_file.as_deref().map(output_path);
+    config.status.tls = config.status.tls.as_ref().map(|t| t.resolved(main));
     let mut loaded = Loaded {
         config,
         main_path: main.to_path_buf(),
@@ -1567,6 +1572,9 @@ pub fn check(l: &Loaded) -> Vec<Problem> {
             ),
             "",
         );
+    }
+    for p in super::config_tls::bind_problems(&c.status) {
+        error(p.key, p.message, p.hint);
     }
     out.extend(map_problems);
     out.extend(out_machine);

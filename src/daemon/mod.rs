@@ -10,6 +10,7 @@
 pub mod config;
 pub mod config_machine;
 pub mod config_print;
+pub mod config_tls;
 pub mod control_node;
 pub mod field;
 pub mod notify;
