@@ -177,6 +177,38 @@ fn the_hmi_over_tls_answers_https_refuses_plain_http_and_wants_the_token() {
         std::thread::sleep(Duration::from_millis(100));
     };
     assert!(body.contains("\"deviation_pct\""), "{body}");
+
+    // the snapshot the page got is the one `antisurge status --json --cycle N` reports
+    let served: serde_json::Value =
+        serde_json::from_str(body.split("\r\n\r\n").nth(1).expect("body")).expect("json");
+    let n = served["cycle"].as_u64().expect("cycle");
+    std::thread::sleep(Duration::from_millis(200));
+    let sock = dir.join("status.sock").display().to_string();
+    let ask = |cycle: u64| {
+        std::process::Command::new(env!("CARGO_BIN_EXE_antisurge"))
+            .args([
+                "status",
+                "--json",
+                "--socket",
+                &sock,
+                "--cycle",
+                &cycle.to_string(),
+            ])
+            .output()
+            .expect("status")
+    };
+    let out = ask(n);
+    assert!(out.status.success(), "{out:?}");
+    let same: serde_json::Value = serde_json::from_slice(&out.stdout).expect("status json");
+    assert_eq!(same["cycle"], served["cycle"]);
+    assert_eq!(same["deviation_pct"], served["deviation_pct"]);
+    assert_eq!(same["flow_map"], served["flow_map"]);
+    let out = ask(n + 1_000_000);
+    assert!(!out.status.success(), "{out:?}");
+    assert!(
+        String::from_utf8_lossy(&out.stderr).contains("no longer kept"),
+        "{out:?}"
+    );
     let (c, page) = https(&tls, port, "GET / HTTP/1.1\r\nHost: localhost\r\n\r\n").expect("page");
     assert_eq!(c, 200);
     assert!(page.contains("<canvas id=\"map\""), "{page}");
