@@ -9,11 +9,11 @@
 
 mod common;
 
+use antisurge::daemon::config::tls::TlsSection;
 use antisurge::daemon::config::{
     load_with_env, BusSection, ControlSection, DaemonConfig, InputSection, PlantSection,
     ReloadSection, SimulationSection, StartMode, StatusSection, Transport,
 };
-use antisurge::daemon::config_tls::TlsSection;
 use antisurge::events::{EventLogConfig, FsyncPolicy};
 use antisurge::io::can::bus::CanBusConfig;
 use antisurge::io::modbus::{

@@ -112,7 +112,7 @@ pub fn prepare(status: &StatusSection) -> LiveSetup {
         state,
         kept,
         socket: socket_path(status),
-        token_file: crate::daemon::config_tls::token_file(status),
+        token_file: crate::daemon::config::tls::token_file(status),
     }
 }
 
@@ -132,8 +132,8 @@ fn hmi_listener(
         return Ok(None);
     };
     if !addr.ip().is_loopback() {
-        let file = crate::daemon::config_tls::token_file(status);
-        if let Some(why) = crate::daemon::config_tls::token_file_problem(&file) {
+        let file = crate::daemon::config::tls::token_file(status);
+        if let Some(why) = crate::daemon::config::tls::token_file_problem(&file) {
             return Err(format!("not serving on {addr} beyond loopback: {why}"));
         }
     }

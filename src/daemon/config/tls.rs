@@ -10,7 +10,8 @@ use std::path::{Path, PathBuf};
 
 use serde::{Deserialize, Serialize};
 
-use super::config::StatusSection;
+use super::problem::KeyProblem;
+use super::StatusSection;
 use crate::live::{hmi, metrics, tls};
 
 /// `[status.tls]`: serve the web HMI over HTTPS with this certificate and key (PEM files;
@@ -30,21 +31,10 @@ impl TlsSection {
     /// The same section with relative paths taken from `main`'s directory.
     pub fn resolved(&self, main: &Path) -> TlsSection {
         TlsSection {
-            cert_file: super::config::resolve(main, &self.cert_file),
-            key_file: super::config::resolve(main, &self.key_file),
+            cert_file: super::resolve(main, &self.cert_file),
+            key_file: super::resolve(main, &self.key_file),
         }
     }
-}
-
-/// One refused setting of `[status]`: the dotted key, what is wrong, and a hint.
-#[derive(Debug, Clone, PartialEq)]
-pub struct BindProblem {
-    /// Dotted key the problem is located at.
-    pub key: &'static str,
-    /// What is wrong.
-    pub message: String,
-    /// What to do about it.
-    pub hint: &'static str,
 }
 
 /// The token file the daemon reads: `status.operator_token_file`, else the installed one.
@@ -82,36 +72,37 @@ pub fn token_file_problem(file: &Path) -> Option<String> {
 }
 
 /// Check where the HMI and the metrics endpoint listen, and the TLS files.
-pub fn bind_problems(status: &StatusSection) -> Vec<BindProblem> {
+pub fn bind_problems(status: &StatusSection) -> Vec<KeyProblem> {
     let mut out = Vec::new();
     if let Some(t) = &status.tls {
         if let Err(e) = tls::load(t) {
-            out.push(BindProblem {
-                key: if e.is_about_key() {
-                    "status.tls.key_file"
-                } else {
-                    "status.tls.cert_file"
-                },
-                message: e.to_string(),
-                hint: "make a certificate and key as README.md \"The web HMI over HTTPS\" shows",
-            });
+            let key = if e.is_about_key() {
+                "status.tls.key_file"
+            } else {
+                "status.tls.cert_file"
+            };
+            out.push(KeyProblem::error(key, e.to_string()).with_hint(
+                "make a certificate and key as README.md \"The web HMI over HTTPS\" shows",
+            ));
         }
     }
     match hmi::listen_addr(status.hmi_listen.as_deref(), status.tls.is_some()) {
-        Err(e) => out.push(BindProblem {
-            key: "status.hmi_listen",
-            message: e,
-            hint: "keep the HMI on 127.0.0.1, or add [status.tls] with cert_file and key_file",
-        }),
+        Err(e) => out.push(KeyProblem::error("status.hmi_listen", e).with_hint(
+            "keep the HMI on 127.0.0.1, or add [status.tls] with cert_file and key_file",
+        )),
         Ok(Some(addr)) if !addr.ip().is_loopback() => {
             if let Some(why) = token_file_problem(&token_file(status)) {
-                out.push(BindProblem {
-                    key: "status.hmi_listen",
-                    message: format!(
-                        "the HMI on {addr} beyond loopback needs the operator token, but {why}"
+                out.push(
+                    KeyProblem::error(
+                        "status.hmi_listen",
+                        format!(
+                            "the HMI on {addr} beyond loopback needs the operator token, but {why}"
+                        ),
+                    )
+                    .with_hint(
+                        "run deploy/install.sh (it creates /etc/antisurge/operator.token), or set status.operator_token_file to a root-owned file of mode 0640",
                     ),
-                    hint: "run deploy/install.sh (it creates /etc/antisurge/operator.token), or set status.operator_token_file to a root-owned file of mode 0640",
-                });
+                );
             }
         }
         Ok(_) => {}
@@ -120,11 +111,9 @@ pub fn bind_problems(status: &StatusSection) -> Vec<BindProblem> {
         status.metrics_listen.as_deref(),
         status.metrics_allow_remote,
     ) {
-        out.push(BindProblem {
-            key: "status.metrics_listen",
-            message: e,
-            hint: "keep metrics on 127.0.0.1, or set status.metrics_allow_remote = true (read-only data)",
-        });
+        out.push(KeyProblem::error("status.metrics_listen", e).with_hint(
+            "keep metrics on 127.0.0.1, or set status.metrics_allow_remote = true (read-only data)",
+        ));
     }
     out
 }
