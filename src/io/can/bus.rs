@@ -1,11 +1,14 @@
 //! SocketCAN bus tasks for both ends of the skid bus.
 //!
 //! - [`run_controller`] (daemon side): publishes received sensor frames into the
-//!   [`SensorBoard`], sends the control thread's [`OutputBoard`] as actuator frames whenever
-//!   its [`Wakeup`] fires, and sends the heartbeat every `heartbeat_period_ms`.
+//!   [`SensorBoard`], sends the control thread's [`OutputBoard`] as actuator frames when its
+//!   [`Wakeup`] fires, and sends the heartbeat every `heartbeat_period_ms`.
 //! - [`run_plant`] (simulated plant / field gateway side): publishes received actuator frames
 //!   into the [`CommandBoard`] and the heartbeat into the [`HeartbeatBoard`], and sends the
-//!   latest [`SnapshotBoard`] snapshot as sensor frames whenever the plant's [`Wakeup`] fires.
+//!   latest [`SnapshotBoard`] snapshot as sensor frames when the plant's [`Wakeup`] fires.
+//!
+//! Each message goes out at the cycle time its DBC declares (`GenMsgCycleTime`, see
+//! [`FrameEncoder`]), whatever the wakeup rate: the bus carries the load check-config computed.
 //!
 //! Both run until the shutdown signal and never give up on the bus: any socket error
 //! (interface down → `ENETDOWN`, interface deleted → `ENODEV`/`ENXIO`, …) or a bus-off error
@@ -101,9 +104,10 @@ pub struct CanBusConfig {
     #[serde(default)]
     pub tx_on_change_only: bool,
     /// Bit rate of the bus, bit/s (as set on the interface, e.g. `BitRate=` in
-    /// deploy/80-can0.network). When given, check-config computes the worst-case load of
-    /// the DBC's periodic messages and refuses more than `max_load_pct`.
-    #[serde(default)]
+    /// deploy/80-can0.network; default 1 000 000, the rate that file sets). check-config
+    /// computes the worst-case load of the DBC's periodic messages at this rate and refuses
+    /// more than `max_load_pct`.
+    #[serde(default = "default_bitrate_bps")]
     pub bitrate_bps: Option<u64>,
     /// Highest accepted worst-case bus load, % of the bit rate (default 70).
     #[serde(default = "default_max_load_pct")]
@@ -112,6 +116,11 @@ pub struct CanBusConfig {
 
 fn default_max_load_pct() -> u32 {
     70
+}
+
+/// The bit rate deploy/80-can0.network sets (`BitRate=1M`).
+fn default_bitrate_bps() -> Option<u64> {
+    Some(1_000_000)
 }
 
 impl CanBusConfig {
@@ -125,7 +134,7 @@ impl CanBusConfig {
             reconnect_backoff_initial_ms: default_backoff_initial_ms(),
             reconnect_backoff_max_ms: default_backoff_max_ms(),
             tx_on_change_only: false,
-            bitrate_bps: None,
+            bitrate_bps: default_bitrate_bps(),
             max_load_pct: default_max_load_pct(),
         }
     }
@@ -417,6 +426,9 @@ counters! {
     tx_errors,
     /// Frames not sent because their data did not change (`tx_on_change_only`).
     tx_unchanged,
+    /// Wakeups on which a message was not sent because its DBC cycle time
+    /// (`GenMsgCycleTime`) had not come round yet.
+    tx_not_due,
     /// Data frames whose identifier is not in the DBC.
     unknown_id,
     /// Data frames of a known message with the wrong length.
@@ -545,8 +557,8 @@ pub struct PlantBoards {
 /// Run the controller node on `cfg.interface` until shutdown.
 ///
 /// Receives sensor frames into `boards.sensors` (stamped with [`monotonic_ns`] at reception),
-/// sends `boards.outputs` as actuator frames on every wakeup and the heartbeat every
-/// `heartbeat_period_ms` (withheld while the control thread publishes nothing new, so a hung
+/// sends `boards.outputs` as actuator frames on wakeups (each message at its DBC cycle time)
+/// and the heartbeat every `heartbeat_period_ms` (withheld while the control thread publishes nothing new, so a hung
 /// control thread stops the heartbeat). Returns `Ok` on shutdown; errors only for unusable
 /// configuration.
 pub async fn run_controller(
@@ -578,8 +590,8 @@ pub async fn run_controller(
 /// Run the plant node on `cfg.interface` until shutdown.
 ///
 /// Receives actuator frames into `boards.commands` and heartbeats into `boards.heartbeat`,
-/// and sends the latest `boards.snapshots` snapshot as sensor frames on every wakeup. Returns
-/// `Ok` on shutdown; errors only for unusable configuration.
+/// and sends the latest `boards.snapshots` snapshot as sensor frames on wakeups (each message
+/// at its DBC cycle time). Returns `Ok` on shutdown; errors only for unusable configuration.
 pub async fn run_plant(
     cfg: CanBusConfig,
     codec: BusCodec,
@@ -834,6 +846,10 @@ fn send_all<V: SignalValues>(
 ) -> Result<(), DownCause> {
     let now = monotonic_ns();
     for i in 0..tx.len() {
+        if !tx.is_due(i, now) {
+            CanCounters::inc(&s.counters.tx_not_due);
+            continue;
+        }
         match tx.encode(i, values, now) {
             Some(frame) => s.send(&frame)?,
             None => CanCounters::inc(&s.counters.tx_unchanged),

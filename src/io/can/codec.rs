@@ -306,6 +306,8 @@ struct BoundSignal {
 struct CodecMessage {
     name: String,
     guard: FrameGuard,
+    /// DBC `GenMsgCycleTime`, ms (`None` or 0: event-driven).
+    cycle_time_ms: Option<u32>,
     bound: Vec<BoundSignal>,
 }
 
@@ -441,6 +443,7 @@ impl CanCodec {
             .map(|m| CodecMessage {
                 name: m.name().to_string(),
                 guard: m.guard(),
+                cycle_time_ms: m.cycle_time_ms(),
                 bound: Vec::new(),
             })
             .collect();
@@ -548,6 +551,15 @@ impl CanCodec {
     /// Name of a message.
     pub fn message_name(&self, message: MessageIndex) -> Option<&str> {
         self.messages.get(message.get()).map(|m| m.name.as_str())
+    }
+
+    /// The message's cycle time from the DBC (`GenMsgCycleTime`), ms; `None` for an
+    /// event-driven message (no attribute, or 0).
+    pub fn cycle_time_ms(&self, message: MessageIndex) -> Option<u32> {
+        self.messages
+            .get(message.get())
+            .and_then(|m| m.cycle_time_ms)
+            .filter(|&ms| ms > 0)
     }
 
     /// DLC / alive / CRC handling of a message (identifier: `guard.id()`).

@@ -11,6 +11,10 @@ use crate::io::can::e2e::AliveCounter;
 use crate::io::can::heartbeat::{ControllerMode, Heartbeat, HeartbeatCodec};
 use crate::runtime::handoff::Outputs;
 
+/// How early a message may go before its slot on the DBC schedule, ns: half a 1 kHz wakeup
+/// period (capped at half the message's own period).
+const SLACK_NS: u64 = 500_000;
+
 #[derive(Debug, Clone)]
 struct TxMessage {
     index: MessageIndex,
@@ -22,10 +26,51 @@ struct TxMessage {
     last_alive: u8,
     /// When `last` was sent (monotonic ns); `None` before the first frame.
     last_sent_ns: Option<u64>,
+    /// The DBC cycle time (`GenMsgCycleTime`), ns; 0 for an event-driven message (sent on
+    /// every call).
+    period_ns: u64,
+    /// When the next frame is due (monotonic ns) on the message's own schedule; `None`
+    /// before the first frame.
+    due_ns: Option<u64>,
+}
+
+impl TxMessage {
+    /// Whether the message is due at `now_ns`: event-driven, never sent, or its next slot on
+    /// the DBC schedule is less than [`SLACK_NS`] (at most half the period) ahead: the
+    /// callers' wakeups jitter, and a 1 ms message on a 1 ms wakeup that came 0.3 ms early
+    /// must still go, while a 2 ms message must not go on the wakeup before its slot.
+    fn due(&self, now_ns: u64) -> bool {
+        match self.due_ns {
+            Some(due) if self.period_ns > 0 => {
+                now_ns.saturating_add(SLACK_NS.min(self.period_ns / 2)) > due
+            }
+            _ => true,
+        }
+    }
+
+    /// Advance the schedule after a frame went out at `now_ns`: one period per frame, so the
+    /// average rate is the DBC's whatever the wakeup jitter; a schedule that fell more than
+    /// a period behind (no wakeups for a while) restarts from now instead of bursting.
+    fn schedule_after_send(&mut self, now_ns: u64) {
+        if self.period_ns == 0 {
+            return;
+        }
+        let next = self.due_ns.map_or(now_ns, |d| d).saturating_add(self.period_ns);
+        self.due_ns = Some(if next.saturating_add(self.period_ns) <= now_ns {
+            now_ns.saturating_add(self.period_ns)
+        } else {
+            next
+        });
+    }
 }
 
 /// Encodes a fixed list of messages from signal values. A NaN value ("not driven", "no
 /// reading") goes out as the signal's "not available" pattern, never as a stale number.
+///
+/// Each message keeps the cycle time its DBC declares (`GenMsgCycleTime`): a 10 ms message
+/// encoded on every 1 ms wakeup goes out every tenth call, so the bus carries the load that
+/// check-config computed (src/io/can/busload.rs). Messages without a cycle time go out on
+/// every call.
 #[derive(Debug, Clone)]
 pub struct FrameEncoder {
     codec: CanCodec,
@@ -62,6 +107,8 @@ impl FrameEncoder {
                 last: [0; MAX_PAYLOAD],
                 last_alive: 0,
                 last_sent_ns: None,
+                period_ns: u64::from(codec.cycle_time_ms(index).unwrap_or(0)) * 1_000_000,
+                due_ns: None,
             });
         }
         Ok(FrameEncoder {
@@ -83,11 +130,23 @@ impl FrameEncoder {
         self.messages.is_empty()
     }
 
+    /// Whether message `i` is due at `now_ns` on its DBC cycle time (false if `i` is out of
+    /// range).
+    pub fn is_due(&self, i: usize, now_ns: u64) -> bool {
+        self.messages.get(i).is_some_and(|m| m.due(now_ns))
+    }
+
+    /// The DBC cycle time of message `i`, ns (0: event-driven, sent on every call).
+    pub fn period_ns(&self, i: usize) -> Option<u64> {
+        self.messages.get(i).map(|m| m.period_ns)
+    }
+
     /// Encode message `i` (0..len) from `values` at time `now_ns` (monotonic): the next alive
     /// counter value, the CRC, NaN values holding their last bits. `None` if the message is
-    /// skipped (unchanged under `on_change_only`) or `i` is out of range. The frame counts as
-    /// sent: the caller must write it (a failed write shows up as a skipped counter value at
-    /// the receiver, which is what it is).
+    /// not due on its cycle time ([`FrameEncoder::is_due`]), skipped (unchanged under
+    /// `on_change_only`) or `i` is out of range. The frame counts as sent: the caller must
+    /// write it (a failed write shows up as a skipped counter value at the receiver, which is
+    /// what it is).
     pub fn encode<V: SignalValues + ?Sized>(
         &mut self,
         i: usize,
@@ -95,6 +154,9 @@ impl FrameEncoder {
         now_ns: u64,
     ) -> Option<CanDataFrame> {
         let m = self.messages.get_mut(i)?;
+        if !m.due(now_ns) {
+            return None;
+        }
         if self.on_change_only {
             if let Some(sent) = m.last_sent_ns {
                 if now_ns.saturating_sub(sent) < self.refresh_ns {
@@ -115,6 +177,7 @@ impl FrameEncoder {
             .ok()?;
         m.last_alive = alive;
         m.last_sent_ns = Some(now_ns);
+        m.schedule_after_send(now_ns);
         CanDataFrame::new(m.id, m.last.get(..m.dlc)?)
     }
 }
