@@ -76,6 +76,13 @@ fn populated() -> DaemonConfig {
                 tx_on_change_only: false,
                 bitrate_bps: Some(1_000_000),
                 max_load_pct: 70,
+                heartbeat: Some(antisurge::io::can::HeartbeatConfig {
+                    message: "CTRL_Heartbeat".into(),
+                    counter: Some("AliveCounter".into()),
+                    mode: Some("Mode".into()),
+                    law: Some("ActiveLaw".into()),
+                    faults: Some("Faults".into()),
+                }),
             }),
             modbus: Some(ModbusLinkConfig {
                 client: ClientConfig {

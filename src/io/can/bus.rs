@@ -50,7 +50,7 @@ use tokio::time::MissedTickBehavior;
 
 use super::codec::{BindingError, CanCodec, SignalBinding, SignalValues};
 use super::dbc::{CanDatabase, DbcError, FrameId};
-use super::heartbeat::{HeartbeatCodec, HeartbeatNames};
+use super::heartbeat::{HeartbeatCodec, HeartbeatConfig, HeartbeatNames};
 use crate::runtime::handoff::{
     monotonic_ns, CommandBoard, HeartbeatBoard, OutputBoard, SensorBoard, SnapshotBoard, Wakeup,
 };
@@ -112,6 +112,10 @@ pub struct CanBusConfig {
     /// Highest accepted worst-case bus load, % of the bit rate (default 70).
     #[serde(default = "default_max_load_pct")]
     pub max_load_pct: u32,
+    /// `[bus.can.heartbeat]`: the heartbeat message and its counter, mode, law and faults
+    /// signals in the DBC (default: `config/skid.dbc`'s `CTRL_Heartbeat`).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub heartbeat: Option<HeartbeatConfig>,
 }
 
 fn default_max_load_pct() -> u32 {
@@ -136,7 +140,15 @@ impl CanBusConfig {
             tx_on_change_only: false,
             bitrate_bps: default_bitrate_bps(),
             max_load_pct: default_max_load_pct(),
+            heartbeat: None,
         }
+    }
+
+    /// The heartbeat names: `[bus.can.heartbeat]`, or `config/skid.dbc`'s.
+    pub fn heartbeat_names(&self) -> HeartbeatNames<'_> {
+        self.heartbeat
+            .as_ref()
+            .map_or(HeartbeatNames::SKID, HeartbeatConfig::names)
     }
 
     /// Check the values (interface name length, non-zero periods, backoff order, heartbeat
@@ -234,16 +246,40 @@ pub struct BusCodec {
 impl BusCodec {
     /// Build both codecs from a parsed DBC (heartbeat names of `config/skid.dbc`).
     pub fn new(db: &CanDatabase, bindings: &[SignalBinding]) -> Result<BusCodec, CanBusError> {
+        BusCodec::with_heartbeat(db, bindings, &HeartbeatNames::SKID)
+    }
+
+    /// Build both codecs from a parsed DBC with the heartbeat `names`.
+    pub fn with_heartbeat(
+        db: &CanDatabase,
+        bindings: &[SignalBinding],
+        names: &HeartbeatNames<'_>,
+    ) -> Result<BusCodec, CanBusError> {
         Ok(BusCodec {
             frames: CanCodec::new(db, bindings)?,
-            heartbeat: HeartbeatCodec::new(db, &HeartbeatNames::SKID)?,
+            heartbeat: HeartbeatCodec::new(db, names)?,
         })
     }
 
     /// Load the DBC at `dbc` and build both codecs (`bindings`: e.g.
-    /// [`SignalMap::can_bindings`](crate::io::signal_map::SignalMap::can_bindings)).
+    /// [`SignalMap::can_bindings`](crate::io::signal_map::SignalMap::can_bindings);
+    /// heartbeat names of `config/skid.dbc`).
     pub fn load(dbc: &Path, bindings: &[SignalBinding]) -> Result<BusCodec, CanBusError> {
         BusCodec::new(&CanDatabase::from_file(dbc)?, bindings)
+    }
+
+    /// Load the DBC at `dbc` (already resolved against the config file) and build both codecs
+    /// with the heartbeat `cfg` names (`[bus.can.heartbeat]`).
+    pub fn load_for(
+        cfg: &CanBusConfig,
+        dbc: &Path,
+        bindings: &[SignalBinding],
+    ) -> Result<BusCodec, CanBusError> {
+        BusCodec::with_heartbeat(
+            &CanDatabase::from_file(dbc)?,
+            bindings,
+            &cfg.heartbeat_names(),
+        )
     }
 }
 

@@ -7,7 +7,6 @@ use socketcan::{CanDataFrame, EmbeddedFrame, Id};
 use super::CanBusError;
 use crate::io::can::bits::MAX_PAYLOAD;
 use crate::io::can::codec::{AliveCounters, CanCodec, MessageIndex, SignalValues};
-use crate::io::can::e2e::AliveCounter;
 use crate::io::can::heartbeat::{ControllerMode, Heartbeat, HeartbeatCodec};
 use crate::runtime::handoff::Outputs;
 
@@ -55,7 +54,10 @@ impl TxMessage {
         if self.period_ns == 0 {
             return;
         }
-        let next = self.due_ns.map_or(now_ns, |d| d).saturating_add(self.period_ns);
+        let next = self
+            .due_ns
+            .map_or(now_ns, |d| d)
+            .saturating_add(self.period_ns);
         self.due_ns = Some(if next.saturating_add(self.period_ns) <= now_ns {
             now_ns.saturating_add(self.period_ns)
         } else {
@@ -182,12 +184,17 @@ impl FrameEncoder {
     }
 }
 
-/// The controller heartbeat: mode, law and faults of the latest outputs, 8-bit alive counter.
+/// The controller heartbeat: mode, law and faults of the latest outputs (those signals the
+/// configuration names), and an alive counter as wide as its DBC signal (+1 per frame,
+/// wrapping at 2^width − 1 → 0).
 #[derive(Debug, Clone)]
 pub struct HeartbeatTx {
     codec: HeartbeatCodec,
     id: Id,
-    alive: AliveCounter,
+    /// Next counter value.
+    alive: u32,
+    /// 2^width − 1 of the counter signal.
+    alive_max: u32,
     last_cycle: Option<u64>,
 }
 
@@ -201,7 +208,11 @@ impl HeartbeatTx {
         Ok(HeartbeatTx {
             codec: *codec,
             id,
-            alive: AliveCounter::new(codec.alive_bits().unwrap_or(8)),
+            alive: 0,
+            alive_max: match codec.alive_bits().unwrap_or(8) {
+                b if b >= 32 => u32::MAX,
+                b => (1u32 << b) - 1,
+            },
             last_cycle: None,
         })
     }
@@ -222,7 +233,13 @@ impl HeartbeatTx {
             // input faults of the control thread and the field faults of the I/O tasks
             faults: o.faults | crate::faults::field::word(),
         };
-        let data = self.codec.encode(&hb, self.alive.next_value());
+        let alive = self.alive;
+        self.alive = if alive >= self.alive_max {
+            0
+        } else {
+            alive + 1
+        };
+        let data = self.codec.encode(&hb, alive);
         CanDataFrame::new(self.id, data.get(..usize::from(self.codec.dlc()))?)
     }
 }
