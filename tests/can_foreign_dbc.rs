@@ -199,3 +199,76 @@ fn heartbeat_from_config_is_the_skids_16_bit_counter_on_the_wire() {
         "message DCS_Watchdog, signal Mode: no such signal"
     );
 }
+
+/// A device without a "not available" value (`bus.can.not_available = "none"`): no frame
+/// until every bound command was computed, a command that stops being computed repeats the
+/// last number sent (never 0x8000 = −32768 N·m or 0xFFFF = 655.35 %), and a data signal left
+/// unbound is refused naming it. The J1939 convention for comparison.
+#[test]
+fn a_device_without_not_available_never_gets_a_command_it_was_not_given() {
+    use antisurge::io::can::bus::{FrameEncoder, NotAvailable};
+    use socketcan::EmbeddedFrame;
+    use std::time::Duration;
+
+    let ms = 1_000_000u64;
+    let codec = CanCodec::new(&db(), &bindings()).expect("bindings fit");
+    let vlv = codec.message_index("VLV_Command").expect("message");
+    let enc = |na| {
+        FrameEncoder::with_not_available(&codec, &[vlv], false, Duration::from_millis(50), na)
+            .expect("encoder")
+    };
+    let mut none = enc(NotAvailable::None);
+    let mut j1939 = enc(NotAvailable::J1939);
+    let mut c = ActuatorCommands::default();
+    c.set(ActuatorId::RecycleValve, 0.375);
+    c.set(ActuatorId::DriveTorque, f64::NAN);
+    assert!(
+        none.encode(0, &c, 0).is_none(),
+        "torque never computed: nothing sent"
+    );
+    let f = j1939.encode(0, &c, 0).expect("J1939 frame");
+    assert_eq!(f.data()[..4], [0xA6, 0x0E, 0x00, 0x80], "J1939: torque n/a");
+    // VLV_Command runs at 10 ms (GenMsgCycleTime)
+    c.set(ActuatorId::DriveTorque, -120.0);
+    let f = none.encode(0, &c, 10 * ms).expect("both computed");
+    assert_eq!(f.data(), &[0xA6, 0x0E, 0x88, 0xFF, 0, 0, 0, 0]);
+    c.set(ActuatorId::RecycleValve, 0.5);
+    c.set(ActuatorId::DriveTorque, f64::NAN);
+    let f = none.encode(0, &c, 20 * ms).expect("frame");
+    assert_eq!(
+        f.data()[..4],
+        [0x88, 0x13, 0x88, 0xFF],
+        "50.00 % and the last torque sent"
+    );
+    let f = j1939.encode(0, &c, 10 * ms).expect("frame");
+    assert_eq!(f.data()[..4], [0x88, 0x13, 0x00, 0x80]);
+
+    // an unbound data signal: refused without a "not available" value, n/a with J1939
+    let mut b = bindings();
+    b.retain(|x| x.signal != "DriveTorqueSetpoint");
+    let codec = CanCodec::new(&db(), &b).expect("bindings fit");
+    let vlv = codec.message_index("VLV_Command").expect("message");
+    let e = FrameEncoder::with_not_available(
+        &codec,
+        &[vlv],
+        false,
+        Duration::from_millis(50),
+        NotAvailable::None,
+    )
+    .expect_err("unbound torque");
+    assert!(
+        e.to_string().contains("VLV_Command.DriveTorqueSetpoint"),
+        "{e}"
+    );
+    let mut j = FrameEncoder::with_not_available(
+        &codec,
+        &[vlv],
+        false,
+        Duration::from_millis(50),
+        NotAvailable::J1939,
+    )
+    .expect("J1939 fills it");
+    c.set(ActuatorId::RecycleValve, 0.375);
+    let f = j.encode(0, &c, 0).expect("frame");
+    assert_eq!(f.data()[..4], [0xA6, 0x0E, 0x00, 0x80]);
+}

@@ -76,6 +76,7 @@ fn populated() -> DaemonConfig {
                 tx_on_change_only: false,
                 bitrate_bps: Some(1_000_000),
                 max_load_pct: 70,
+                not_available: antisurge::io::can::bus::NotAvailable::J1939,
                 heartbeat: Some(antisurge::io::can::HeartbeatConfig {
                     message: "CTRL_Heartbeat".into(),
                     counter: Some("AliveCounter".into()),

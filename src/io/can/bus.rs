@@ -72,6 +72,21 @@ fn default_backoff_max_ms() -> u64 {
     2000
 }
 
+/// How a device on the bus reads "no value" (`bus.can.not_available`).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum NotAvailable {
+    /// SAE J1939: one reserved raw value per signal (all ones unsigned, the most negative
+    /// signed) means "no value" (`config/skid.dbc`'s convention). Unbound data signals of a
+    /// sent message carry it.
+    #[default]
+    J1939,
+    /// The device has no such value (it would read all ones as a number, e.g. 655.35 %): a
+    /// message goes out only once every bound value was computed, a value that becomes NaN
+    /// repeats the last number sent, and an unbound data signal in a sent message is an error.
+    None,
+}
+
 /// Settings of one CAN bus node (the `[io.can]` section).
 ///
 /// Config keys: `interface` (`can0`, `vcan0`, …), `dbc` (path of the DBC file),
@@ -112,6 +127,9 @@ pub struct CanBusConfig {
     /// Highest accepted worst-case bus load, % of the bit rate (default 70).
     #[serde(default = "default_max_load_pct")]
     pub max_load_pct: u32,
+    /// How the devices read "no value": `j1939` (default, the reserved pattern) or `none`.
+    #[serde(default)]
+    pub not_available: NotAvailable,
     /// `[bus.can.heartbeat]`: the heartbeat message and its counter, mode, law and faults
     /// signals in the DBC (default: `config/skid.dbc`'s `CTRL_Heartbeat`).
     #[serde(default, skip_serializing_if = "Option::is_none")]
@@ -140,6 +158,7 @@ impl CanBusConfig {
             tx_on_change_only: false,
             bitrate_bps: default_bitrate_bps(),
             max_load_pct: default_max_load_pct(),
+            not_available: NotAvailable::J1939,
             heartbeat: None,
         }
     }
@@ -275,11 +294,29 @@ impl BusCodec {
         dbc: &Path,
         bindings: &[SignalBinding],
     ) -> Result<BusCodec, CanBusError> {
-        BusCodec::with_heartbeat(
+        let codec = BusCodec::with_heartbeat(
             &CanDatabase::from_file(dbc)?,
             bindings,
             &cfg.heartbeat_names(),
-        )
+        )?;
+        // both ends' senders, checked once here so that check-config sees it
+        let all: Vec<_> = codec.frames.actuator_messages().collect();
+        FrameEncoder::with_not_available(
+            &codec.frames,
+            &all,
+            false,
+            cfg.heartbeat_period(),
+            cfg.not_available,
+        )?;
+        let all: Vec<_> = codec.frames.sensor_messages().collect();
+        FrameEncoder::with_not_available(
+            &codec.frames,
+            &all,
+            false,
+            cfg.heartbeat_period(),
+            cfg.not_available,
+        )?;
+        Ok(codec)
     }
 }
 
@@ -613,7 +650,13 @@ pub async fn run_controller(
             Arc::clone(&boards.sensors),
             Arc::clone(&handles.counters),
         ),
-        tx: FrameEncoder::new(&codec.frames, &actuators, cfg.tx_on_change_only, refresh)?,
+        tx: FrameEncoder::with_not_available(
+            &codec.frames,
+            &actuators,
+            cfg.tx_on_change_only,
+            refresh,
+            cfg.not_available,
+        )?,
         hb: HeartbeatTx::new(&codec.heartbeat)?,
         outputs: Arc::clone(&boards.outputs),
         wake: WakeFd::register(&boards.wake)?,
@@ -644,11 +687,12 @@ pub async fn run_plant(
             Arc::clone(&boards.heartbeat),
             Arc::clone(&handles.counters),
         ),
-        tx: FrameEncoder::new(
+        tx: FrameEncoder::with_not_available(
             &codec.frames,
             &sensors,
             cfg.tx_on_change_only,
             cfg.heartbeat_period(),
+            cfg.not_available,
         )?,
         snapshots: Arc::clone(&boards.snapshots),
         wake: WakeFd::register(&boards.wake)?,

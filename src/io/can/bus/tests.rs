@@ -431,6 +431,45 @@ fn each_message_keeps_its_dbc_cycle_time() {
     assert!(enc.encode(3, &snap, now + 10 * ms).is_some());
 }
 
+/// No frame before the first computed command: a message whose bound values are all NaN is
+/// not sent at all (a device would otherwise see "not available" or a number nobody
+/// computed); once one value is a number, the others go out as "not available" (J1939).
+#[test]
+fn nothing_is_sent_before_the_first_computed_command() {
+    let c = codec();
+    let ms = 1_000_000u64;
+    let mut enc =
+        FrameEncoder::new(&c.frames, &messages(&c, false), false, refresh()).expect("enc");
+    let mut cmd = ActuatorCommands::default();
+    for a in ActuatorId::ALL {
+        cmd.set(a, f64::NAN);
+    }
+    for k in 0..5 {
+        assert!(
+            enc.encode(0, &cmd, k * ms).is_none(),
+            "Cmd1 before a command"
+        );
+        assert!(
+            enc.encode(1, &cmd, k * ms).is_none(),
+            "Cmd2 before a command"
+        );
+    }
+    cmd.set(ActuatorId::RecycleValve, 0.25);
+    let f = enc.encode(0, &cmd, 5 * ms).expect("first computed command");
+    let d = f.data();
+    // RecycleValveCmd 0.25 = 2500 raw at bit 18; DriveTorqueCmd (18 bits signed) and
+    // ThrottleCmd (14 bits at bit 32) "not available"
+    let word = u64::from_le_bytes(d.try_into().expect("8 bytes"));
+    assert_eq!((word >> 18) & 0x3FFF, 2500, "{d:02x?}");
+    assert_eq!(word & 0x3_FFFF, 0x2_0000, "torque: sign bit only");
+    assert_eq!((word >> 32) & 0x3FFF, 0x3FFF, "throttle: all ones");
+    assert_eq!(d[6] & 0x0F, 0, "first frame has counter 0");
+    assert!(
+        enc.encode(1, &cmd, 5 * ms).is_none(),
+        "Cmd2: still nothing computed"
+    );
+}
+
 #[test]
 fn on_change_only_skips_unchanged_and_refreshes() {
     let c = codec();

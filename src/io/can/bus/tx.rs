@@ -5,8 +5,11 @@ use std::time::Duration;
 use socketcan::{CanDataFrame, EmbeddedFrame, Id};
 
 use super::CanBusError;
+use super::NotAvailable;
 use crate::io::can::bits::MAX_PAYLOAD;
-use crate::io::can::codec::{AliveCounters, CanCodec, MessageIndex, SignalValues};
+use crate::io::can::codec::{
+    AliveCounters, CanCodec, MessageIndex, SignalTarget, SignalValues, TargetSet, MAX_TARGETS,
+};
 use crate::io::can::heartbeat::{ControllerMode, Heartbeat, HeartbeatCodec};
 use crate::runtime::handoff::Outputs;
 
@@ -31,6 +34,10 @@ struct TxMessage {
     /// When the next frame is due (monotonic ns) on the message's own schedule; `None`
     /// before the first frame.
     due_ns: Option<u64>,
+    /// Targets bound to the message's signals.
+    targets: TargetSet,
+    /// Targets that have had a number (a computed command or a reading) at least once.
+    given: TargetSet,
 }
 
 impl TxMessage {
@@ -73,6 +80,13 @@ impl TxMessage {
 /// encoded on every 1 ms wakeup goes out every tenth call, so the bus carries the load that
 /// check-config computed (src/io/can/busload.rs). Messages without a cycle time go out on
 /// every call.
+///
+/// Nothing is sent for a message before one of its bound values is a number (no frame before
+/// the first computed command). How "no value" goes on the wire is the device's convention
+/// (`bus.can.not_available`, [`NotAvailable`]): `j1939` sends the reserved pattern (and fills
+/// unbound data signals with it); `none` has no such pattern, so a message waits until every
+/// bound value was a number once, a value that turns NaN later repeats the last number sent
+/// (the last command the device was given), and an unbound data signal is refused at start.
 #[derive(Debug, Clone)]
 pub struct FrameEncoder {
     codec: CanCodec,
@@ -80,6 +94,28 @@ pub struct FrameEncoder {
     alive: AliveCounters,
     on_change_only: bool,
     refresh_ns: u64,
+    not_available: NotAvailable,
+    /// Last number per target ([`SignalTarget::index`]), for `NotAvailable::None`.
+    held: [f64; MAX_TARGETS],
+}
+
+/// The values to encode: NaN replaced by the last number (`NotAvailable::None`) or kept.
+struct Substituted<'a, V: ?Sized> {
+    inner: &'a V,
+    held: &'a [f64; MAX_TARGETS],
+    hold: bool,
+}
+
+impl<V: SignalValues + ?Sized> SignalValues for Substituted<'_, V> {
+    #[inline]
+    fn value(&self, target: SignalTarget) -> f64 {
+        let v = self.inner.value(target);
+        if self.hold && v.is_nan() {
+            self.held.get(target.index()).copied().unwrap_or(f64::NAN)
+        } else {
+            v
+        }
+    }
 }
 
 impl FrameEncoder {
@@ -91,6 +127,25 @@ impl FrameEncoder {
         on_change_only: bool,
         refresh: Duration,
     ) -> Result<FrameEncoder, CanBusError> {
+        Self::with_not_available(
+            codec,
+            messages,
+            on_change_only,
+            refresh,
+            NotAvailable::J1939,
+        )
+    }
+
+    /// [`FrameEncoder::new`] for a device with the `not_available` convention. Errors if the
+    /// device has no "not available" pattern and a message leaves a data signal unbound (the
+    /// frame would carry a value nobody computed).
+    pub fn with_not_available(
+        codec: &CanCodec,
+        messages: &[MessageIndex],
+        on_change_only: bool,
+        refresh: Duration,
+        not_available: NotAvailable,
+    ) -> Result<FrameEncoder, CanBusError> {
         let mut out = Vec::with_capacity(messages.len());
         for &index in messages {
             let name = codec.message_name(index).unwrap_or("?").to_string();
@@ -98,19 +153,38 @@ impl FrameEncoder {
                 key: "dbc",
                 message: format!("message #{} missing from the codec", index.get()),
             })?;
-            let id = guard.id().to_socketcan().ok_or(CanBusError::BadId {
-                message: name,
-                id: guard.id(),
-            })?;
+            let id = guard
+                .id()
+                .to_socketcan()
+                .ok_or_else(|| CanBusError::BadId {
+                    message: name.clone(),
+                    id: guard.id(),
+                })?;
+            let mut last = [0u8; MAX_PAYLOAD];
+            for (signal, layout) in codec.unbound_signals(index) {
+                match not_available {
+                    NotAvailable::J1939 => layout.pack(&mut last, layout.raw_not_available()),
+                    NotAvailable::None => {
+                        return Err(CanBusError::Config {
+                            key: "not_available",
+                            message: format!(
+                                "signal {name}.{signal} is bound to nothing and the device has no \"not available\" value (not_available = \"none\"): every frame would carry a command nobody computed; bind it in the signal map"
+                            ),
+                        })
+                    }
+                }
+            }
             out.push(TxMessage {
                 index,
                 id,
                 dlc: usize::from(guard.dlc()),
-                last: [0; MAX_PAYLOAD],
+                last,
                 last_alive: 0,
                 last_sent_ns: None,
                 period_ns: u64::from(codec.cycle_time_ms(index).unwrap_or(0)) * 1_000_000,
                 due_ns: None,
+                targets: codec.targets(index),
+                given: TargetSet::default(),
             });
         }
         Ok(FrameEncoder {
@@ -119,6 +193,8 @@ impl FrameEncoder {
             alive: codec.alive_counters(),
             on_change_only,
             refresh_ns: u64::try_from(refresh.as_nanos()).unwrap_or(u64::MAX),
+            not_available,
+            held: [f64::NAN; MAX_TARGETS],
         })
     }
 
@@ -155,17 +231,46 @@ impl FrameEncoder {
         values: &V,
         now_ns: u64,
     ) -> Option<CanDataFrame> {
-        let m = self.messages.get_mut(i)?;
+        let FrameEncoder {
+            codec,
+            messages,
+            alive: counters,
+            on_change_only,
+            refresh_ns,
+            not_available,
+            held,
+        } = self;
+        let m = messages.get_mut(i)?;
         if !m.due(now_ns) {
             return None;
         }
-        if self.on_change_only {
+        for t in m.targets.iter() {
+            let v = values.value(t);
+            if v.is_finite() {
+                m.given.insert(t);
+                if let Some(h) = held.get_mut(t.index()) {
+                    *h = v;
+                }
+            }
+        }
+        let hold = *not_available == NotAvailable::None;
+        // nothing before the first number; without a "not available" value, nothing before
+        // every bound signal had one
+        if m.given.is_empty() || (hold && m.given != m.targets) {
+            return None;
+        }
+        let values = Substituted {
+            inner: values,
+            held,
+            hold,
+        };
+        if *on_change_only {
             if let Some(sent) = m.last_sent_ns {
-                if now_ns.saturating_sub(sent) < self.refresh_ns {
+                if now_ns.saturating_sub(sent) < *refresh_ns {
                     // Same counter value → same bytes iff the data bits are unchanged.
                     let mut candidate = m.last;
-                    self.codec
-                        .encode_into(m.index, values, m.last_alive, &mut candidate)
+                    codec
+                        .encode_into(m.index, &values, m.last_alive, &mut candidate)
                         .ok()?;
                     if candidate == m.last {
                         return None;
@@ -173,9 +278,9 @@ impl FrameEncoder {
                 }
             }
         }
-        let alive = self.alive.next_value(m.index);
-        self.codec
-            .encode_into(m.index, values, alive, &mut m.last)
+        let alive = counters.next_value(m.index);
+        codec
+            .encode_into(m.index, &values, alive, &mut m.last)
             .ok()?;
         m.last_alive = alive;
         m.last_sent_ns = Some(now_ns);
