@@ -705,7 +705,7 @@ fn hot_path_does_not_allocate() {
             active_law: 2,
             faults: i,
         };
-        let data = hb.encode(&beat, i as u32);
+        let data = hb.encode(&beat, i);
         sum += f64::from(hb.decode(&data).map(|(b, _)| b.faults).unwrap_or(0));
         // Error paths are typed values, not allocations.
         assert!(codec.decode(FrameId::Standard(0x7FF), &data).is_err());

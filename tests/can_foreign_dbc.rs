@@ -147,7 +147,7 @@ fn heartbeat_from_config_is_the_skids_16_bit_counter_on_the_wire() {
         let f = tx.next_frame(Some(&outputs(k))).expect("heartbeat");
         let expect = ((k & 0xFFFF) as u16).to_le_bytes();
         assert_eq!(f.data(), &expect, "heartbeat {k}");
-        if k < 3 || k >= 65_535 {
+        if !(3..65_535).contains(&k) {
             frames.push(f);
         }
     }
