@@ -411,7 +411,7 @@ fn heartbeat_frames(db: &CanDatabase) -> Vec<Sent> {
                 active_law: law,
                 faults,
             };
-            let data = hb.encode(&v, alive);
+            let data = hb.encode(&v, u32::from(alive));
             assert_eq!(
                 hb.decode(&data),
                 Ok((v, Some(alive))),
@@ -560,7 +560,7 @@ fn heartbeat_faults_decode_as_the_dbc_documents() {
                 active_law: 1,
                 faults: f.0,
             };
-            hex_encode(&hb.encode(&v, k as u8))
+            hex_encode(&hb.encode(&v, k as u32))
         })
         .collect();
     let script = "import cantools, sys, json\n\
@@ -705,7 +705,7 @@ fn hot_path_does_not_allocate() {
             active_law: 2,
             faults: i,
         };
-        let data = hb.encode(&beat, i as u8);
+        let data = hb.encode(&beat, i);
         sum += f64::from(hb.decode(&data).map(|(b, _)| b.faults).unwrap_or(0));
         // Error paths are typed values, not allocations.
         assert!(codec.decode(FrameId::Standard(0x7FF), &data).is_err());

@@ -105,3 +105,170 @@ fn a_bar_signal_bound_to_a_valve_is_refused_naming_the_signal() {
     CanCodec::new(&shipped, &antisurge::io::can::codec::skid_bindings())
         .expect("shipped units fit");
 }
+
+/// The heartbeat named in config (`[bus.can.heartbeat]`): the skid's own 16-bit watchdog
+/// counter message, no mode, law or fault signals. Bytes on the wire: the counter as a
+/// little-endian u16 in a 2-byte frame, +1 per heartbeat, wrapping 65535 → 0; the plant side
+/// of the same DBC takes it as a heartbeat and sees a repeated frame as a stuck sender.
+#[test]
+fn heartbeat_from_config_is_the_skids_16_bit_counter_on_the_wire() {
+    use antisurge::io::can::bus::{BusCodec, CanCounters, HeartbeatTx, RxHandler, RxOutcome};
+    use antisurge::io::can::HeartbeatConfig;
+    use antisurge::runtime::handoff::{CommandBoard, HeartbeatBoard, Outputs};
+    use socketcan::EmbeddedFrame;
+    use std::sync::Arc;
+
+    let cfg = antisurge::io::can::bus::CanBusConfig {
+        heartbeat: Some(HeartbeatConfig {
+            message: "DCS_Watchdog".into(),
+            counter: Some("WdCounter".into()),
+            mode: None,
+            law: None,
+            faults: None,
+        }),
+        ..antisurge::io::can::bus::CanBusConfig::new("vcan0", "skid_foreign.dbc")
+    };
+    let codec = BusCodec::with_heartbeat(&db(), &bindings(), &cfg.heartbeat_names())
+        .expect("heartbeat fits the foreign DBC");
+    assert_eq!(codec.heartbeat.frame_id(), FrameId::Standard(257));
+    assert_eq!(codec.heartbeat.dlc(), 2);
+    assert_eq!(codec.heartbeat.alive_bits(), Some(16));
+    let mut tx = HeartbeatTx::new(&codec.heartbeat).expect("tx");
+    let outputs = |cycle: u64| Outputs {
+        commands: Default::default(),
+        mode: 2,
+        law: 1,
+        faults: 0x0000_0101,
+        cycle,
+        t_ns: cycle,
+    };
+    let mut frames = Vec::new();
+    for k in 0..65_538u64 {
+        let f = tx.next_frame(Some(&outputs(k))).expect("heartbeat");
+        let expect = ((k & 0xFFFF) as u16).to_le_bytes();
+        assert_eq!(f.data(), &expect, "heartbeat {k}");
+        if !(3..65_535).contains(&k) {
+            frames.push(f);
+        }
+    }
+    // 65535 → 0 → 1 at the wrap
+    let tail: Vec<&[u8]> = frames[3..].iter().map(|f| f.data()).collect();
+    assert_eq!(tail, [&[0xFF, 0xFF][..], &[0, 0][..], &[1, 0][..]]);
+    // the same cycle again is withheld (a heartbeat vouches for a running control loop)
+    assert!(tx.next_frame(Some(&outputs(65_537))).is_none());
+
+    // Plant side: the frame is the heartbeat; a repeated counter is a stuck sender.
+    let codec = Arc::new(codec);
+    let board = Arc::new(HeartbeatBoard::default());
+    let counters = Arc::new(CanCounters::default());
+    let mut rx = RxHandler::plant(
+        Arc::clone(&codec),
+        Arc::new(CommandBoard::default()),
+        Arc::clone(&board),
+        Arc::clone(&counters),
+    );
+    let id = FrameId::Standard(257);
+    assert_eq!(
+        rx.handle_data(id, frames[0].data(), 10),
+        RxOutcome::Published
+    );
+    assert_eq!(
+        rx.handle_data(id, frames[1].data(), 20),
+        RxOutcome::Published
+    );
+    assert!(matches!(
+        rx.handle_data(id, frames[1].data(), 30),
+        RxOutcome::Rejected(_)
+    ));
+    let seen = board.latest().expect("heartbeat seen");
+    assert_eq!((seen.alive, seen.t_ns), (1, 20));
+    assert_eq!(counters.snapshot().alive_repeated, 1);
+
+    // A mode signal the DBC does not have is refused, naming it.
+    let e = BusCodec::with_heartbeat(
+        &db(),
+        &bindings(),
+        &antisurge::io::can::HeartbeatNames {
+            mode: Some("Mode"),
+            ..cfg.heartbeat_names()
+        },
+    )
+    .expect_err("no Mode signal in DCS_Watchdog");
+    assert_eq!(
+        e.to_string(),
+        "message DCS_Watchdog, signal Mode: no such signal"
+    );
+}
+
+/// A device without a "not available" value (`bus.can.not_available = "none"`): no frame
+/// until every bound command was computed, a command that stops being computed repeats the
+/// last number sent (never 0x8000 = −32768 N·m or 0xFFFF = 655.35 %), and a data signal left
+/// unbound is refused naming it. The J1939 convention for comparison.
+#[test]
+fn a_device_without_not_available_never_gets_a_command_it_was_not_given() {
+    use antisurge::io::can::bus::{FrameEncoder, NotAvailable};
+    use socketcan::EmbeddedFrame;
+    use std::time::Duration;
+
+    let ms = 1_000_000u64;
+    let codec = CanCodec::new(&db(), &bindings()).expect("bindings fit");
+    let vlv = codec.message_index("VLV_Command").expect("message");
+    let enc = |na| {
+        FrameEncoder::with_not_available(&codec, &[vlv], false, Duration::from_millis(50), na)
+            .expect("encoder")
+    };
+    let mut none = enc(NotAvailable::None);
+    let mut j1939 = enc(NotAvailable::J1939);
+    let mut c = ActuatorCommands::default();
+    c.set(ActuatorId::RecycleValve, 0.375);
+    c.set(ActuatorId::DriveTorque, f64::NAN);
+    assert!(
+        none.encode(0, &c, 0).is_none(),
+        "torque never computed: nothing sent"
+    );
+    let f = j1939.encode(0, &c, 0).expect("J1939 frame");
+    assert_eq!(f.data()[..4], [0xA6, 0x0E, 0x00, 0x80], "J1939: torque n/a");
+    // VLV_Command runs at 10 ms (GenMsgCycleTime)
+    c.set(ActuatorId::DriveTorque, -120.0);
+    let f = none.encode(0, &c, 10 * ms).expect("both computed");
+    assert_eq!(f.data(), &[0xA6, 0x0E, 0x88, 0xFF, 0, 0, 0, 0]);
+    c.set(ActuatorId::RecycleValve, 0.5);
+    c.set(ActuatorId::DriveTorque, f64::NAN);
+    let f = none.encode(0, &c, 20 * ms).expect("frame");
+    assert_eq!(
+        f.data()[..4],
+        [0x88, 0x13, 0x88, 0xFF],
+        "50.00 % and the last torque sent"
+    );
+    let f = j1939.encode(0, &c, 10 * ms).expect("frame");
+    assert_eq!(f.data()[..4], [0x88, 0x13, 0x00, 0x80]);
+
+    // an unbound data signal: refused without a "not available" value, n/a with J1939
+    let mut b = bindings();
+    b.retain(|x| x.signal != "DriveTorqueSetpoint");
+    let codec = CanCodec::new(&db(), &b).expect("bindings fit");
+    let vlv = codec.message_index("VLV_Command").expect("message");
+    let e = FrameEncoder::with_not_available(
+        &codec,
+        &[vlv],
+        false,
+        Duration::from_millis(50),
+        NotAvailable::None,
+    )
+    .expect_err("unbound torque");
+    assert!(
+        e.to_string().contains("VLV_Command.DriveTorqueSetpoint"),
+        "{e}"
+    );
+    let mut j = FrameEncoder::with_not_available(
+        &codec,
+        &[vlv],
+        false,
+        Duration::from_millis(50),
+        NotAvailable::J1939,
+    )
+    .expect("J1939 fills it");
+    c.set(ActuatorId::RecycleValve, 0.375);
+    let f = j.encode(0, &c, 0).expect("frame");
+    assert_eq!(f.data()[..4], [0xA6, 0x0E, 0x00, 0x80]);
+}

@@ -77,6 +77,14 @@ fn populated() -> DaemonConfig {
                 tx_on_change_only: false,
                 bitrate_bps: Some(1_000_000),
                 max_load_pct: 70,
+                not_available: antisurge::io::can::bus::NotAvailable::J1939,
+                heartbeat: Some(antisurge::io::can::HeartbeatConfig {
+                    message: "CTRL_Heartbeat".into(),
+                    counter: Some("AliveCounter".into()),
+                    mode: Some("Mode".into()),
+                    law: Some("ActiveLaw".into()),
+                    faults: Some("Faults".into()),
+                }),
             }),
             modbus: Some(ModbusLinkConfig {
                 client: ClientConfig {

@@ -98,6 +98,12 @@ if case in ("recycle_pi", "drive_torque", "malformed"):
     worst = max(abs(x) for x in diffs)
     check(rms <= 0.02 * mean, f"flow RMS difference {rms:.4f} kg/s = {100 * rms / mean:.2f} % of mean {mean:.3f} (≤ 2 %); largest {worst:.4f} kg/s")
 
+if case == "foreign_dbc":
+    # the foreign skid's units and resolution (1 mbar, 0.5 rpm, 10 Pa) at a 100 Hz loop: no
+    # trajectory match with the 1 kHz in-process run, but no surge and a heartbeat the skid's
+    # watchdog accepted throughout
+    check(s.get("field_failsafe_entries") == 0, "the skid's watchdog never lost the 16-bit counter heartbeat")
+
 if case == "kill9":
     check(s.get("field_failsafe_entries") == 1, "field fail-safe entered once after kill -9")
     check(tr[-1]["recycle_valve_position"] > 0.95, f"recycle valve failed open: ends at {tr[-1]['recycle_valve_position']:.3f}")

@@ -5,13 +5,14 @@
 # an in-process `antisurge sim` run of the same plant, scenario and law.
 #
 #   hil/suite/inside.sh [CASE...]     cases: recycle_pi drive_torque kill9 link_bounce malformed timing
+#                                            foreign_dbc
 set -euo pipefail
 cd "$(dirname "$0")/../.."
 bin=${ANTISURGE_BIN:-target/release/antisurge}
 out=${ANTISURGE_HIL_OUT:-out/hil}
 iface=vcan0
 cases=("$@")
-[[ ${#cases[@]} -gt 0 ]] || cases=(recycle_pi drive_torque kill9 link_bounce malformed timing)
+[[ ${#cases[@]} -gt 0 ]] || cases=(recycle_pi drive_torque kill9 link_bounce malformed timing foreign_dbc)
 mkdir -p "$out"
 tmp_candump=${TMPDIR:-/tmp}/antisurge-hil-candump.$$.log
 echo "HIL suite on $iface (${ANTISURGE_HIL_INSIDE:-?}), cases: ${cases[*]}"
@@ -124,6 +125,9 @@ for c in "${cases[@]}"; do
         link_bounce) run_case link_bounce hil/configs/can_recycle_pi.toml link_bounce || fail=1 ;;
         malformed) run_case malformed hil/configs/can_recycle_pi.toml malformed || fail=1 ;;
         timing) run_case timing hil/configs/can_drive_torque.toml timing || fail=1 ;;
+        # a foreign-style DBC (tests/fixtures/foreign_skid/skid_foreign.dbc): % valve, bar, rpm,
+        # a 29-bit Motorola message, the skid's 16-bit watchdog counter as the heartbeat
+        foreign_dbc) run_case foreign_dbc hil/configs/can_foreign_dbc.toml none || fail=1 ;;
         *) echo "unknown case $c"; fail=1 ;;
     esac
 done

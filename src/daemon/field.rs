@@ -39,7 +39,7 @@ fn can_codec(l: &Loaded) -> Result<(crate::io::can::bus::CanBusConfig, BusCodec)
         .clone()
         .ok_or_else(|| anyhow!("the signal map binds CAN signals but [bus.can] is missing"))?;
     can.dbc = super::config::resolve(&l.main_path, &can.dbc);
-    let codec = BusCodec::load(&can.dbc, &l.signal_map.can_bindings())
+    let codec = BusCodec::load_for(&can, &can.dbc, &l.signal_map.can_bindings())
         .with_context(|| format!("loading {}", can.dbc.display()))?;
     Ok((can, codec))
 }

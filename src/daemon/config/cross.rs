@@ -113,7 +113,7 @@ fn check_map(l: &Loaded) -> Vec<Problem> {
 /// no DBC).
 fn check_dbc(l: &Loaded, can: &CanBusConfig) -> Option<FileError> {
     let dbc = resolve(&l.main_path, &can.dbc);
-    match BusCodec::load(&dbc, &l.signal_map.can_bindings()) {
+    match BusCodec::load_for(can, &dbc, &l.signal_map.can_bindings()) {
         Ok(_) => None,
         Err(CanBusError::Binding(b)) => {
             let target = match &b {
@@ -128,9 +128,19 @@ fn check_dbc(l: &Loaded, can: &CanBusConfig) -> Option<FileError> {
             let message = format!("{b} (DBC {})", dbc.display());
             Some(match target {
                 Some(t) => map_error(l, &target_key(t), message),
+                // the heartbeat names of [bus.can.heartbeat] (src/io/can/heartbeat.rs)
+                None if can.heartbeat.is_some() => {
+                    locate(&l.layers, "bus.can.heartbeat.message", message)
+                }
                 None => locate(&l.layers, "bus.can.dbc", message),
             })
         }
+        // e.g. not_available = "none" with an unbound signal in a sent message
+        Err(CanBusError::Config { key, message }) => Some(locate(
+            &l.layers,
+            &format!("bus.can.{key}"),
+            format!("{message} (DBC {})", dbc.display()),
+        )),
         Err(e) => Some(locate(
             &l.layers,
             "bus.can.dbc",

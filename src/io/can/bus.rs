@@ -1,11 +1,14 @@
 //! SocketCAN bus tasks for both ends of the skid bus.
 //!
 //! - [`run_controller`] (daemon side): publishes received sensor frames into the
-//!   [`SensorBoard`], sends the control thread's [`OutputBoard`] as actuator frames whenever
-//!   its [`Wakeup`] fires, and sends the heartbeat every `heartbeat_period_ms`.
+//!   [`SensorBoard`], sends the control thread's [`OutputBoard`] as actuator frames when its
+//!   [`Wakeup`] fires, and sends the heartbeat every `heartbeat_period_ms`.
 //! - [`run_plant`] (simulated plant / field gateway side): publishes received actuator frames
 //!   into the [`CommandBoard`] and the heartbeat into the [`HeartbeatBoard`], and sends the
-//!   latest [`SnapshotBoard`] snapshot as sensor frames whenever the plant's [`Wakeup`] fires.
+//!   latest [`SnapshotBoard`] snapshot as sensor frames when the plant's [`Wakeup`] fires.
+//!
+//! Each message goes out at the cycle time its DBC declares (`GenMsgCycleTime`, see
+//! [`FrameEncoder`]), whatever the wakeup rate: the bus carries the load check-config computed.
 //!
 //! Both run until the shutdown signal and never give up on the bus: any socket error
 //! (interface down → `ENETDOWN`, interface deleted → `ENODEV`/`ENXIO`, …) or a bus-off error
@@ -47,7 +50,7 @@ use tokio::time::MissedTickBehavior;
 
 use super::codec::{BindingError, CanCodec, SignalBinding, SignalValues};
 use super::dbc::{CanDatabase, DbcError, FrameId};
-use super::heartbeat::{HeartbeatCodec, HeartbeatNames};
+use super::heartbeat::{HeartbeatCodec, HeartbeatConfig, HeartbeatNames};
 use crate::runtime::handoff::{
     monotonic_ns, CommandBoard, HeartbeatBoard, OutputBoard, SensorBoard, SnapshotBoard, Wakeup,
 };
@@ -67,6 +70,21 @@ fn default_backoff_initial_ms() -> u64 {
 }
 fn default_backoff_max_ms() -> u64 {
     2000
+}
+
+/// How a device on the bus reads "no value" (`bus.can.not_available`).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum NotAvailable {
+    /// SAE J1939: one reserved raw value per signal (all ones unsigned, the most negative
+    /// signed) means "no value" (`config/skid.dbc`'s convention). Unbound data signals of a
+    /// sent message carry it.
+    #[default]
+    J1939,
+    /// The device has no such value (it would read all ones as a number, e.g. 655.35 %): a
+    /// message goes out only once every bound value was computed, a value that becomes NaN
+    /// repeats the last number sent, and an unbound data signal in a sent message is an error.
+    None,
 }
 
 /// Settings of one CAN bus node (the `[io.can]` section).
@@ -101,17 +119,30 @@ pub struct CanBusConfig {
     #[serde(default)]
     pub tx_on_change_only: bool,
     /// Bit rate of the bus, bit/s (as set on the interface, e.g. `BitRate=` in
-    /// deploy/80-can0.network). When given, check-config computes the worst-case load of
-    /// the DBC's periodic messages and refuses more than `max_load_pct`.
-    #[serde(default)]
+    /// deploy/80-can0.network; default 1 000 000, the rate that file sets). check-config
+    /// computes the worst-case load of the DBC's periodic messages at this rate and refuses
+    /// more than `max_load_pct`.
+    #[serde(default = "default_bitrate_bps")]
     pub bitrate_bps: Option<u64>,
     /// Highest accepted worst-case bus load, % of the bit rate (default 70).
     #[serde(default = "default_max_load_pct")]
     pub max_load_pct: u32,
+    /// How the devices read "no value": `j1939` (default, the reserved pattern) or `none`.
+    #[serde(default)]
+    pub not_available: NotAvailable,
+    /// `[bus.can.heartbeat]`: the heartbeat message and its counter, mode, law and faults
+    /// signals in the DBC (default: `config/skid.dbc`'s `CTRL_Heartbeat`).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub heartbeat: Option<HeartbeatConfig>,
 }
 
 fn default_max_load_pct() -> u32 {
     70
+}
+
+/// The bit rate deploy/80-can0.network sets (`BitRate=1M`).
+fn default_bitrate_bps() -> Option<u64> {
+    Some(1_000_000)
 }
 
 impl CanBusConfig {
@@ -125,9 +156,18 @@ impl CanBusConfig {
             reconnect_backoff_initial_ms: default_backoff_initial_ms(),
             reconnect_backoff_max_ms: default_backoff_max_ms(),
             tx_on_change_only: false,
-            bitrate_bps: None,
+            bitrate_bps: default_bitrate_bps(),
             max_load_pct: default_max_load_pct(),
+            not_available: NotAvailable::J1939,
+            heartbeat: None,
         }
+    }
+
+    /// The heartbeat names: `[bus.can.heartbeat]`, or `config/skid.dbc`'s.
+    pub fn heartbeat_names(&self) -> HeartbeatNames<'_> {
+        self.heartbeat
+            .as_ref()
+            .map_or(HeartbeatNames::SKID, HeartbeatConfig::names)
     }
 
     /// Check the values (interface name length, non-zero periods, backoff order, heartbeat
@@ -225,16 +265,58 @@ pub struct BusCodec {
 impl BusCodec {
     /// Build both codecs from a parsed DBC (heartbeat names of `config/skid.dbc`).
     pub fn new(db: &CanDatabase, bindings: &[SignalBinding]) -> Result<BusCodec, CanBusError> {
+        BusCodec::with_heartbeat(db, bindings, &HeartbeatNames::SKID)
+    }
+
+    /// Build both codecs from a parsed DBC with the heartbeat `names`.
+    pub fn with_heartbeat(
+        db: &CanDatabase,
+        bindings: &[SignalBinding],
+        names: &HeartbeatNames<'_>,
+    ) -> Result<BusCodec, CanBusError> {
         Ok(BusCodec {
             frames: CanCodec::new(db, bindings)?,
-            heartbeat: HeartbeatCodec::new(db, &HeartbeatNames::SKID)?,
+            heartbeat: HeartbeatCodec::new(db, names)?,
         })
     }
 
     /// Load the DBC at `dbc` and build both codecs (`bindings`: e.g.
-    /// [`SignalMap::can_bindings`](crate::io::signal_map::SignalMap::can_bindings)).
+    /// [`SignalMap::can_bindings`](crate::io::signal_map::SignalMap::can_bindings);
+    /// heartbeat names of `config/skid.dbc`).
     pub fn load(dbc: &Path, bindings: &[SignalBinding]) -> Result<BusCodec, CanBusError> {
         BusCodec::new(&CanDatabase::from_file(dbc)?, bindings)
+    }
+
+    /// Load the DBC at `dbc` (already resolved against the config file) and build both codecs
+    /// with the heartbeat `cfg` names (`[bus.can.heartbeat]`).
+    pub fn load_for(
+        cfg: &CanBusConfig,
+        dbc: &Path,
+        bindings: &[SignalBinding],
+    ) -> Result<BusCodec, CanBusError> {
+        let codec = BusCodec::with_heartbeat(
+            &CanDatabase::from_file(dbc)?,
+            bindings,
+            &cfg.heartbeat_names(),
+        )?;
+        // both ends' senders, checked once here so that check-config sees it
+        let all: Vec<_> = codec.frames.actuator_messages().collect();
+        FrameEncoder::with_not_available(
+            &codec.frames,
+            &all,
+            false,
+            cfg.heartbeat_period(),
+            cfg.not_available,
+        )?;
+        let all: Vec<_> = codec.frames.sensor_messages().collect();
+        FrameEncoder::with_not_available(
+            &codec.frames,
+            &all,
+            false,
+            cfg.heartbeat_period(),
+            cfg.not_available,
+        )?;
+        Ok(codec)
     }
 }
 
@@ -417,6 +499,9 @@ counters! {
     tx_errors,
     /// Frames not sent because their data did not change (`tx_on_change_only`).
     tx_unchanged,
+    /// Wakeups on which a message was not sent because its DBC cycle time
+    /// (`GenMsgCycleTime`) had not come round yet.
+    tx_not_due,
     /// Data frames whose identifier is not in the DBC.
     unknown_id,
     /// Data frames of a known message with the wrong length.
@@ -545,8 +630,8 @@ pub struct PlantBoards {
 /// Run the controller node on `cfg.interface` until shutdown.
 ///
 /// Receives sensor frames into `boards.sensors` (stamped with [`monotonic_ns`] at reception),
-/// sends `boards.outputs` as actuator frames on every wakeup and the heartbeat every
-/// `heartbeat_period_ms` (withheld while the control thread publishes nothing new, so a hung
+/// sends `boards.outputs` as actuator frames on wakeups (each message at its DBC cycle time)
+/// and the heartbeat every `heartbeat_period_ms` (withheld while the control thread publishes nothing new, so a hung
 /// control thread stops the heartbeat). Returns `Ok` on shutdown; errors only for unusable
 /// configuration.
 pub async fn run_controller(
@@ -565,7 +650,13 @@ pub async fn run_controller(
             Arc::clone(&boards.sensors),
             Arc::clone(&handles.counters),
         ),
-        tx: FrameEncoder::new(&codec.frames, &actuators, cfg.tx_on_change_only, refresh)?,
+        tx: FrameEncoder::with_not_available(
+            &codec.frames,
+            &actuators,
+            cfg.tx_on_change_only,
+            refresh,
+            cfg.not_available,
+        )?,
         hb: HeartbeatTx::new(&codec.heartbeat)?,
         outputs: Arc::clone(&boards.outputs),
         wake: WakeFd::register(&boards.wake)?,
@@ -578,8 +669,8 @@ pub async fn run_controller(
 /// Run the plant node on `cfg.interface` until shutdown.
 ///
 /// Receives actuator frames into `boards.commands` and heartbeats into `boards.heartbeat`,
-/// and sends the latest `boards.snapshots` snapshot as sensor frames on every wakeup. Returns
-/// `Ok` on shutdown; errors only for unusable configuration.
+/// and sends the latest `boards.snapshots` snapshot as sensor frames on wakeups (each message
+/// at its DBC cycle time). Returns `Ok` on shutdown; errors only for unusable configuration.
 pub async fn run_plant(
     cfg: CanBusConfig,
     codec: BusCodec,
@@ -596,11 +687,12 @@ pub async fn run_plant(
             Arc::clone(&boards.heartbeat),
             Arc::clone(&handles.counters),
         ),
-        tx: FrameEncoder::new(
+        tx: FrameEncoder::with_not_available(
             &codec.frames,
             &sensors,
             cfg.tx_on_change_only,
             cfg.heartbeat_period(),
+            cfg.not_available,
         )?,
         snapshots: Arc::clone(&boards.snapshots),
         wake: WakeFd::register(&boards.wake)?,
@@ -834,6 +926,10 @@ fn send_all<V: SignalValues>(
 ) -> Result<(), DownCause> {
     let now = monotonic_ns();
     for i in 0..tx.len() {
+        if !tx.is_due(i, now) {
+            CanCounters::inc(&s.counters.tx_not_due);
+            continue;
+        }
         match tx.encode(i, values, now) {
             Some(frame) => s.send(&frame)?,
             None => CanCounters::inc(&s.counters.tx_unchanged),

@@ -70,6 +70,30 @@ mod tests {
         assert_eq!(frame_bits(false, 0), 55);
     }
 
+    /// The shipped DBC at the shipped bit rate (deploy/80-can0.network `BitRate=1M`, the
+    /// default of `bus.can.bitrate_bps`) is under the default 70 % limit; the DBC as it was
+    /// before 2026-11 (every frame at 1 ms, tests/bad_configs/maps/skid_1khz.dbc) is not.
+    #[test]
+    fn shipped_dbc_fits_the_shipped_bit_rate() {
+        let root = std::path::Path::new(env!("CARGO_MANIFEST_DIR"));
+        let db = CanDatabase::from_file(root.join("config/skid.dbc")).expect("skid.dbc");
+        let l = BusLoad::of(&db, 1_000_000);
+        assert_eq!(l.bits_per_s, 634_500.0);
+        assert!(l.percent() < 70.0, "{}", l.percent());
+        assert!(l.unperiodic.is_empty(), "{:?}", l.unperiodic);
+        let net = std::fs::read_to_string(root.join("deploy/80-can0.network")).expect("net");
+        assert!(
+            net.lines().any(|l| l.trim() == "BitRate=1M"),
+            "deploy/80-can0.network must set the bit rate the load was computed for"
+        );
+        let old = CanDatabase::from_file(root.join("tests/bad_configs/maps/skid_1khz.dbc"))
+            .expect("old dbc");
+        let at_1m = BusLoad::of(&old, 1_000_000).percent();
+        let at_500k = BusLoad::of(&old, 500_000).percent();
+        assert!((at_1m - 82.35).abs() < 0.01, "{at_1m}");
+        assert!((at_500k - 164.7).abs() < 0.01, "{at_500k}");
+    }
+
     #[test]
     fn load_of_a_small_database() {
         let db = CanDatabase::parse(

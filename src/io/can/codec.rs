@@ -53,6 +53,15 @@ pub enum SignalTarget {
 }
 
 impl SignalTarget {
+    /// Position of this target among all targets (sensors first, then actuators), below
+    /// [`MAX_TARGETS`].
+    pub const fn index(self) -> usize {
+        match self {
+            SignalTarget::Sensor(s) => s.index(),
+            SignalTarget::Actuator(a) => SensorId::COUNT + a.index(),
+        }
+    }
+
     /// Bit of this target in a [`TargetSet`].
     const fn bit(self) -> u16 {
         match self {
@@ -100,7 +109,8 @@ impl TargetSet {
     pub const fn len(self) -> usize {
         self.0.count_ones() as usize
     }
-    fn insert(&mut self, t: SignalTarget) {
+    /// Add `t`.
+    pub fn insert(&mut self, t: SignalTarget) {
         self.0 |= t.bit();
     }
     /// Members: sensors in [`SensorId::ALL`] order, then actuators.
@@ -306,7 +316,11 @@ struct BoundSignal {
 struct CodecMessage {
     name: String,
     guard: FrameGuard,
+    /// DBC `GenMsgCycleTime`, ms (`None` or 0: event-driven).
+    cycle_time_ms: Option<u32>,
     bound: Vec<BoundSignal>,
+    /// Data signals of the message that no binding uses (name, layout).
+    unbound: Vec<(String, SignalLayout)>,
 }
 
 /// Precomputed tables for decoding and encoding every message of a database.
@@ -441,7 +455,9 @@ impl CanCodec {
             .map(|m| CodecMessage {
                 name: m.name().to_string(),
                 guard: m.guard(),
+                cycle_time_ms: m.cycle_time_ms(),
                 bound: Vec::new(),
+                unbound: Vec::new(),
             })
             .collect();
         let mut seen: Vec<(SignalTarget, String)> = Vec::new();
@@ -508,6 +524,19 @@ impl CanCodec {
                 });
             }
         }
+        for (cm, m) in messages.iter_mut().zip(db.messages()) {
+            cm.unbound = m
+                .signals()
+                .iter()
+                .filter(|s| s.role() == SignalRole::Data)
+                .filter(|s| {
+                    !bindings
+                        .iter()
+                        .any(|b| b.message == cm.name && b.signal == s.name())
+                })
+                .map(|s| (s.name().to_string(), *s.layout()))
+                .collect();
+        }
         let mut by_id: Vec<(FrameId, MessageIndex)> = messages
             .iter()
             .enumerate()
@@ -548,6 +577,23 @@ impl CanCodec {
     /// Name of a message.
     pub fn message_name(&self, message: MessageIndex) -> Option<&str> {
         self.messages.get(message.get()).map(|m| m.name.as_str())
+    }
+
+    /// The message's cycle time from the DBC (`GenMsgCycleTime`), ms; `None` for an
+    /// event-driven message (no attribute, or 0).
+    pub fn cycle_time_ms(&self, message: MessageIndex) -> Option<u32> {
+        self.messages
+            .get(message.get())
+            .and_then(|m| m.cycle_time_ms)
+            .filter(|&ms| ms > 0)
+    }
+
+    /// Data signals of a message that no binding uses (name, layout): the sender fills them
+    /// with "not available" or refuses them (see `bus.can.not_available`).
+    pub fn unbound_signals(&self, message: MessageIndex) -> &[(String, SignalLayout)] {
+        self.messages
+            .get(message.get())
+            .map_or(&[], |m| m.unbound.as_slice())
     }
 
     /// DLC / alive / CRC handling of a message (identifier: `guard.id()`).

@@ -2,9 +2,11 @@
 
 use std::fmt;
 
+use serde::{Deserialize, Serialize};
+
 use super::bits::{SignalLayout, MAX_PAYLOAD};
 use super::codec::BindingError;
-use super::dbc::{CanDatabase, FrameId, SignalDef};
+use super::dbc::{CanDatabase, FrameId, SignalDef, SignalRole};
 use super::e2e::{FrameError, FrameGuard};
 
 /// Controller mode, as in the DBC value table of the heartbeat's mode signal.
@@ -71,36 +73,97 @@ pub struct Heartbeat {
     pub faults: u32,
 }
 
-/// Names of the heartbeat message and its signals in the DBC.
+/// Names of the heartbeat message and its signals in the DBC. Every signal is optional: a
+/// device that watches only a counter gets only a counter.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub struct HeartbeatNames<'a> {
     /// Message name.
     pub message: &'a str,
+    /// Alive counter signal: unsigned, factor 1, offset 0, 1..32 bits; +1 per heartbeat,
+    /// wrapping at 2^length − 1 → 0. May be the message's `AntisurgeRole AliveCounter`
+    /// signal (the end-to-end counter) or a plain signal.
+    pub counter: Option<&'a str>,
     /// Mode signal (value table must match [`ControllerMode`]).
-    pub mode: &'a str,
+    pub mode: Option<&'a str>,
     /// Active-law signal.
-    pub active_law: &'a str,
-    /// Fault bitfield signal.
-    pub faults: &'a str,
+    pub active_law: Option<&'a str>,
+    /// Fault bitfield signal (the fault word of src/faults.rs).
+    pub faults: Option<&'a str>,
 }
 
 impl HeartbeatNames<'static> {
     /// The names in `config/skid.dbc`.
     pub const SKID: HeartbeatNames<'static> = HeartbeatNames {
         message: "CTRL_Heartbeat",
-        mode: "Mode",
-        active_law: "ActiveLaw",
-        faults: "Faults",
+        counter: Some("AliveCounter"),
+        mode: Some("Mode"),
+        active_law: Some("ActiveLaw"),
+        faults: Some("Faults"),
     };
+}
+
+/// `[bus.can.heartbeat]`: which DBC message is the controller heartbeat and which of its
+/// signals carry the alive counter, mode, active law and fault word (each optional; a signal
+/// left out is not written). Without the section: `config/skid.dbc`'s `CTRL_Heartbeat` with
+/// `AliveCounter`, `Mode`, `ActiveLaw` and `Faults`.
+///
+/// ```toml
+/// [bus.can.heartbeat]            # a device that watches a 16-bit counter only
+/// message = "DCS_Watchdog"
+/// counter = "WdCounter"
+/// ```
+#[derive(Debug, Clone, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct HeartbeatConfig {
+    /// DBC message sent as the heartbeat.
+    pub message: String,
+    /// Alive counter signal (width and wrap from its DBC length).
+    #[serde(default)]
+    pub counter: Option<String>,
+    /// Mode signal (value table 0 init, 1 manual, 2 auto, 3 fail_safe, 4 shutdown).
+    #[serde(default)]
+    pub mode: Option<String>,
+    /// Active-law signal (DBC ActiveLaw ids).
+    #[serde(default)]
+    pub law: Option<String>,
+    /// Fault word signal (src/faults.rs categories).
+    #[serde(default)]
+    pub faults: Option<String>,
+}
+
+impl HeartbeatConfig {
+    /// The names to look up in the DBC.
+    pub fn names(&self) -> HeartbeatNames<'_> {
+        HeartbeatNames {
+            message: &self.message,
+            counter: self.counter.as_deref(),
+            mode: self.mode.as_deref(),
+            active_law: self.law.as_deref(),
+            faults: self.faults.as_deref(),
+        }
+    }
+}
+
+/// Where the heartbeat's alive counter is written.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+enum CounterSlot {
+    /// No counter.
+    None,
+    /// The message's end-to-end counter (`AntisurgeRole AliveCounter`), written by the guard
+    /// before the CRC.
+    Guard(u8),
+    /// A plain signal of the heartbeat.
+    Signal(SignalLayout),
 }
 
 /// Encoder/decoder of the heartbeat frame (no allocation after [`HeartbeatCodec::new`]).
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub struct HeartbeatCodec {
     guard: FrameGuard,
-    mode: SignalLayout,
-    active_law: SignalLayout,
-    faults: SignalLayout,
+    counter: CounterSlot,
+    mode: Option<SignalLayout>,
+    active_law: Option<SignalLayout>,
+    faults: Option<SignalLayout>,
 }
 
 fn unfit(message: &str, signal: &str, reason: impl Into<String>) -> BindingError {
@@ -131,37 +194,68 @@ fn plain_unsigned(
 }
 
 impl HeartbeatCodec {
-    /// Find the heartbeat in `db` and check it: mode (≥ 3 bits, value table naming every
-    /// [`ControllerMode`]), active law (≤ 8 bits), faults (≤ 32 bits), all unsigned raw.
+    /// Find the heartbeat in `db` and check the named signals: counter (≤ 32 bits), mode
+    /// (≥ 3 bits, value table naming every [`ControllerMode`]), active law (≤ 8 bits), faults
+    /// (≤ 32 bits), all unsigned raw.
     pub fn new(db: &CanDatabase, names: &HeartbeatNames<'_>) -> Result<Self, BindingError> {
         let msg = names.message;
         let m = db
             .message(msg)
             .ok_or_else(|| unfit(msg, "", "no such message"))?;
-        let mode = plain_unsigned(msg, m.signal(names.mode), names.mode, 8)?;
-        if mode.size() < 3 {
-            return Err(unfit(msg, names.mode, "needs at least 3 bits for 5 modes"));
-        }
-        if let Some(s) = m.signal(names.mode) {
-            for mo in ControllerMode::ALL {
-                if s.value_name(i64::from(mo.raw())) != Some(mo.name()) {
-                    return Err(unfit(
-                        msg,
-                        names.mode,
-                        format!(
-                            "value table must map {} to \"{}\" (found {:?})",
-                            mo.raw(),
-                            mo.name(),
-                            s.value_name(i64::from(mo.raw()))
-                        ),
-                    ));
+        let mode = match names.mode {
+            None => None,
+            Some(name) => {
+                let s = m.signal(name);
+                let l = plain_unsigned(msg, s, name, 8)?;
+                if l.size() < 3 {
+                    return Err(unfit(msg, name, "needs at least 3 bits for 5 modes"));
+                }
+                for mo in ControllerMode::ALL {
+                    let found = s.and_then(|s| s.value_name(i64::from(mo.raw())));
+                    if found != Some(mo.name()) {
+                        return Err(unfit(
+                            msg,
+                            name,
+                            format!(
+                                "value table must map {} to \"{}\" (found {:?})",
+                                mo.raw(),
+                                mo.name(),
+                                found
+                            ),
+                        ));
+                    }
+                }
+                Some(l)
+            }
+        };
+        let active_law = names
+            .active_law
+            .map(|n| plain_unsigned(msg, m.signal(n), n, 8))
+            .transpose()?;
+        let faults = names
+            .faults
+            .map(|n| plain_unsigned(msg, m.signal(n), n, 32))
+            .transpose()?;
+        let counter = match names.counter {
+            None => CounterSlot::None,
+            Some(n) => {
+                let s = m.signal(n).ok_or_else(|| unfit(msg, n, "no such signal"))?;
+                match s.role() {
+                    SignalRole::AliveCounter => CounterSlot::Guard(s.layout().size()),
+                    SignalRole::Data => CounterSlot::Signal(plain_unsigned(msg, Some(s), n, 32)?),
+                    other => {
+                        return Err(unfit(
+                            msg,
+                            n,
+                            format!("is the message's {other}, not a counter"),
+                        ))
+                    }
                 }
             }
-        }
-        let active_law = plain_unsigned(msg, m.signal(names.active_law), names.active_law, 8)?;
-        let faults = plain_unsigned(msg, m.signal(names.faults), names.faults, 32)?;
+        };
         Ok(HeartbeatCodec {
             guard: m.guard(),
+            counter,
             mode,
             active_law,
             faults,
@@ -178,41 +272,76 @@ impl HeartbeatCodec {
         self.guard.dlc()
     }
 
-    /// Width of the alive counter, bits (`None`: the message has none).
+    /// Width of the heartbeat's alive counter, bits (`None`: no counter named).
     pub fn alive_bits(&self) -> Option<u8> {
-        self.guard.alive_bits()
+        match self.counter {
+            CounterSlot::None => None,
+            CounterSlot::Guard(bits) => Some(bits),
+            CounterSlot::Signal(l) => Some(l.size()),
+        }
     }
 
-    /// Encode a heartbeat with alive counter `alive`; the payload is the first
-    /// [`HeartbeatCodec::dlc`] bytes. Law and fault values wider than their signals are
-    /// truncated to the signal width.
-    pub fn encode(&self, hb: &Heartbeat, alive: u8) -> [u8; MAX_PAYLOAD] {
+    /// Whether the heartbeat carries a mode signal.
+    pub fn has_mode(&self) -> bool {
+        self.mode.is_some()
+    }
+
+    /// Encode a heartbeat with alive counter `alive` (taken modulo 2^counter width); the
+    /// payload is the first [`HeartbeatCodec::dlc`] bytes. Law and fault values wider than
+    /// their signals are truncated to the signal width; signals not named stay 0.
+    pub fn encode(&self, hb: &Heartbeat, alive: u32) -> [u8; MAX_PAYLOAD] {
         let mut data = [0u8; MAX_PAYLOAD];
-        self.mode.pack(&mut data, i128::from(hb.mode.raw()));
-        self.active_law.pack(&mut data, i128::from(hb.active_law));
-        self.faults.pack(&mut data, i128::from(hb.faults));
-        self.guard.seal(&mut data, alive);
+        if let Some(l) = self.mode {
+            l.pack(&mut data, i128::from(hb.mode.raw()));
+        }
+        if let Some(l) = self.active_law {
+            l.pack(&mut data, i128::from(hb.active_law));
+        }
+        if let Some(l) = self.faults {
+            l.pack(&mut data, i128::from(hb.faults));
+        }
+        let guard_alive = match self.counter {
+            CounterSlot::Signal(l) => {
+                l.pack(&mut data, i128::from(alive) & ((1i128 << l.size()) - 1));
+                0
+            }
+            // the guard takes its counter modulo its own width
+            CounterSlot::Guard(_) | CounterSlot::None => alive as u8,
+        };
+        self.guard.seal(&mut data, guard_alive);
         data
     }
 
-    /// Decode a received heartbeat payload: checks DLC and CRC, then the mode.
-    /// Returns the heartbeat and its alive counter.
+    /// Decode a received heartbeat payload: checks DLC and CRC, then the mode. Returns the
+    /// heartbeat and the low 8 bits of its alive counter (enough to see a skipped or repeated
+    /// frame; a wider counter wraps at a multiple of 256). A heartbeat without a mode signal
+    /// reads as `auto` (its arrival is all it says); one without law or faults as 0.
     pub fn decode(&self, data: &[u8]) -> Result<(Heartbeat, Option<u8>), FrameError> {
         let frame = self.guard.check(data)?;
-        let raw_mode = self.mode.unpack(&frame);
-        let mode = u8::try_from(raw_mode)
-            .ok()
-            .and_then(ControllerMode::from_raw)
-            .ok_or(FrameError::InvalidValue {
-                id: self.guard.id(),
-                raw: raw_mode as i64,
-            })?;
+        let mode = match self.mode {
+            None => ControllerMode::Auto,
+            Some(l) => {
+                let raw_mode = l.unpack(&frame);
+                u8::try_from(raw_mode)
+                    .ok()
+                    .and_then(ControllerMode::from_raw)
+                    .ok_or(FrameError::InvalidValue {
+                        id: self.guard.id(),
+                        raw: raw_mode as i64,
+                    })?
+            }
+        };
         let hb = Heartbeat {
             mode,
-            active_law: self.active_law.unpack(&frame) as u8,
-            faults: self.faults.unpack(&frame) as u32,
+            active_law: self.active_law.map_or(0, |l| l.unpack(&frame) as u8),
+            faults: self.faults.map_or(0, |l| l.unpack(&frame) as u32),
         };
-        Ok((hb, self.guard.alive(&frame)))
+        let alive = match self.counter {
+            CounterSlot::None => None,
+            CounterSlot::Guard(_) => self.guard.alive(&frame),
+            CounterSlot::Signal(l) => Some(l.unpack(&frame) as u8),
+        };
+        Ok((hb, alive))
     }
 }
 
@@ -270,7 +399,7 @@ mod tests {
         let e = HeartbeatCodec::new(
             &db,
             &HeartbeatNames {
-                mode: "Modus",
+                mode: Some("Modus"),
                 ..HeartbeatNames::SKID
             },
         )
@@ -283,7 +412,7 @@ mod tests {
         let e = HeartbeatCodec::new(
             &db,
             &HeartbeatNames {
-                mode: "ActiveLaw",
+                mode: Some("ActiveLaw"),
                 ..HeartbeatNames::SKID
             },
         )

@@ -237,7 +237,8 @@ fn repeated_alive_counter_is_not_published_skipped_is() {
     let mut frames = Vec::new();
     for k in 0..6 {
         snap.set(SensorId::PSuction, 100_000.0 + f64::from(k));
-        frames.push(enc.encode(0, &snap, 0).expect("frame"));
+        // one frame per 1 ms cycle time of PLANT_Pressures
+        frames.push(enc.encode(0, &snap, k as u64 * 1_000_000).expect("frame"));
     }
     let feed = |ctl: &mut Controller, f: &CanDataFrame, t: u64| {
         let (id, d) = parts(f);
@@ -346,7 +347,7 @@ fn nan_setpoint_is_sent_as_not_available_and_alive_counts_up() {
     let f0 = enc.encode(0, &cmd, 0).expect("frame");
     cmd.set(ActuatorId::RecycleValve, f64::NAN); // not driven any more
     cmd.set(ActuatorId::DriveTorque, 10.0);
-    let f1 = enc.encode(0, &cmd, 0).expect("frame");
+    let f1 = enc.encode(0, &cmd, 1_000_000).expect("frame");
     let (id, d0) = parts(&f0);
     let (_, d1) = parts(&f1);
     assert_eq!(d0[6] & 0x0F, 0);
@@ -362,6 +363,111 @@ fn nan_setpoint_is_sent_as_not_available_and_alive_counts_up() {
     assert!(v.is_nan(), "{v}");
     assert_eq!(t, 2);
     assert_eq!(p.commands.get(ActuatorId::DriveTorque).0, 10.0);
+}
+
+/// Every message at its DBC cycle time (`GenMsgCycleTime`) whatever the wakeup rate: over
+/// 200 ms of 1 kHz wakeups jittering by ±0.3 ms, the 1 ms messages go out 200 times, the 2 ms
+/// positions 100 times and the 10 ms drive report 20 times; two frames of one message are
+/// never closer than half its cycle time (0.4 ms for the 1 ms messages: the jitter itself).
+#[test]
+fn each_message_keeps_its_dbc_cycle_time() {
+    let c = codec();
+    let ms = 1_000_000u64;
+    let msgs = messages(&c, true);
+    let mut enc = FrameEncoder::new(&c.frames, &msgs, false, refresh()).expect("enc");
+    let names: Vec<&str> = msgs
+        .iter()
+        .map(|&m| c.frames.message_name(m).expect("name"))
+        .collect();
+    assert_eq!(
+        names,
+        [
+            "PLANT_Pressures",
+            "PLANT_SpeedFlowTemp",
+            "PLANT_Positions",
+            "PLANT_Drive"
+        ]
+    );
+    let periods: Vec<u64> = (0..enc.len())
+        .map(|i| enc.period_ns(i).expect("period") / ms)
+        .collect();
+    assert_eq!(periods, [1, 1, 2, 10]);
+    let snap = snapshot();
+    let mut sent: Vec<Vec<u64>> = vec![Vec::new(); enc.len()];
+    // deterministic jitter: 0, +0.3, -0.3, +0.1, -0.2 ms, repeating
+    let jitter_us = [0i64, 300, -300, 100, -200];
+    for k in 0..200u64 {
+        let j = jitter_us[(k % 5) as usize];
+        let now = (10 * ms + k * ms).saturating_add_signed(j * 1_000);
+        for (i, times) in sent.iter_mut().enumerate() {
+            let due = enc.is_due(i, now);
+            match enc.encode(i, &snap, now) {
+                Some(_) => {
+                    assert!(due, "{}: sent while not due", names[i]);
+                    times.push(now)
+                }
+                None => assert!(!due, "{}: due but not sent", names[i]),
+            }
+        }
+    }
+    let counts: Vec<usize> = sent.iter().map(Vec::len).collect();
+    assert_eq!(counts, [200, 200, 100, 20], "frames per message in 200 ms");
+    for (i, times) in sent.iter().enumerate() {
+        let half = (periods[i] * ms / 2).min(400_000);
+        for w in times.windows(2) {
+            assert!(
+                w[1] - w[0] >= half,
+                "{}: frames {} ns apart",
+                names[i],
+                w[1] - w[0]
+            );
+        }
+    }
+    // A long gap (no wakeups for 50 ms) restarts the schedule instead of bursting.
+    let now = 300 * ms;
+    assert!(enc.encode(3, &snap, now).is_some());
+    assert!(enc.encode(3, &snap, now + ms).is_none());
+    assert!(enc.encode(3, &snap, now + 9 * ms).is_none());
+    assert!(enc.encode(3, &snap, now + 10 * ms).is_some());
+}
+
+/// No frame before the first computed command: a message whose bound values are all NaN is
+/// not sent at all (a device would otherwise see "not available" or a number nobody
+/// computed); once one value is a number, the others go out as "not available" (J1939).
+#[test]
+fn nothing_is_sent_before_the_first_computed_command() {
+    let c = codec();
+    let ms = 1_000_000u64;
+    let mut enc =
+        FrameEncoder::new(&c.frames, &messages(&c, false), false, refresh()).expect("enc");
+    let mut cmd = ActuatorCommands::default();
+    for a in ActuatorId::ALL {
+        cmd.set(a, f64::NAN);
+    }
+    for k in 0..5 {
+        assert!(
+            enc.encode(0, &cmd, k * ms).is_none(),
+            "Cmd1 before a command"
+        );
+        assert!(
+            enc.encode(1, &cmd, k * ms).is_none(),
+            "Cmd2 before a command"
+        );
+    }
+    cmd.set(ActuatorId::RecycleValve, 0.25);
+    let f = enc.encode(0, &cmd, 5 * ms).expect("first computed command");
+    let d = f.data();
+    // RecycleValveCmd 0.25 = 2500 raw at bit 18; DriveTorqueCmd (18 bits signed) and
+    // ThrottleCmd (14 bits at bit 32) "not available"
+    let word = u64::from_le_bytes(d.try_into().expect("8 bytes"));
+    assert_eq!((word >> 18) & 0x3FFF, 2500, "{d:02x?}");
+    assert_eq!(word & 0x3_FFFF, 0x2_0000, "torque: sign bit only");
+    assert_eq!((word >> 32) & 0x3FFF, 0x3FFF, "throttle: all ones");
+    assert_eq!(d[6] & 0x0F, 0, "first frame has counter 0");
+    assert!(
+        enc.encode(1, &cmd, 5 * ms).is_none(),
+        "Cmd2: still nothing computed"
+    );
 }
 
 #[test]
