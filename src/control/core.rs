@@ -133,6 +133,13 @@ impl CoreSettings {
         self.supervisor
             .follow_poll_period(poll_period_s, POLL_PERIODS_PER_TIMEOUT);
     }
+
+    /// [`follow_poll_period`](Self::follow_poll_period) for the inputs a polled bus delivers
+    /// (the daemon: the signal map's Modbus sensors at `[bus.modbus] poll_rate_hz`).
+    pub fn follow_poll_period_of(&mut self, ids: &[SensorId], poll_period_s: f64) {
+        self.supervisor
+            .follow_poll_period_of(ids, poll_period_s, POLL_PERIODS_PER_TIMEOUT);
+    }
 }
 
 /// Default transmitter-failure hold, s: longer than a 100 ms blip plus a 50 Hz poll period,

@@ -65,6 +65,19 @@ impl Supervisor {
         }
     }
 
+    /// [`follow_poll_period`](Self::follow_poll_period) for the inputs `ids` only (the
+    /// sensors a polled bus delivers; inputs on CAN keep their own timeouts).
+    pub fn follow_poll_period_of(&mut self, ids: &[SensorId], poll_period_s: f64, periods: f64) {
+        if !(poll_period_s.is_finite() && poll_period_s > 0.0) {
+            return;
+        }
+        for id in ids {
+            if let Some(l) = self.limits[id.index()].as_mut() {
+                l.timeout_s = l.timeout_s.max(periods * poll_period_s);
+            }
+        }
+    }
+
     /// Check all inputs.
     pub fn check(&self, raw: &RawSensors) -> Validity {
         let mut fault = [InputFault::None; SensorId::COUNT];

@@ -1038,6 +1038,12 @@ pub fn load_with_env(main: &Path, vars: &[(String, String)]) -> Result<Loaded, V
     // input limits: plant-derived defaults, overridden per sensor
     let mut core = CoreSettings::defaults_for(&model);
     super::config_machine::apply_transmitter_ranges(&machine, &mut core);
+    // freshness defaults follow the bus: inputs polled over Modbus may be up to a poll period
+    // (plus the answer) old between answers, so their default timeout is 3 poll periods
+    if let (Transport::Field, Some(m)) = (&config.bus.transport, &config.bus.modbus) {
+        let polled: Vec<SensorId> = signal_map.modbus_sensors().iter().map(|s| s.0).collect();
+        core.follow_poll_period_of(&polled, 1.0 / m.poll_rate_hz);
+    }
     for (id, s) in &config.inputs {
         core.supervisor.limits[id.index()] = Some(InputLimits {
             min: s.min,
