@@ -10,7 +10,11 @@ use antisurge::daemon::config::{load_with_env, Loaded};
 use antisurge::signals::SensorId;
 
 fn shipped(rel: &str) -> String {
-    common::root().join("config").join(rel).display().to_string()
+    common::root()
+        .join("config")
+        .join(rel)
+        .display()
+        .to_string()
 }
 
 fn load(text: &str) -> (tempfile::TempDir, Loaded) {

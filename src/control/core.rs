@@ -3,12 +3,13 @@
 //! daemon call [`ControlCore::cycle`] once per period.
 
 use super::config::{ControllerConfig, FlowSource};
+use super::cross_check::FrozenDpCheck;
 use super::law::{Law, LawError, LawEvent, LawId, LawInputs, LoopHistory};
 use super::measurements::{Measurements, OperatorInputs, RawSensors};
 use super::model::ControlModel;
 use super::observer::{LowPass, MassFlowObserver};
 use super::speed_loop::SpeedLoop;
-use super::supervisor::{InputLimits, Supervisor, Validity};
+use super::supervisor::{InputFault, InputLimits, Supervisor, Validity};
 use super::surge_control_line::SurgeControlLine;
 use crate::signals::{ActuatorCommands, ActuatorId, SensorId};
 use crate::surge::{Detection, SurgeDetector};
@@ -262,6 +263,8 @@ pub struct ControlCore {
     failsafe_torque_latched: bool,
     /// The law's own torque of the last computing cycle (repeated by a holding cycle), N·m.
     last_law_torque_nm: f64,
+    /// Cross-check of the flow element's Δp against the pressures (frozen transmitter).
+    dp_frozen: FrozenDpCheck,
 }
 
 impl ControlCore {
@@ -308,6 +311,7 @@ impl ControlCore {
             reported_torque_nm: f64::NAN,
             failsafe_torque_latched: false,
             last_law_torque_nm: f64::NAN,
+            dp_frozen: FrozenDpCheck::new(),
             model,
             config,
             settings,
@@ -332,6 +336,11 @@ impl ControlCore {
     /// Current mode.
     pub fn mode(&self) -> Mode {
         self.mode
+    }
+
+    /// The frozen-Δp cross-check.
+    pub fn dp_cross_check(&self) -> &FrozenDpCheck {
+        &self.dp_frozen
     }
 
     /// The online surge detector.
@@ -551,6 +560,19 @@ impl ControlCore {
             FlowSource::OrificeWithObserverFallback => {
                 if m_meas.is_finite() {
                     (m_meas, false)
+                } else if v.fault[SensorId::OrificeDp.index()] == InputFault::Frozen
+                    && m_obs.is_finite()
+                {
+                    // a frozen Δp: the conservative estimate, the lower of the observer's
+                    // flow and the frozen reading's (a closing machine loses flow that the
+                    // frozen value does not show; an observer off the other way is capped)
+                    let m_frozen = self.model.orifice.mass_flow_kg_s(
+                        &self.model.gas,
+                        raw.values.get(SensorId::OrificeDp),
+                        p_s,
+                        t_s_k,
+                    );
+                    (m_obs.min(m_frozen), true)
                 } else {
                     (m_obs, m_obs.is_finite())
                 }
@@ -643,7 +665,23 @@ impl ControlCore {
 
     /// Run one cycle at time `t_s`.
     pub fn cycle(&mut self, t_s: f64, raw: &RawSensors, op: &OperatorInputs) -> CycleOutput {
-        let validity = self.settings.supervisor.check(raw);
+        let mut validity = self.settings.supervisor.check(raw);
+        // cross-check: a Δp repeating itself while the pressures move is frozen
+        let usable = |id: SensorId| {
+            if validity.ok(id) {
+                raw.values.get(id)
+            } else {
+                f64::NAN
+            }
+        };
+        if self.dp_frozen.update(
+            t_s,
+            usable(SensorId::OrificeDp),
+            usable(SensorId::PSuction),
+            usable(SensorId::PDischarge),
+        ) {
+            validity.fault[SensorId::OrificeDp.index()] = InputFault::Frozen;
+        }
         self.reported_torque_nm = if validity.ok(SensorId::DriveTorque) {
             raw.values.get(SensorId::DriveTorque)
         } else {

@@ -28,6 +28,9 @@ pub enum InputFault {
     OutOfRange,
     /// Older than the timeout.
     Stale,
+    /// Fresh and in range but repeating itself while related signals move (the control
+    /// core's cross-check, [`crate::control::cross_check`]).
+    Frozen,
 }
 
 /// Validity of every input after one check.
