@@ -55,6 +55,19 @@ fn matrix() -> Vec<CaseResult> {
 fn recycle_pi_with_defaults_holds_the_matrix_without_surge() {
     let rows = matrix();
     let mut failures = Vec::new();
+    // the Δp cross-check: a Δp frozen for 1 s during the closure is found within 300 ms under
+    // either law, and nothing else in the matrix looks frozen to it
+    for r in &rows {
+        if r.case.contains("Δp frozen") {
+            assert!(
+                r.dp_frozen_found_after_s < 0.3,
+                "frozen Δp found after {} s: {r:?}",
+                r.dp_frozen_found_after_s
+            );
+        } else {
+            assert_eq!(r.dp_frozen_found, 0, "false frozen-Δp find: {r:?}");
+        }
+    }
     for r in rows.iter().filter(|r| r.law == LawId::RecyclePi) {
         // kvangardsnes2009's 2 s valve cannot hold the ESD (the table says so and names the
         // stroke that does, checked below) nor, at a 5 % margin, the throttle step
@@ -79,8 +92,27 @@ fn recycle_pi_with_defaults_holds_the_matrix_without_surge() {
 fn esd_stroke_verdict_names_a_stroke_that_holds() {
     let cfg = common::root().join("config");
     let p = PlantDescription::load(&cfg.join("plants/kvangardsnes2009_recycle.toml")).unwrap();
-    let v = bench_matrix::esd_strokes(std::slice::from_ref(&p), &cfg).unwrap();
-    assert_eq!(v.len(), 1);
-    assert!(v[0].surge_cycles > 0, "{v:?}");
-    assert_eq!(v[0].holding_stroke_s, Some(1.0), "{v:?}");
+    let sc = bench_matrix::builtin_esd_scenario().expect("ESD scenario");
+    let v = bench_matrix::esd_stroke(&p, &sc, 10.0)
+        .unwrap()
+        .expect("recycle valve");
+    assert!(v.surge_cycles > 0, "{v:?}");
+    let named = v.holding_stroke_s.expect("no stroke named");
+    assert!(named < v.stroke_time_s, "{v:?}");
+    // the variant with the stroke the check names holds the ESD without surge
+    let mut variant = p.clone();
+    variant
+        .file
+        .recycle_system
+        .as_mut()
+        .expect("recycle system")
+        .recycle_valve
+        .stroke_time_s = named;
+    let case = bench_matrix::CASES
+        .iter()
+        .find(|c| c.scenario == "emergency-shutdown")
+        .expect("ESD case");
+    let r = bench_matrix::run_case(&variant, &sc, case, LawId::RecyclePi, 10.0).unwrap();
+    assert_eq!(r.surge_cycles, 0, "{r:?}");
+    assert!(r.min_margin_during > 0.0, "{r:?}");
 }

@@ -18,6 +18,7 @@ use crate::control::core::{ControlCore, CoreSettings, Mode};
 use crate::control::measurements::{OperatorInputs, RawSensors};
 use crate::control::model::ControlModel;
 use crate::control::recycle_pi::RecyclePiConfig;
+use crate::control::supervisor::InputFault;
 use crate::control::surge_control_line::ControlLineForm;
 use crate::control::LawId;
 use crate::plant::file::PlantDescription;
@@ -175,6 +176,11 @@ pub struct CaseResult {
     /// Largest |first command − measured position| when the law (re)starts after the first
     /// cycle, fraction of travel (0 if it never restarts).
     pub resume_step: f64,
+    /// Times the controller's cross-check found the Δp frozen (episodes).
+    pub dp_frozen_found: u32,
+    /// In the "Δp frozen" case, how long after the Δp froze the cross-check first found it,
+    /// s (NaN: not found, or another case).
+    pub dp_frozen_found_after_s: f64,
 }
 
 /// The controller configuration of a case: the plant's observer and detector settings, and
@@ -271,7 +277,10 @@ pub fn run_case(
         failsafe_s: 0.0,
         failsafe_entries: 0,
         resume_step: 0.0,
+        dp_frozen_found: 0,
+        dp_frozen_found_after_s: f64::NAN,
     };
+    let mut was_frozen = false;
     let mut held_raw: Option<RawSensors> = None;
     let mut frozen_dp = f64::NAN;
     let mut delivered = ActuatorCommands::default();
@@ -345,6 +354,16 @@ pub fn run_case(
             pr.count_law_event(e);
         }
         // scoring
+        let frozen = out.validity.fault[SensorId::OrificeDp.index()] == InputFault::Frozen;
+        if frozen && !was_frozen {
+            res.dp_frozen_found += 1;
+            if let FieldFault::DpFrozen { at_s, .. } = case.fault {
+                if res.dp_frozen_found_after_s.is_nan() && t >= at_s {
+                    res.dp_frozen_found_after_s = t - at_s;
+                }
+            }
+        }
+        was_frozen = frozen;
         if out.mode == Mode::FailSafe {
             res.failsafe_s += dt;
             if last_mode != Mode::FailSafe {
@@ -450,12 +469,14 @@ pub fn run_matrix(
 }
 
 /// Whether the recycle valve's stroke suffices for an ESD rundown without surge (recycle-pi
-/// at a 10 % margin), and if not, the longest of the candidate stroke times (1, 0.5, 0.25 s)
-/// with which a variant of the plant holds it.
+/// with its defaults at one control-line margin), and if not, the longest of the candidate
+/// stroke times (1, 0.5, 0.25 s) with which a variant of the plant holds it.
 #[derive(Debug, Clone, PartialEq)]
 pub struct EsdStroke {
     /// Plant name.
     pub plant: String,
+    /// Control-line margin, %.
+    pub margin_pct: f64,
     /// The plant's recycle-valve stroke time, s.
     pub stroke_time_s: f64,
     /// Surge cycles of the ESD with that stroke.
@@ -465,7 +486,7 @@ pub struct EsdStroke {
     pub holding_stroke_s: Option<f64>,
 }
 
-/// Check the ESD stroke of every recycle plant.
+/// Check the ESD stroke of every recycle plant at every margin of the matrix.
 pub fn esd_strokes(
     plants: &[PlantDescription],
     config_dir: &Path,
@@ -475,65 +496,121 @@ pub fn esd_strokes(
         scenario: "emergency-shutdown".into(),
         message: e.to_string(),
     })?;
-    let case = CASES[4];
     let mut out = Vec::new();
     for p in plants
         .iter()
         .filter(|p| LawId::RecyclePi.supports(p.file.model))
     {
-        let Some(rs) = p.file.recycle_system else {
-            continue;
-        };
-        let stroke = rs.recycle_valve.stroke_time_s;
-        let r = run_case(p, &sc, &case, LawId::RecyclePi, 10.0)?;
-        let mut holding = None;
-        if r.surge_cycles > 0 {
-            for cand in [1.0, 0.5, 0.25] {
-                if cand >= stroke {
-                    continue;
-                }
-                let mut v = p.clone();
-                if let Some(rs) = v.file.recycle_system.as_mut() {
-                    rs.recycle_valve.stroke_time_s = cand;
-                }
-                if run_case(&v, &sc, &case, LawId::RecyclePi, 10.0)?.surge_cycles == 0 {
-                    holding = Some(cand);
-                    break;
-                }
+        for m in MARGINS_PCT {
+            if let Some(v) = esd_stroke(p, &sc, m)? {
+                out.push(v);
             }
         }
-        out.push(EsdStroke {
-            plant: p.name().to_string(),
-            stroke_time_s: stroke,
-            surge_cycles: r.surge_cycles,
-            holding_stroke_s: holding,
-        });
     }
     Ok(out)
+}
+
+/// The ESD stroke verdict of one plant (None: no recycle valve) under the scenario `sc` (a
+/// drive trip), recycle-pi with its defaults at `margin_pct`; the variants try the candidate
+/// strokes 1, 0.5 and 0.25 s shorter than the plant's.
+pub fn esd_stroke(
+    p: &PlantDescription,
+    sc: &Scenario,
+    margin_pct: f64,
+) -> Result<Option<EsdStroke>, SimError> {
+    let case = CASES[4];
+    let Some(rs) = p.file.recycle_system else {
+        return Ok(None);
+    };
+    let stroke = rs.recycle_valve.stroke_time_s;
+    let surge_cycles = run_case(p, sc, &case, LawId::RecyclePi, margin_pct)?.surge_cycles;
+    let mut holding = None;
+    if surge_cycles > 0 {
+        for cand in [1.0, 0.5, 0.25] {
+            if cand >= stroke {
+                continue;
+            }
+            let mut v = p.clone();
+            if let Some(rs) = v.file.recycle_system.as_mut() {
+                rs.recycle_valve.stroke_time_s = cand;
+            }
+            if run_case(&v, sc, &case, LawId::RecyclePi, margin_pct)?.surge_cycles == 0 {
+                holding = Some(cand);
+                break;
+            }
+        }
+    }
+    Ok(Some(EsdStroke {
+        plant: p.name().to_string(),
+        margin_pct,
+        stroke_time_s: stroke,
+        surge_cycles,
+        holding_stroke_s: holding,
+    }))
+}
+
+/// The built-in emergency-shutdown scenario (a copy of `config/scenarios/emergency_shutdown.toml`
+/// compiled in, so that the machine check needs no config directory).
+pub fn builtin_esd_scenario() -> Result<Scenario, SimError> {
+    const TEXT: &str = include_str!("../../config/scenarios/emergency_shutdown.toml");
+    let e = |m: String| SimError::Scenario {
+        scenario: "emergency-shutdown".into(),
+        message: m,
+    };
+    let file = toml::from_str(TEXT).map_err(|x| e(x.to_string()))?;
+    Scenario::from_file(file, Path::new("emergency_shutdown.toml"), TEXT)
+        .map_err(|x| e(x.to_string()))
+}
+
+fn esd_verdict(r: &EsdStroke) -> String {
+    if r.surge_cycles == 0 {
+        return "suffices (no surge cycle)".to_string();
+    }
+    match r.holding_stroke_s {
+        Some(t) => format!(
+            "is too slow ({} surge cycles); a {t} s stroke holds the ESD without surge",
+            r.surge_cycles
+        ),
+        None => format!(
+            "is too slow ({} surge cycles); no stroke down to 0.25 s holds it (the law, not the valve, is the limit there)",
+            r.surge_cycles
+        ),
+    }
+}
+
+/// The machine check's warning on the ESD stroke of a simulated plant, with recycle-pi at a
+/// `margin_pct` control line: None if the valve's stroke holds an ESD (drive trip) without
+/// surge (or the plant has no recycle valve), else one line naming the stroke time that
+/// would (or saying that none down to 0.25 s does).
+pub fn esd_stroke_warning(
+    p: &PlantDescription,
+    margin_pct: f64,
+) -> Result<Option<String>, SimError> {
+    let sc = builtin_esd_scenario()?;
+    let Some(v) = esd_stroke(p, &sc, margin_pct)? else {
+        return Ok(None);
+    };
+    if v.surge_cycles == 0 {
+        return Ok(None);
+    }
+    Ok(Some(format!(
+        "recycle_system.recycle_valve.stroke_time_s: in an emergency shutdown (drive trip, simulated, recycle-pi at a {margin_pct} % margin) the recycle valve's {} s stroke {}",
+        v.stroke_time_s,
+        esd_verdict(&v)
+    )))
 }
 
 /// The ESD verdicts as Markdown lines.
 pub fn esd_markdown(rows: &[EsdStroke]) -> String {
     let mut s = String::new();
     for r in rows {
-        let verdict = if r.surge_cycles == 0 {
-            "suffices (no surge cycle)".to_string()
-        } else {
-            match r.holding_stroke_s {
-                Some(t) => format!(
-                    "is too slow ({} surge cycles); a {t} s stroke holds the ESD without surge",
-                    r.surge_cycles
-                ),
-                None => format!(
-                    "is too slow ({} surge cycles); no stroke down to 0.25 s holds it",
-                    r.surge_cycles
-                ),
-            }
-        };
         let _ = writeln!(
             s,
-            "- {}: the recycle valve's {} s stroke {verdict}.",
-            r.plant, r.stroke_time_s
+            "- {} at {:.0} %: the recycle valve's {} s stroke {}.",
+            r.plant,
+            r.margin_pct,
+            r.stroke_time_s,
+            esd_verdict(r)
         );
     }
     s
@@ -591,6 +668,36 @@ pub fn markdown(rows: &[CaseResult]) -> String {
         }
         s.push('\n');
     }
+    s.push_str("Δp frozen 1 s (the cross-check of the Δp against the pressures):\n\n");
+    for p in &plants {
+        let found: Vec<String> = rows
+            .iter()
+            .filter(|r| r.plant == *p && matches!(r.case, c if c.contains("Δp frozen")))
+            .map(|r| {
+                if r.dp_frozen_found_after_s.is_finite() {
+                    format!(
+                        "{} @ {:.0} % after {:.0} ms",
+                        r.law.name(),
+                        r.margin_pct,
+                        1e3 * r.dp_frozen_found_after_s
+                    )
+                } else {
+                    format!("{} @ {:.0} % not found", r.law.name(), r.margin_pct)
+                }
+            })
+            .collect();
+        let spurious: u32 = rows
+            .iter()
+            .filter(|r| r.plant == *p && !r.case.contains("Δp frozen"))
+            .map(|r| r.dp_frozen_found)
+            .sum();
+        let _ = writeln!(
+            s,
+            "- {p}: found {}; false finds in the other cases: {spurious}.",
+            found.join(", ")
+        );
+    }
+    s.push('\n');
     s.push_str("| plant | recycle energy over the matrix | surge cycles |\n|---|---|---|\n");
     for p in &plants {
         for law in LAWS {

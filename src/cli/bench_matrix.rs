@@ -37,7 +37,7 @@ pub fn run(args: &BenchMatrixArgs) -> Result<()> {
     let esd =
         antisurge::bench_matrix::esd_strokes(&plants, &cfg).context("checking the ESD stroke")?;
     let md = format!(
-        "{}\nESD rundown, recycle-pi at 10 %:\n\n{}",
+        "{}\nESD rundown, recycle-pi:\n\n{}",
         antisurge::bench_matrix::markdown(&rows),
         antisurge::bench_matrix::esd_markdown(&esd)
     );

@@ -116,6 +116,21 @@ pub fn check(args: &CheckArgs) -> Result<std::process::ExitCode> {
             for w in &l.warnings {
                 eprintln!("{w}");
             }
+            // the machine check: an ESD (drive trip) on the simulated skid, if there is one
+            if let (Some(p), true) = (&l.plant, l.model.has_recycle_valve()) {
+                let margin_pct = match l.controller.recycle_pi.control_line {
+                    antisurge::control::surge_control_line::ControlLineForm::Margin {
+                        margin_pct,
+                        ..
+                    } => margin_pct,
+                    _ => 10.0,
+                };
+                match antisurge::bench_matrix::esd_stroke_warning(p, margin_pct) {
+                    Ok(Some(w)) => eprintln!("warning: {}: {w}", p.path.display()),
+                    Ok(None) => {}
+                    Err(e) => eprintln!("warning: ESD stroke check not run: {e}"),
+                }
+            }
             if args.print {
                 print!("{}", antisurge::daemon::config_print::print_effective(&l));
             }

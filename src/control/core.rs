@@ -3,12 +3,13 @@
 //! daemon call [`ControlCore::cycle`] once per period.
 
 use super::config::{ControllerConfig, FlowSource};
+use super::cross_check::FrozenDpCheck;
 use super::law::{Law, LawError, LawEvent, LawId, LawInputs, LoopHistory};
 use super::measurements::{Measurements, OperatorInputs, RawSensors};
 use super::model::ControlModel;
 use super::observer::{LowPass, MassFlowObserver};
 use super::speed_loop::SpeedLoop;
-use super::supervisor::{InputLimits, Supervisor, Validity};
+use super::supervisor::{InputFault, InputLimits, Supervisor, Validity};
 use super::surge_control_line::SurgeControlLine;
 use crate::signals::{ActuatorCommands, ActuatorId, SensorId};
 use crate::surge::{Detection, SurgeDetector};
@@ -132,6 +133,13 @@ impl CoreSettings {
     pub fn follow_poll_period(&mut self, poll_period_s: f64) {
         self.supervisor
             .follow_poll_period(poll_period_s, POLL_PERIODS_PER_TIMEOUT);
+    }
+
+    /// [`follow_poll_period`](Self::follow_poll_period) for the inputs a polled bus delivers
+    /// (the daemon: the signal map's Modbus sensors at `[bus.modbus] poll_rate_hz`).
+    pub fn follow_poll_period_of(&mut self, ids: &[SensorId], poll_period_s: f64) {
+        self.supervisor
+            .follow_poll_period_of(ids, poll_period_s, POLL_PERIODS_PER_TIMEOUT);
     }
 }
 
@@ -258,6 +266,8 @@ pub struct ControlCore {
     /// The law was rebuilt by a reload while it ran (same law, new settings): its restart
     /// takes over the extra torque it applied last instead of starting from none.
     reload_restart: bool,
+    /// Cross-check of the flow element's Δp against the pressures (frozen transmitter).
+    dp_frozen: FrozenDpCheck,
 }
 
 impl ControlCore {
@@ -305,6 +315,7 @@ impl ControlCore {
             failsafe_torque_latched: false,
             last_law_torque_nm: f64::NAN,
             reload_restart: false,
+            dp_frozen: FrozenDpCheck::new(),
             model,
             config,
             settings,
@@ -329,6 +340,11 @@ impl ControlCore {
     /// Current mode.
     pub fn mode(&self) -> Mode {
         self.mode
+    }
+
+    /// The frozen-Δp cross-check.
+    pub fn dp_cross_check(&self) -> &FrozenDpCheck {
+        &self.dp_frozen
     }
 
     /// The online surge detector.
@@ -552,6 +568,19 @@ impl ControlCore {
             FlowSource::OrificeWithObserverFallback => {
                 if m_meas.is_finite() {
                     (m_meas, false)
+                } else if v.fault[SensorId::OrificeDp.index()] == InputFault::Frozen
+                    && m_obs.is_finite()
+                {
+                    // a frozen Δp: the conservative estimate, the lower of the observer's
+                    // flow and the frozen reading's (a closing machine loses flow that the
+                    // frozen value does not show; an observer off the other way is capped)
+                    let m_frozen = self.model.orifice.mass_flow_kg_s(
+                        &self.model.gas,
+                        raw.values.get(SensorId::OrificeDp),
+                        p_s,
+                        t_s_k,
+                    );
+                    (m_obs.min(m_frozen), true)
                 } else {
                     (m_obs, m_obs.is_finite())
                 }
@@ -645,7 +674,23 @@ impl ControlCore {
 
     /// Run one cycle at time `t_s`.
     pub fn cycle(&mut self, t_s: f64, raw: &RawSensors, op: &OperatorInputs) -> CycleOutput {
-        let validity = self.settings.supervisor.check(raw);
+        let mut validity = self.settings.supervisor.check(raw);
+        // cross-check: a Δp repeating itself while the pressures move is frozen
+        let usable = |id: SensorId| {
+            if validity.ok(id) {
+                raw.values.get(id)
+            } else {
+                f64::NAN
+            }
+        };
+        if self.dp_frozen.update(
+            t_s,
+            usable(SensorId::OrificeDp),
+            usable(SensorId::PSuction),
+            usable(SensorId::PDischarge),
+        ) {
+            validity.fault[SensorId::OrificeDp.index()] = InputFault::Frozen;
+        }
         self.reported_torque_nm = if validity.ok(SensorId::DriveTorque) {
             raw.values.get(SensorId::DriveTorque)
         } else {

@@ -28,6 +28,9 @@ pub enum InputFault {
     OutOfRange,
     /// Older than the timeout.
     Stale,
+    /// Fresh and in range but repeating itself while related signals move (the control
+    /// core's cross-check, [`crate::control::cross_check`]).
+    Frozen,
 }
 
 /// Validity of every input after one check.
@@ -62,6 +65,19 @@ impl Supervisor {
         }
         for l in self.limits.iter_mut().flatten() {
             l.timeout_s = l.timeout_s.max(periods * poll_period_s);
+        }
+    }
+
+    /// [`follow_poll_period`](Self::follow_poll_period) for the inputs `ids` only (the
+    /// sensors a polled bus delivers; inputs on CAN keep their own timeouts).
+    pub fn follow_poll_period_of(&mut self, ids: &[SensorId], poll_period_s: f64, periods: f64) {
+        if !(poll_period_s.is_finite() && poll_period_s > 0.0) {
+            return;
+        }
+        for id in ids {
+            if let Some(l) = self.limits[id.index()].as_mut() {
+                l.timeout_s = l.timeout_s.max(periods * poll_period_s);
+            }
         }
     }
 

@@ -457,13 +457,10 @@ impl ControlNode {
         let fallback = out.measurements.flow_fallback;
         match (fallback, self.fallback_since_ns) {
             (true, None) => {
-                let reason = match out.validity.fault[SensorId::OrificeDp.index()] {
-                    crate::control::supervisor::InputFault::Nan => FallbackReason::Nan,
-                    crate::control::supervisor::InputFault::OutOfRange => {
-                        FallbackReason::OutOfRange
-                    }
-                    _ => FallbackReason::Stale,
-                };
+                let reason = crate::events::cause::fallback_reason(
+                    out.validity.fault[SensorId::OrificeDp.index()],
+                )
+                .unwrap_or(FallbackReason::Stale);
                 self.push(FallbackEntered {
                     input: SensorId::OrificeDp,
                     reason,

@@ -120,12 +120,7 @@ impl Cause {
         Cause {
             kind,
             input: Some(id),
-            fault: match fault {
-                InputFault::None => None,
-                InputFault::Nan => Some(FallbackReason::Nan),
-                InputFault::OutOfRange => Some(FallbackReason::OutOfRange),
-                InputFault::Stale => Some(FallbackReason::Stale),
-            },
+            fault: fallback_reason(fault),
             value: finite(value),
             min: lim.map(|l| l.min),
             max: lim.map(|l| l.max),
@@ -168,7 +163,9 @@ impl Cause {
         match self.fault? {
             FallbackReason::Stale | FallbackReason::BusOff => Some("sensor_timeout"),
             FallbackReason::AliveCounter => Some("sensor_alive_error"),
-            FallbackReason::Nan | FallbackReason::OutOfRange => Some("sensor_implausible"),
+            FallbackReason::Nan | FallbackReason::OutOfRange | FallbackReason::Frozen => {
+                Some("sensor_implausible")
+            }
         }
     }
 
@@ -194,6 +191,9 @@ impl Cause {
             Some(FallbackReason::Nan) => "not a number (no valid value)".to_string(),
             Some(FallbackReason::AliveCounter) => "alive counter stopped or jumped".to_string(),
             Some(FallbackReason::BusOff) => "bus off".to_string(),
+            Some(FallbackReason::Frozen) => {
+                "frozen: no change while the pressures moved (cross-check)".to_string()
+            }
             None => "healthy".to_string(),
         };
         match self.kind {
@@ -210,6 +210,18 @@ impl Cause {
             ),
             CauseKind::Shutdown => "controller stopping".to_string(),
         }
+    }
+}
+
+/// The event-log reason of a supervision fault (None: the input is usable). The one mapping
+/// from the control core's [`InputFault`] to the words of the event log.
+pub fn fallback_reason(fault: InputFault) -> Option<FallbackReason> {
+    match fault {
+        InputFault::None => None,
+        InputFault::Nan => Some(FallbackReason::Nan),
+        InputFault::OutOfRange => Some(FallbackReason::OutOfRange),
+        InputFault::Stale => Some(FallbackReason::Stale),
+        InputFault::Frozen => Some(FallbackReason::Frozen),
     }
 }
 
@@ -230,6 +242,26 @@ mod tests {
     use crate::control::measurements::RawSensors;
     use crate::control::supervisor::InputLimits;
     use crate::signals::SensorSnapshot;
+
+    #[test]
+    fn a_frozen_dp_is_named_with_its_check() {
+        let r = fallback_reason(InputFault::Frozen);
+        assert_eq!(r, Some(FallbackReason::Frozen));
+        let c = Cause::input(
+            CauseKind::InputFault,
+            SensorId::OrificeDp,
+            InputFault::Frozen,
+            1.2e4,
+            0.0,
+            &sup(),
+        );
+        assert_eq!(
+            c.describe(),
+            "orifice_dp frozen: no change while the pressures moved (cross-check)"
+        );
+        assert_eq!(c.category(), Some("sensor_implausible"));
+        assert_eq!(fallback_reason(InputFault::None), None);
+    }
 
     fn sup() -> Supervisor {
         let mut limits = [None; SensorId::COUNT];

@@ -47,6 +47,9 @@ pub enum FallbackReason {
     AliveCounter,
     /// The CAN controller carrying the input went bus-off.
     BusOff,
+    /// Fresh and in range, but frozen: no change beyond its noise floor while the related
+    /// signals moved (cross-check).
+    Frozen,
 }
 
 /// What stands in for a bad input while the fallback lasts.
@@ -648,6 +651,15 @@ pub(crate) mod tests {
                 },
                 r#"{"ts":"2024-05-01T12:34:56.123456Z","seq":42,"event":"events_dropped","count":7,"cause":"queue_full"}"#,
             ),
+            (
+                // the Δp cross-check (issue 10): the transmitter and the check that caught it
+                Event::FallbackEntered(FallbackEntered {
+                    input: SensorId::OrificeDp,
+                    reason: FallbackReason::Frozen,
+                    replaced_by: Replacement::Observer,
+                }),
+                r#"{"ts":"2024-05-01T12:34:56.123456Z","seq":42,"event":"fallback_entered","input":"orifice_dp","reason":"frozen","replaced_by":"observer"}"#,
+            ),
         ]
     }
 
@@ -669,6 +681,7 @@ pub(crate) mod tests {
         }
         // Every kind has an example (a new variant must add one).
         let mut kinds: Vec<_> = ex.iter().map(|(e, _)| e.kind()).collect();
+        kinds.sort_unstable();
         kinds.dedup();
         assert_eq!(kinds.len(), 17);
     }

@@ -24,6 +24,7 @@ fn fault_name(c: &Option<Cause>) -> Option<&'static str> {
         super::FallbackReason::Nan => "nan",
         super::FallbackReason::AliveCounter => "alive_counter",
         super::FallbackReason::BusOff => "bus_off",
+        super::FallbackReason::Frozen => "frozen",
     })
 }
 

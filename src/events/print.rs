@@ -173,6 +173,7 @@ mod tests {
             "recycle_trip      reason=surge_detected",
             "note              text=\"operator: \\\"valve stroke test\\\"\"",
             "events_dropped    count=7  cause=queue_full",
+            "fallback_entered  input=orifice_dp  reason=frozen  replaced_by=observer",
         ];
         let ex = examples();
         assert_eq!(ex.len(), expected.len());

@@ -150,6 +150,7 @@ fn fault_code(f: Option<FallbackReason>) -> u8 {
         Some(FallbackReason::Nan) => 3,
         Some(FallbackReason::AliveCounter) => 4,
         Some(FallbackReason::BusOff) => 5,
+        Some(FallbackReason::Frozen) => 6,
     }
 }
 
@@ -160,6 +161,7 @@ fn fault_of(c: u8) -> Option<FallbackReason> {
         3 => FallbackReason::Nan,
         4 => FallbackReason::AliveCounter,
         5 => FallbackReason::BusOff,
+        6 => FallbackReason::Frozen,
         _ => return None,
     })
 }

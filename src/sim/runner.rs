@@ -239,6 +239,9 @@ impl HealthRecord {
             InputFault::Nan => "flow transmitter gives no value",
             InputFault::OutOfRange => "flow transmitter out of range",
             InputFault::Stale => "flow transmitter stale",
+            InputFault::Frozen => {
+                "flow transmitter (orifice_dp) frozen: no change while the pressures moved"
+            }
         }
     }
 

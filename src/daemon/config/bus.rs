@@ -49,6 +49,22 @@ pub(super) fn d_bus() -> BusSection {
 }
 
 impl BusSection {
+    /// Input freshness defaults follow the bus: inputs polled over Modbus may be up to a poll
+    /// period (plus the answer) old between answers, so their default timeout becomes three
+    /// poll periods (`[bus.modbus] poll_rate_hz`) for the signal map's Modbus sensors.
+    /// Explicit `[inputs.<sensor>] timeout_ms` are applied afterwards and win.
+    pub fn follow_poll_period(
+        &self,
+        map: &crate::io::signal_map::SignalMap,
+        core: &mut crate::control::core::CoreSettings,
+    ) {
+        if let (Transport::Field, Some(m)) = (&self.transport, &self.modbus) {
+            let polled: Vec<crate::signals::SensorId> =
+                map.modbus_sensors().iter().map(|s| s.0).collect();
+            core.follow_poll_period_of(&polled, 1.0 / m.poll_rate_hz);
+        }
+    }
+
     /// The bus settings that are present, checked whatever the transport.
     pub fn validate(&self) -> Vec<KeyProblem> {
         let mut out = Vec::new();

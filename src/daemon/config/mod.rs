@@ -226,6 +226,7 @@ fn load_layers(main: &Path, layers: Vec<Layer>) -> Result<Loaded, Vec<Problem>> 
     // input limits: plant-derived defaults, overridden per sensor
     let mut core = CoreSettings::defaults_for(&model);
     machine::apply_transmitter_ranges(&machine, &mut core);
+    config.bus.follow_poll_period(&signal_map, &mut core);
     for (id, s) in &config.inputs {
         core.supervisor.limits[id.index()] = Some(InputLimits {
             min: s.min,
