@@ -23,6 +23,11 @@ pub struct SimArgs {
     /// Plant: a name from config/plants (e.g. `kvangardsnes2009`) or a path to a plant file.
     #[arg(long, default_value = DEFAULT_PLANT)]
     pub plant: String,
+    /// Machine description the controller runs on (`config/machines/*.toml`; a name or a
+    /// path), with the plant file's `[controller]` settings; default: the plant file's own
+    /// description. The plant file still simulates the skid.
+    #[arg(long)]
+    pub machine: Option<String>,
     /// Scenario: a name from config/scenarios (e.g. `throttle-closure`) or a path.
     #[arg(long, default_value = DEFAULT_SCENARIO)]
     pub scenario: String,
@@ -58,6 +63,17 @@ pub fn run(args: &SimArgs) -> Result<()> {
     let law = LawId::parse_sim(&args.law)?;
     let desc = PlantDescription::load(&plant_path)?;
     let scenario = Scenario::load(&scenario_path)?;
+    let model = match &args.machine {
+        Some(m) => {
+            let path = locate::resolve(&cfg, "machines", m)?;
+            let machine = antisurge::machine::file::load(&path)?;
+            antisurge::control::model::ControlModel::from_machine(
+                &machine,
+                desc.file.controller.clone(),
+            )
+        }
+        None => antisurge::sim::control_model(&desc),
+    };
     let uses_drive_torque = law == LawId::DriveTorque
         || scenario
             .law_names
@@ -65,7 +81,6 @@ pub fn run(args: &SimArgs) -> Result<()> {
             .any(|n| n.parse::<LawId>().ok() == Some(LawId::DriveTorque));
     if uses_drive_torque {
         // the same gain checks as check-config (sampled speed loop K1·h/J < 1, eq. 8)
-        let model = antisurge::sim::control_model(&desc);
         antisurge::control::drive_torque::check_gains(
             &desc.file.controller.drive_torque,
             &model,
@@ -111,8 +126,9 @@ pub fn run(args: &SimArgs) -> Result<()> {
             b.set_position((frac * 1000.0) as u64);
         }
     };
-    let result = sim::run(
+    let result = sim::run_with_model(
         &desc,
+        model,
         &scenario,
         SimOptions {
             law,
@@ -121,6 +137,7 @@ pub fn run(args: &SimArgs) -> Result<()> {
             ..SimOptions::default()
         },
         &mut progress,
+        &mut |_, _| {},
     )
     .with_context(|| format!("simulating {} on {}", scenario.name(), desc.name()))?;
     if let Some(b) = bar.take() {

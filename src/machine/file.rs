@@ -9,8 +9,9 @@
 use super::surge_line::{self, FlowUnit, HeadAxis, SurgeLineForm};
 use super::{DesignPoint, FailPosition, MachineDescription, RecycleValve, TransmitterRange};
 use crate::config::FileError;
-use crate::machine::params::DriveSpec;
-use crate::physics::compressor_map::{CompressorMap, FlowCoordinate};
+use crate::machine::model::{MapSpec, ModelData};
+use crate::machine::params::{DriveSpec, ModelKind};
+use crate::physics::compressor_map::FlowCoordinate;
 use crate::physics::gas::Gas;
 use crate::physics::orifice::Orifice;
 use crate::physics::valve::{Characteristic, ValveSpec};
@@ -57,13 +58,37 @@ pub struct SurgeLineToml {
     pub reduced_points: Option<Vec<[f64; 2]>>,
 }
 
-/// `[speed_line_map]`: the SLL derived from speed lines (today's plant-file path).
+/// `[speed_line_map]`: the SLL derived from speed lines (today's plant-file path), as a CSV
+/// of speed-line points or a Moore–Greitzer cubic (one of the two).
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct SpeedLineMapToml {
     /// CSV of speed-line points (`speed_rad_s,volume_flow_m3_s|mass_flow_kg_s,pressure_ratio`),
     /// relative to the machine file.
-    pub file: PathBuf,
+    #[serde(default)]
+    pub file: Option<PathBuf>,
+    /// A Moore–Greitzer cubic (seed 001 eq. 2.10); for `[model] family = "spool"` in the
+    /// spool model's nondimensional units (seed 003 eq. 4–6).
+    #[serde(default)]
+    pub cubic: Option<CubicToml>,
+}
+
+/// `[speed_line_map.cubic]`: ψ(q, ω) = (ω/ω_ref)² (ψc0 + H·g(q/(W·ω/ω_ref) − 1)).
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct CubicToml {
+    /// Shut-off pressure ratio ψc0 at the reference speed.
+    pub psi_c0: f64,
+    /// Semi-height H.
+    pub semi_height: f64,
+    /// Semi-width W in flow units (kg/s or m³/s).
+    pub semi_width: f64,
+    /// Reference speed, rad/s.
+    pub omega_ref_rad_s: f64,
+    /// Flow coordinate of W (`mass_kg_s` or `inlet_volume_m3_s`).
+    pub flow_coordinate: FlowCoordinate,
+    /// Speed range over which the surge line is tabulated, rad/s.
+    pub omega_range_rad_s: [f64; 2],
 }
 
 /// `[flow_element]`: orifice geometry or a flow-element constant.
@@ -143,6 +168,9 @@ pub struct MachineFile {
     /// Drive.
     #[serde(default)]
     pub drive: Option<DriveToml>,
+    /// Dynamic model data for the model-based laws (`family` plus the family's tables).
+    #[serde(default)]
+    pub model: Option<ModelData>,
 }
 
 /// Load a machine file; every error names file, line and key, with a hint.
@@ -295,12 +323,49 @@ pub fn build(f: &MachineFile, path: &Path, text: &str) -> Result<MachineDescript
     .into_iter()
     .flatten()
     .collect();
+    // model data: checked before the map (a spool family's cubic needs the spool scales)
+    if let Some(m) = &f.model {
+        m.check("model.").map_err(|p| {
+            let key = format!("model.{}", p.key);
+            let mut e = FileError::at_key(path, text, &key, p.message.clone());
+            if e.line == 0 {
+                e = FileError::at_key(path, text, "model.family", p.message);
+            }
+            e.key = key;
+            e.with_hint(p.hint)
+        })?;
+    }
     let map = match &f.speed_line_map {
         Some(m) => {
-            let csv = path.parent().unwrap_or(Path::new(".")).join(&m.file);
+            let spec = match (&m.file, &m.cubic) {
+                (Some(file), None) => MapSpec::Table { file: file.clone() },
+                (None, Some(c)) => MapSpec::Cubic {
+                    psi_c0: c.psi_c0,
+                    semi_height: c.semi_height,
+                    semi_width: c.semi_width,
+                    omega_ref_rad_s: c.omega_ref_rad_s,
+                    flow_coordinate: c.flow_coordinate,
+                    omega_range_rad_s: c.omega_range_rad_s,
+                },
+                _ => {
+                    return Err(at(
+                        "speed_line_map",
+                        "give the speed-line map either as `file` (CSV) or as `cubic`".into(),
+                    )
+                    .with_hint("[speed_line_map]\nfile = \"map.csv\""))
+                }
+            };
+            let spool = f
+                .model
+                .as_ref()
+                .filter(|m| m.family == ModelKind::Spool)
+                .and_then(|m| m.spool.as_ref());
             Some(
-                CompressorMap::from_csv(&csv)
-                    .map_err(|e| at("speed_line_map.file", e.to_string()))?,
+                spec.build(path.parent().unwrap_or(Path::new(".")), spool)
+                    .map_err(|(k, e)| {
+                        let key = if k == "table.file" { "file" } else { k };
+                        at(&format!("speed_line_map.{key}"), e)
+                    })?,
             )
         }
         None => None,
@@ -376,7 +441,7 @@ pub fn build(f: &MachineFile, path: &Path, text: &str) -> Result<MachineDescript
         }
         None => (None, false),
     };
-    Ok(MachineDescription {
+    let desc = MachineDescription {
         name: f.name.clone(),
         family: None,
         gas,
@@ -396,6 +461,10 @@ pub fn build(f: &MachineFile, path: &Path, text: &str) -> Result<MachineDescript
         tip: None,
         thrust: None,
         spool: None,
+    };
+    Ok(match f.model {
+        Some(m) => desc.with_model(m),
+        None => desc,
     })
 }
 

@@ -11,6 +11,7 @@
 //! controller.
 
 pub mod file;
+pub mod model;
 pub mod params;
 pub mod plenum_duct;
 pub mod surge_line;
@@ -140,13 +141,24 @@ pub enum MachineData {
 }
 
 impl MachineData {
+    /// The machine file key that supplies it.
+    pub fn key(self) -> &'static str {
+        match self {
+            MachineData::SurgeLine => "surge_line",
+            MachineData::SpeedLineMap => "speed_line_map",
+            MachineData::RecycleValve => "recycle_valve",
+            MachineData::OwnedDrive => "drive.owned_by_controller",
+            MachineData::Model(_) => "model",
+        }
+    }
+
     /// What it is, in words, and how to supply it.
     pub fn describe(self) -> (&'static str, &'static str) {
         match self {
             MachineData::SurgeLine => ("a surge limit line", "[surge_line]"),
             MachineData::SpeedLineMap => (
                 "a speed-line map (pressure ratio versus flow and speed)",
-                "[speed_line_map] file = \"map.csv\"",
+                "[speed_line_map] file = \"map.csv\" (or [speed_line_map.cubic])",
             ),
             MachineData::RecycleValve => ("a recycle valve", "[recycle_valve]"),
             MachineData::OwnedDrive => (
@@ -154,26 +166,40 @@ impl MachineData {
                 "[drive] with owned_by_controller = true and its rating",
             ),
             MachineData::Model(ModelKind::PlenumDuct) => (
-                "the plenum/duct model data (seed 000: plenum volume, duct, throttle)",
-                "a simulation plant file with model = \"plenum_duct\"",
+                "the plenum/duct model data (seed 000: plenum volume, duct, throttle, rotor)",
+                "[model] family = \"plenum_duct\" with [model.plenum_duct] and [model.shaft] (config/machines/bohagen2007_model.toml)",
             ),
             MachineData::Model(ModelKind::RecycleSystem) => (
                 "the recycle-system model data (seed 002: volumes, line lengths, valves)",
-                "a simulation plant file with model = \"recycle_system\"",
+                "[model] family = \"recycle_system\" with [model.recycle_system]",
             ),
             MachineData::Model(ModelKind::TipClearance) => (
-                "the tip-clearance model data (seed 004)",
-                "a simulation plant file with model = \"tip_clearance\"",
+                "the tip-clearance model data (seed 004: plenum, duct, throttle, tip effect, servo, thrust rating)",
+                "[model] family = \"tip_clearance\" with [model.tip_clearance] and [model.thrust_rating]",
             ),
             MachineData::Model(ModelKind::Spool) => (
-                "the spool model data (seed 003)",
-                "a simulation plant file with model = \"spool\"",
+                "the spool model data (seed 003: ā, b̄, c̄, scales, throttle)",
+                "[model] family = \"spool\" with [model.spool] and the nondimensional [speed_line_map.cubic]",
             ),
         }
     }
 }
 
 impl MachineDescription {
+    /// Add a model family's data (a machine file's `[model]`, a plant file's tables): the
+    /// one way model data enter the description. The data must have passed
+    /// [`model::ModelData::check`].
+    pub fn with_model(mut self, m: model::ModelData) -> MachineDescription {
+        self.family = Some(m.family);
+        self.shaft = m.shaft;
+        self.plenum_duct = m.plenum_duct;
+        self.recycle = m.recycle_system;
+        self.tip = m.tip_clearance;
+        self.thrust = m.thrust_rating;
+        self.spool = m.spool;
+        self
+    }
+
     /// The design pressure ratio: stated, else the middle of the surge line's range.
     pub fn design_pressure_ratio(&self) -> f64 {
         if let Some(r) = self.design.and_then(|d| d.pressure_ratio) {

@@ -3,6 +3,8 @@
 //! ducts, valves). They describe *the machine*; the simulator's plant models (`plant/`) and the
 //! controller (`control/`) both read them from here, so neither depends on the other.
 
+use crate::physics::characteristic::MooreGreitzerCubic;
+use crate::physics::compressor_map::{CompressorMap, FlowCoordinate};
 use crate::physics::gas::Gas;
 use crate::physics::thrust_bearing::ThrustBearingServo;
 use crate::physics::tip_clearance::TipClearanceEffect;
@@ -272,6 +274,22 @@ impl RecycleParams {
         }
         cv * (2.0 * gas.density_kg_m3(p2.max(1.0), self.discharge_temperature_k) * dp.abs()).sqrt()
             * dp.signum()
+    }
+}
+
+impl SpoolParams {
+    /// The SI image of the nondimensional cubic (seed 003 eq. 4–6): pressure ratio
+    /// 1 + ψ·p_scale/p01 versus m = φ·flow_scale and ω = ω̃·speed_scale.
+    pub fn si_map(&self, cubic: &MooreGreitzerCubic) -> Result<CompressorMap, String> {
+        let k = self.pressure_scale_pa / self.ambient_pressure_pa;
+        let si = MooreGreitzerCubic {
+            psi_c0: 1.0 + cubic.psi_c0 * k,
+            semi_height: cubic.semi_height * k,
+            semi_width: cubic.semi_width * self.flow_scale_kg_s,
+            omega_ref: cubic.omega_ref * self.speed_scale_rad_s,
+        };
+        let w = cubic.omega_ref * self.speed_scale_rad_s;
+        CompressorMap::cubic(si, FlowCoordinate::MassKgS, 0.5 * w, 1.5 * w)
     }
 }
 

@@ -21,7 +21,7 @@
 use super::file::{MapSpec, PlantDescription, SpoolParams};
 use super::{sensor_snapshot, PlantError, PlantInputs, PlantTruth};
 use crate::physics::characteristic::{MapPoint, MooreGreitzerCubic};
-use crate::physics::compressor_map::{CompressorMap, FlowCoordinate};
+use crate::physics::compressor_map::CompressorMap;
 use crate::physics::gas::Gas;
 use crate::physics::orifice::Orifice;
 use crate::physics::spool_throttle::throttle_function;
@@ -307,18 +307,10 @@ impl SpoolPlant {
     }
 }
 
-/// The SI image of the nondimensional cubic: pressure ratio 1 + ψ·p_scale/p01 versus
-/// m = φ·flow_scale and ω = ω̃·speed_scale.
+/// The SI image of the nondimensional cubic (the machine description's
+/// [`SpoolParams::si_map`], kept here for the plant's callers).
 pub fn si_map(cubic: &MooreGreitzerCubic, p: &SpoolParams) -> Result<CompressorMap, String> {
-    let k = p.pressure_scale_pa / p.ambient_pressure_pa;
-    let si = MooreGreitzerCubic {
-        psi_c0: 1.0 + cubic.psi_c0 * k,
-        semi_height: cubic.semi_height * k,
-        semi_width: cubic.semi_width * p.flow_scale_kg_s,
-        omega_ref: cubic.omega_ref * p.speed_scale_rad_s,
-    };
-    let w = cubic.omega_ref * p.speed_scale_rad_s;
-    CompressorMap::cubic(si, FlowCoordinate::MassKgS, 0.5 * w, 1.5 * w)
+    p.si_map(cubic)
 }
 
 impl OdeSystem<N> for SpoolPlant {

@@ -7,7 +7,9 @@ pub mod summary;
 pub mod table;
 pub mod trace;
 
-pub use runner::{run, run_with, ControllerView, PlantRun, SimError, SimOptions, SimResult};
+pub use runner::{
+    run, run_with, run_with_model, ControllerView, PlantRun, SimError, SimOptions, SimResult,
+};
 pub use summary::Summary;
 
 /// The controller's model of a simulation plant: the machine description the plant file

@@ -776,8 +776,28 @@ pub fn run_with(
     progress: &mut dyn FnMut(f64),
     before_cycle: &mut dyn FnMut(f64, &mut ControlCore),
 ) -> Result<SimResult, SimError> {
+    run_with_model(
+        desc,
+        crate::sim::control_model(desc),
+        scenario,
+        options,
+        progress,
+        before_cycle,
+    )
+}
+
+/// [`run_with`] with the controller's model given separately from the simulated plant: a
+/// machine description (`antisurge sim --machine`) the controller runs on while the plant file
+/// simulates the skid. The model's `controller` settings are the controller's defaults.
+pub fn run_with_model(
+    desc: &PlantDescription,
+    model: crate::control::model::ControlModel,
+    scenario: &Scenario,
+    options: SimOptions,
+    progress: &mut dyn FnMut(f64),
+    before_cycle: &mut dyn FnMut(f64, &mut ControlCore),
+) -> Result<SimResult, SimError> {
     let mut pr = PlantRun::new(desc, scenario)?;
-    let model = crate::sim::control_model(desc);
     let settings = CoreSettings::defaults_for(&model);
     let nominal_speed = model.drive.nominal_speed_rad_s;
     let t0_torque = pr.plant().truth().load_torque_nm;

@@ -171,7 +171,10 @@ pub fn machine_data_error(l: &Loaded, e: &LawError) -> Option<Problem> {
         error: locate(
             &l.layers,
             "control.law",
-            format!("law `{law}` needs {what}, which the machine description of `{machine}` does not give"),
+            format!(
+                "law `{law}` needs {what}, which the machine description of `{machine}` does not give (missing machine-file key `{key}`)",
+                key = missing.key()
+            ),
         )
         .with_hint(format!("add {how} to the machine file, or pick a law the data support (README: the surge laws)")),
         warning: false,
