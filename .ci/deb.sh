@@ -42,6 +42,7 @@ done
 
 echo "== clean root (debootstrap --variant=minbase bookworm)"
 root=$(mktemp -d /tmp/antisurge-deb-root.XXXXXX)
+chmod 755 "$root" # mktemp makes it 0700: nobody could not enter its /
 cleanup() {
     mountpoint -q "$root/proc" && umount "$root/proc"
     rm -rf --one-file-system "$root"
