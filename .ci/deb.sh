@@ -1,45 +1,88 @@
 #!/usr/bin/env bash
-# Build the Debian package and check it in a clean root: unpack it with dpkg -x into an empty
-# directory and run its `antisurge sim` from `/` as an unprivileged user with an empty HOME
-# and no config directory (the shipped plants are built into the binary).
+# The Debian package, installed into a clean root (issue 13).
+#
+# 1. builds target/debian/antisurge_<version>-1_amd64.deb with cargo-deb (installed if missing),
+#    with the man page and completions the binary generates;
+# 2. makes a clean Debian 12 root with debootstrap (variant minbase: the Essential packages
+#    and apt, nothing else; from the Debian mirror, DEBIAN_MIRROR overrides);
+# 3. installs the package there with dpkg -i, which refuses it if a dependency it declares is
+#    not in that root, and runs its postinst (system user antisurge, unit left disabled);
+# 4. in that root, as an unprivileged user, from `/`, with an empty environment and no config:
+#    `antisurge --version` must name the commit, `antisurge sim` must run the shipped plant
+#    (built into the binary) to "STABLE — no surge", a bare `antisurge` must print help.
+# Needs root (debootstrap, chroot).
 set -euo pipefail
 cd "$(dirname "$0")/.."
+[ "$(id -u)" = 0 ] || { echo "deb.sh: needs root (debootstrap and chroot)" >&2; exit 1; }
+apt_get() {
+    DEBIAN_FRONTEND=noninteractive apt-get -q -o DPkg::Lock::Timeout=300 "$@"
+}
 command -v cargo-deb >/dev/null || cargo install --locked cargo-deb
+command -v debootstrap >/dev/null || { apt_get update >/dev/null && apt_get install -y --no-install-recommends debootstrap >/dev/null; }
+
+echo "== build"
 cargo build --release
 bin=target/release/antisurge
 mkdir -p target/deb-extra
-"$bin" man | gzip -9n > target/deb-extra/antisurge.1.gz
-"$bin" completions bash > target/deb-extra/antisurge.bash
-"$bin" completions zsh > target/deb-extra/_antisurge
-"$bin" completions fish > target/deb-extra/antisurge.fish
+"$bin" man | gzip -9n >target/deb-extra/antisurge.1.gz
+"$bin" completions bash >target/deb-extra/antisurge.bash
+"$bin" completions zsh >target/deb-extra/_antisurge
+"$bin" completions fish >target/deb-extra/antisurge.fish
 deb=$(cargo deb --no-build --output target/debian/ | tail -n 1)
 echo "package: $deb ($(du -h "$deb" | cut -f1))"
-root=$(mktemp -d)
-trap 'rm -rf "$root"' EXIT
-dpkg -x "$deb" "$root"
-dpkg-deb --info "$deb" | sed -n '1,12p'
-test -x "$root/usr/bin/antisurge"
+dpkg-deb --info "$deb" | sed -n '/Package:/,$p'
+contents=$(dpkg-deb --contents "$deb")
+for f in ./usr/bin/antisurge ./etc/antisurge/antisurge.toml ./lib/systemd/system/antisurge.service \
+    ./usr/lib/systemd/system/antisurge.service.d/usr-bin.conf ./usr/share/man/man1/antisurge.1.gz \
+    ./usr/share/bash-completion/completions/antisurge ./usr/share/doc/antisurge/copyright; do
+    # the unit may sit in /lib or /usr/lib depending on the cargo-deb version
+    alt=${f/#.\/lib\//./usr/lib/}
+    grep -q -e " $f\$" -e " $alt\$" <<<"$contents" || { echo "deb.sh: $f is not in the package" >&2; exit 1; }
+done
+
+echo "== clean root (debootstrap --variant=minbase bookworm)"
+root=$(mktemp -d /tmp/antisurge-deb-root.XXXXXX)
+chmod 755 "$root" # mktemp makes it 0700: nobody could not enter its /
+cleanup() {
+    mountpoint -q "$root/proc" && umount "$root/proc"
+    rm -rf --one-file-system "$root"
+}
+trap cleanup EXIT
+t0=$(date +%s)
+debootstrap --variant=minbase bookworm "$root" "${DEBIAN_MIRROR:-http://deb.debian.org/debian}" \
+    >"$root.debootstrap.log" 2>&1 || { tail -n 20 "$root.debootstrap.log" >&2; exit 1; }
+rm -f "$root.debootstrap.log"
+echo "clean root in $(($(date +%s) - t0)) s: $(chroot "$root" dpkg-query -W -f '.\n' | wc -l) packages, no antisurge"
+chroot "$root" sh -c '! command -v antisurge && ! test -e /etc/antisurge'
+
+echo "== dpkg -i in the clean root"
+cp "$deb" "$root/tmp/"
+chroot "$root" env -i PATH=/usr/sbin:/usr/bin:/sbin:/bin dpkg -i "/tmp/$(basename "$deb")"
+chroot "$root" dpkg-query -W antisurge
+chroot "$root" getent passwd antisurge
 test -f "$root/etc/antisurge/antisurge.toml"
 test -f "$root/lib/systemd/system/antisurge.service" || test -f "$root/usr/lib/systemd/system/antisurge.service"
-test -f "$root/usr/share/man/man1/antisurge.1.gz"
+if chroot "$root" sh -c 'ls /etc/systemd/system/*.wants/antisurge.service' 2>/dev/null; then
+    echo "deb.sh: the package enabled the unit (it must stay disabled until configured)" >&2
+    exit 1
+fi
 if file "$root/usr/bin/antisurge" | grep -q "not stripped"; then
-    echo "the packaged binary is not stripped" >&2; exit 1
+    echo "deb.sh: the packaged binary is not stripped" >&2
+    exit 1
 fi
 echo "binary: $(du -h "$root/usr/bin/antisurge" | cut -f1) (stripped)"
-"$root/usr/bin/antisurge" --version
-# a fresh user's environment, from /, with no config anywhere
-home=$(mktemp -d)
-chmod 755 "$root" "$root/usr" "$root/usr/bin" "$home"
-run_as() {
-    if [ "$(id -u)" = 0 ] && id nobody >/dev/null 2>&1; then
-        chown nobody "$home"
-        (cd / && env -i PATH=/usr/bin:/bin HOME="$home" TMPDIR="$home" setpriv --reuid=nobody --regid=nogroup --clear-groups "$@")
-    else
-        (cd / && env -i PATH=/usr/bin:/bin HOME="$home" TMPDIR="$home" "$@")
-    fi
+
+echo "== antisurge from / as nobody in the clean root"
+mount -t proc proc "$root/proc"
+in_root() {
+    chroot --userspec=nobody:nogroup "$root" env -i PATH=/usr/bin:/bin HOME=/nonexistent \
+        LANG=C.UTF-8 sh -c 'cd / && exec "$@"' sh "$@"
 }
-run_as "$root/usr/bin/antisurge" sim --no-plots | tee "$home/sim.txt"
-grep -q "STABLE — no surge" "$home/sim.txt"
-run_as "$root/usr/bin/antisurge" | grep -q "Usage: antisurge"
-rm -rf "$home"
+commit=$(git rev-parse --short=12 HEAD)
+version=$(in_root antisurge --version)
+echo "$version"
+grep -q "$commit" <<<"$version" || { echo "deb.sh: --version does not name commit $commit" >&2; exit 1; }
+in_root antisurge sim | tee "$root/tmp/sim.txt"
+grep -q "STABLE — no surge" "$root/tmp/sim.txt" || { echo "deb.sh: sim did not report STABLE" >&2; exit 1; }
+in_root antisurge | grep -q "Usage: antisurge" || { echo "deb.sh: a bare antisurge does not print help" >&2; exit 1; }
 echo "== .deb OK"
