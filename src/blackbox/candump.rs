@@ -100,7 +100,11 @@ fn parse_time_ns(s: &str) -> Option<u64> {
         return None;
     }
     let secs: u64 = secs.parse().ok()?;
-    let mut frac_ns: u64 = if frac.is_empty() { 0 } else { frac.parse().ok()? };
+    let mut frac_ns: u64 = if frac.is_empty() {
+        0
+    } else {
+        frac.parse().ok()?
+    };
     for _ in frac.len()..9 {
         frac_ns *= 10;
     }
@@ -410,8 +414,11 @@ mod tests {
             let e = one(l).expect_err(l);
             assert!(e.contains(want), "{l}: {e}");
         }
-        let e = parse("\n# comment\n(1.0) can0 123#00\nbroken\n", Path::new("x.log"))
-            .expect_err("line 4 is broken");
+        let e = parse(
+            "\n# comment\n(1.0) can0 123#00\nbroken\n",
+            Path::new("x.log"),
+        )
+        .expect_err("line 4 is broken");
         let msg = e.to_string();
         assert!(msg.starts_with("x.log:4: "), "{msg}");
     }

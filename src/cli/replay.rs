@@ -52,13 +52,19 @@ pub fn run(args: &ReplayArgs) -> Result<std::process::ExitCode> {
         })
     };
     let (rec, loaded, cfg_path, import) = if args.candump {
-        let cfg_path = args.config.clone().unwrap_or_else(super::daemon::default_config);
+        let cfg_path = args
+            .config
+            .clone()
+            .unwrap_or_else(super::daemon::default_config);
         let loaded = load(&cfg_path)?;
         let (rec, stats) = import_candump(&args.file, args.interface.as_deref(), &loaded)?;
         (rec, loaded, cfg_path, Some(stats))
     } else {
         let rec = blackbox::read_file(&args.file)?;
-        let cfg_path = args.config.clone().unwrap_or_else(|| rec.header.config.clone());
+        let cfg_path = args
+            .config
+            .clone()
+            .unwrap_or_else(|| rec.header.config.clone());
         let loaded = load(&cfg_path)?;
         (rec, loaded, cfg_path, None)
     };
