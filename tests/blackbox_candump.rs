@@ -2,7 +2,8 @@
 //! map and the DBC into `antisurge replay`: the frames decode to the sensor values the skid
 //! sent (with their ages on the control tick), damaged frames are dropped as the daemon's CAN
 //! task drops them, and the control core replays the inputs — in automatic mode while the
-//! pressures arrive, in fail-safe with the recycle valve fully open once they stop.
+//! pressures arrive, in fail-safe with the recycle valve fully open once they have stopped for
+//! their timeout and the failure hold.
 //!
 //! The fixture is written by `fixture_frames` below (the simulated kvangardsnes skid at 100 Hz
 //! through a throttle closure, encoded by the skid's own encoder); regenerate it with
@@ -21,7 +22,7 @@ use std::path::{Path, PathBuf};
 use std::sync::Arc;
 
 /// Sensor frames every 10 ms, 0.3 ms after the tick; the pressures stop after this many.
-const BURSTS: usize = 50;
+const BURSTS: usize = 80;
 const PRESSURE_BURSTS: usize = 35;
 const BURST_PERIOD_S: f64 = 0.010;
 const T0_S: u64 = 1_764_000_000;
@@ -74,7 +75,7 @@ fn codec(l: &config::Loaded) -> BusCodec {
 }
 
 /// The skid's sensor values at each burst: the plant stepped through a 60 → 45 % throttle
-/// closure over the half second.
+/// closure over the first half second.
 fn sensor_values() -> Vec<SensorSnapshot> {
     let desc = common::plant("kvangardsnes2009_recycle");
     let init = desc.file.initial;
@@ -231,7 +232,7 @@ fn a_candump_log_decodes_through_the_signal_map_and_replays_through_the_core() {
 
     // one record per 1 ms tick up to the last frame
     let rec = &imp.recording.records;
-    assert_eq!(rec.len(), 491, "{} records", rec.len());
+    assert_eq!(rec.len(), 791, "{} records", rec.len());
     assert_eq!(rec[0].cycle, 0);
     assert!((rec[10].t_s - 0.011).abs() < 1e-12, "{}", rec[10].t_s);
     // values: those of the last frame before each tick, to the DBC's resolution
@@ -275,7 +276,7 @@ fn a_candump_log_decodes_through_the_signal_map_and_replays_through_the_core() {
     let last = rec.last().unwrap();
     assert!(last.raw.age_s[SensorId::PSuction.index()] > 0.14);
     // the controller's commands seen on the bus
-    assert!((last.commands.get(ActuatorId::RecycleValve) - 0.049).abs() < 1e-4);
+    assert!((last.commands.get(ActuatorId::RecycleValve) - 0.079).abs() < 1e-4);
 
     // through the core with the configuration's settings
     let r = replay::replay(
@@ -290,15 +291,18 @@ fn a_candump_log_decodes_through_the_signal_map_and_replays_through_the_core() {
     )
     .expect("replay");
     assert_eq!(r.commands.len(), rec.len());
-    // auto while the pressures arrive (after the 100 ms start-up grace) …
+    // auto while the pressures arrive (after the 100 ms start-up grace) and through the
+    // failure hold after their 50 ms timeout …
     let last_pressure_s = (PRESSURE_BURSTS - 1) as f64 * BURST_PERIOD_S + 0.0003;
+    let fail_safe_s = last_pressure_s + 0.050 + l.core.failure_hold_s;
+    assert!(fail_safe_s < rec.last().unwrap().t_s - 0.05, "the log is long enough");
     for (x, (c, mode)) in rec.iter().zip(&r.commands) {
-        if x.t_s > 0.15 && x.t_s < last_pressure_s + 0.04 {
+        if x.t_s > 0.15 && x.t_s < fail_safe_s - 0.005 {
             assert_eq!(*mode, 2, "t {}: mode {mode}", x.t_s);
             assert!(c.get(ActuatorId::RecycleValve).is_finite());
         }
-        // … fail-safe with the recycle valve open once they are older than their 50 ms
-        if x.t_s > last_pressure_s + 0.06 {
+        // … then fail-safe with the recycle valve open
+        if x.t_s > fail_safe_s + 0.005 {
             assert_eq!(*mode, 3, "t {}: mode {mode}", x.t_s);
             assert_eq!(c.get(ActuatorId::RecycleValve), 1.0, "t {}", x.t_s);
         }
@@ -322,7 +326,7 @@ fn antisurge_replay_reads_a_candump_log() {
         "{text}\n{}",
         String::from_utf8_lossy(&out.stderr)
     );
-    assert!(text.contains("491 cycles"), "{text}");
+    assert!(text.contains("791 cycles"), "{text}");
     assert!(text.contains("bad CRC 1"), "{text}");
     assert!(text.contains("repeated alive 1"), "{text}");
     // a broken line is located

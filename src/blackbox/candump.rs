@@ -67,12 +67,12 @@ pub struct LoggedFrame {
 #[derive(Debug, thiserror::Error)]
 pub enum CandumpError {
     /// The file cannot be read.
-    #[error("{path}: {source}")]
+    #[error("{path}: {error}")]
     Io {
         /// File.
         path: PathBuf,
         /// Cause.
-        source: std::io::Error,
+        error: std::io::Error,
     },
     /// A line that is not a `candump -l` frame.
     #[error("{path}:{line}: {message} (expected `(seconds.micros) can0 123#00112233`, as `candump -l` writes)")]
@@ -197,9 +197,9 @@ pub fn parse(text: &str, path: &Path) -> Result<Vec<LoggedFrame>, CandumpError> 
 
 /// Read and parse a `candump -l` log file.
 pub fn read(path: &Path) -> Result<Vec<LoggedFrame>, CandumpError> {
-    let text = std::fs::read_to_string(path).map_err(|source| CandumpError::Io {
+    let text = std::fs::read_to_string(path).map_err(|error| CandumpError::Io {
         path: path.to_path_buf(),
-        source,
+        error,
     })?;
     parse(&text, path)
 }
