@@ -65,7 +65,9 @@ fn benches(c: &mut Criterion) {
     let mut g = c.benchmark_group("rk4");
     for (stem, _, plant) in &plants {
         match plant {
-            SimPlant::PlenumDuct(p) => g.bench_function(*stem, |b| b.iter(|| rk4_step(p, &p.x))),
+            SimPlant::PlenumDuct(p) => {
+                g.bench_function(*stem, |b| b.iter(|| rk4_step(&p.model, &p.x)))
+            }
             SimPlant::Recycle(p) => g.bench_function(*stem, |b| b.iter(|| rk4_step(p, &p.x))),
             SimPlant::TipClearance(p) => g.bench_function(*stem, |b| b.iter(|| rk4_step(p, &p.x))),
             SimPlant::Spool(p) => g.bench_function(*stem, |b| b.iter(|| rk4_step(p, &p.x))),

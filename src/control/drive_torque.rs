@@ -90,8 +90,8 @@ use super::law::LoopHistory;
 use super::law::{LawError, LawId, LawInputs, LawOutput, SurgeLaw};
 use super::measurements::Measurements;
 use super::model::ControlModel;
+use crate::machine::plenum_duct::{PlenumDuctModel, N as PLENUM_N};
 use crate::physics::compressor_map::FlowCoordinate;
-use crate::plant::plenum_duct::{PlenumDuctPlant, N as PLENUM_N};
 use crate::signals::{ActuatorCommands, ActuatorId};
 use nalgebra::SVector;
 use serde::{Deserialize, Serialize};
@@ -389,7 +389,7 @@ pub struct DriveTorque {
     /// Loop delay compensated, s (0: none).
     delay_s: f64,
     /// The machine model the predictor integrates (plenum/duct machines only).
-    predictor: Option<PlenumDuctPlant>,
+    predictor: Option<PlenumDuctModel>,
 }
 
 fn setting(key: &str, message: String) -> LawError {
@@ -436,7 +436,7 @@ impl DriveTorque {
         let delay_s = 1e-3 * non_negative("delay_compensation_ms", cfg.delay_compensation_ms)?;
         let predictor = match (delay_s > 0.0, model.plenum_duct.zip(model.shaft)) {
             (false, _) => None,
-            (true, Some((params, shaft))) => Some(PlenumDuctPlant::for_prediction(
+            (true, Some((params, shaft))) => Some(PlenumDuctModel::new(
                 params,
                 *model.speed_map(),
                 shaft,

@@ -97,10 +97,10 @@
 
 use super::law::{LawError, LawId, LawInputs, LawOutput, SurgeLaw};
 use super::model::ControlModel;
+use crate::machine::params::FeedSpec;
 use crate::physics::compressor_map::FlowCoordinate;
 use crate::physics::gas::Gas;
 use crate::physics::valve::ValveSpec;
-use crate::plant::file::FeedSpec;
 use crate::signals::{ActuatorCommands, ActuatorId};
 use serde::{Deserialize, Serialize};
 use std::f64::consts::PI;

@@ -59,7 +59,7 @@
 use super::law::{LawError, LawId, LawInputs, LawOutput, SurgeLaw};
 use super::model::ControlModel;
 use crate::physics::compressor_map::CompressorMap;
-use crate::plant::spool::SpoolPlant;
+use crate::physics::spool_throttle::throttle_function;
 use crate::signals::{ActuatorCommands, ActuatorId};
 use serde::{Deserialize, Serialize};
 
@@ -326,9 +326,7 @@ impl Spool {
     /// F(γ⁰, ψc(φ, ω̃⁰)) − φ (scan down from four times the peak flow in 200 steps, then 50
     /// bisections; fixed work, no allocation).
     fn equilibrium(&self, map: &CompressorMap, gamma0: f64, omega0: f64) -> (f64, f64) {
-        let r = |phi: f64| {
-            SpoolPlant::throttle_function(gamma0, self.psi_c(map, phi, omega0).value) - phi
-        };
+        let r = |phi: f64| throttle_function(gamma0, self.psi_c(map, phi, omega0).value) - phi;
         let peak = map
             .peak(omega0 * self.speed_scale_rad_s)
             .map_or(1.0, |(q, _)| q / self.flow_scale_kg_s);
@@ -912,6 +910,7 @@ mod tests {
     use super::*;
     use crate::control::measurements::{Measurements, OperatorInputs};
     use crate::plant::file::PlantDescription;
+    use crate::plant::spool::SpoolPlant;
     use crate::plant::{PlantInputs, SimPlant};
     use std::path::Path;
 
@@ -1003,7 +1002,7 @@ mod tests {
                     "{opening} {w}: {phi0} vs {right}"
                 );
                 assert!((psi0 - right[2]).abs() < 1e-7);
-                let f = SpoolPlant::throttle_function(sp.gamma_max * opening, psi0);
+                let f = throttle_function(sp.gamma_max * opening, psi0);
                 assert!((f - phi0).abs() < 1e-12, "eq. 8");
             }
         }
@@ -1049,7 +1048,7 @@ mod tests {
         let (w, phi, psi) = (fr.x1 + fr.omega0, fr.x2 + fr.phi0, fr.x3 + fr.psi0);
         let x1d = sp.a_bar * (fr.tau0 - sp.gamma_torque(phi, w));
         let x2d = sp.b_bar * (fr.pc.value - psi + u2);
-        let x3d = sp.c_bar * (phi - SpoolPlant::throttle_function(fr.gamma0, psi));
+        let x3d = sp.c_bar * (phi - throttle_function(fr.gamma0, psi));
         fr.x1 * x1d / sp.a_bar + fr.x2 * x2d / sp.b_bar + fr.x3 * x3d / sp.c_bar
     }
 
@@ -1080,8 +1079,7 @@ mod tests {
             let u2 = law.raw_ccv(&fr);
             // eq. 23 with eq. 25: V̇ = x₁ f(x₁, 0) − k x₂² + x₃ (F(γ⁰, ψ⁰) − F(γ⁰, ψ))
             let f0 = -sp.sigma * fr.phi0 * fr.x1;
-            let f_thr = SpoolPlant::throttle_function(fr.gamma0, fr.psi0)
-                - SpoolPlant::throttle_function(fr.gamma0, psi);
+            let f_thr = throttle_function(fr.gamma0, fr.psi0) - throttle_function(fr.gamma0, psi);
             let expected = fr.x1 * f0 - fr.x2 * fr.x2 + fr.x3 * f_thr;
             let vd = v_dot(&sp, &fr, u2);
             assert!(
@@ -1137,7 +1135,7 @@ mod tests {
                 [
                     sp.a_bar * (fr.tau0 - sp.gamma_torque(x[1], x[0])),
                     sp.b_bar * (sp.psi_c(model.speed_map(), x[1], x[0]).value - x[2]),
-                    sp.c_bar * (x[1] - SpoolPlant::throttle_function(gamma, x[2])),
+                    sp.c_bar * (x[1] - throttle_function(gamma, x[2])),
                 ]
             };
             let h = 1e-6;

@@ -8,8 +8,6 @@
 //! - [`service`], [`plant_service`]: wiring, signals, reload, shutdown.
 
 pub mod config;
-pub mod config_machine;
-pub mod config_print;
 pub mod control_node;
 pub mod field;
 pub mod notify;
@@ -17,3 +15,8 @@ pub mod plant_node;
 pub mod plant_service;
 pub mod reload_watch;
 pub mod service;
+
+/// The machine section of the configuration (moved to [`config::machine`]).
+pub use config::machine as config_machine;
+/// `check-config --print` (moved to [`config::print`]).
+pub use config::print as config_print;

@@ -82,35 +82,58 @@ impl EventLogConfig {
     /// Check value ranges. Called by [`EventLog::start`](super::EventLog::start) and by
     /// deserialization.
     pub fn validate(&self) -> Result<(), EventLogError> {
-        let bad = |m: String| Err(EventLogError::Config(m));
+        let bad = |key: &'static str, message: String| Err(EventLogError::Setting { key, message });
         if self.path.as_os_str().is_empty() || self.path.file_name().is_none() {
-            return bad(format!("path {:?} does not name a file", self.path));
+            return bad("path", format!("path {:?} does not name a file", self.path));
         }
         if self.max_bytes < MAX_LINE_BYTES as u64 {
-            return bad(format!(
-                "max_bytes = {} is below the longest line ({MAX_LINE_BYTES} bytes)",
-                self.max_bytes
-            ));
+            return bad(
+                "max_bytes",
+                format!(
+                    "max_bytes = {} is below the longest line ({MAX_LINE_BYTES} bytes)",
+                    self.max_bytes
+                ),
+            );
         }
         if self.keep_files > 999 {
-            return bad(format!("keep_files = {} is above 999", self.keep_files));
+            return bad(
+                "keep_files",
+                format!("keep_files = {} is above 999", self.keep_files),
+            );
         }
         if !(1..=1 << 20).contains(&self.rt_queue_capacity) {
-            return bad(format!(
-                "rt_queue_capacity = {} must be 1 ..= 1048576",
-                self.rt_queue_capacity
-            ));
+            return bad(
+                "rt_queue_capacity",
+                format!(
+                    "rt_queue_capacity = {} must be 1 ..= 1048576",
+                    self.rt_queue_capacity
+                ),
+            );
         }
         if !(1..=1000).contains(&self.poll_interval_ms) {
-            return bad(format!(
-                "poll_interval_ms = {} must be 1 ..= 1000",
-                self.poll_interval_ms
-            ));
+            return bad(
+                "poll_interval_ms",
+                format!(
+                    "poll_interval_ms = {} must be 1 ..= 1000",
+                    self.poll_interval_ms
+                ),
+            );
         }
         if let FsyncPolicy::Interval { interval_ms: 0 } = self.fsync {
-            return bad("fsync_interval_ms = 0: use fsync = \"always\" instead".into());
+            return bad(
+                "fsync_interval_ms",
+                "fsync_interval_ms = 0: use fsync = \"always\" instead".into(),
+            );
         }
         Ok(())
+    }
+
+    /// The typed error of an `[event_log]` table whose values are refused (`None` if the
+    /// table is accepted or its error is not about a value: an unknown key, a wrong type).
+    /// Deserialization reports such an error as text only; this gives it back with its key.
+    pub fn setting_error(table: &toml::Table) -> Option<EventLogError> {
+        let raw: RawConfig = toml::Value::Table(table.clone()).try_into().ok()?;
+        EventLogConfig::try_from(raw).err()
     }
 
     /// The writer's idle wake-up period.
@@ -181,9 +204,12 @@ impl TryFrom<RawConfig> for EventLogConfig {
                 interval_ms: ms.unwrap_or(DEFAULT_INTERVAL_MS),
             },
             (mode, Some(_)) => {
-                return Err(EventLogError::Config(format!(
-                    "fsync_interval_ms only applies to fsync = \"interval\", not {mode:?}"
-                )))
+                return Err(EventLogError::Setting {
+                    key: "fsync_interval_ms",
+                    message: format!(
+                        "fsync_interval_ms only applies to fsync = \"interval\", not {mode:?}"
+                    ),
+                })
             }
         };
         let c = EventLogConfig {

@@ -26,6 +26,14 @@ pub enum EventLogError {
     /// The `[event_log]` configuration is unusable.
     #[error("event log configuration: {0}")]
     Config(String),
+    /// An `[event_log]` key has an unusable value.
+    #[error("event log configuration: {message}")]
+    Setting {
+        /// The key within `[event_log]` (`max_bytes`, `fsync_interval_ms`).
+        key: &'static str,
+        /// What is wrong with it.
+        message: String,
+    },
     /// A time given on the command line (e.g. `--since`) is not understood.
     #[error("invalid time {text:?}: {reason}")]
     Time {

@@ -12,6 +12,7 @@
 
 pub mod file;
 pub mod params;
+pub mod plenum_duct;
 pub mod surge_line;
 
 use crate::physics::compressor_map::{CompressorMap, FlowCoordinate, SurgeLine};

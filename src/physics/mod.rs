@@ -10,6 +10,7 @@ pub mod compressor_map;
 pub mod gas;
 pub mod orifice;
 pub mod shaft;
+pub mod spool_throttle;
 pub mod thrust_bearing;
 pub mod tip_clearance;
 pub mod valve;

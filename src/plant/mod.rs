@@ -310,7 +310,7 @@ impl SimPlant {
                     q.x = x;
                     q.hold_inputs(q.shaft.load_torque_nm(x[1], omega), x[3]);
                     out.push(point(
-                        &q,
+                        &q.model,
                         &x,
                         q.truth(),
                         q.map.eval(q.truth().flow_map, omega).d_dflow,

@@ -1,25 +1,15 @@
-//! Plenum/duct/shaft plant (seed 000 eq. 1):
-//!
-//! ```text
-//! ṗ = a01²/Vp (m − m_t)                 (1a)
-//! ṁ = A1/Lc (Ψc(m, ω) p01 − p)          (1b)
-//! ω̇ = (τd − τc)/J,  τc = |m| r2² σ ω    (1c)
-//! m_t = k_t √(p − p01)                   throttle, with k_t ∝ opening
-//! ```
-//! plus the throttle positioner. State x = (p Pa, m kg/s, ω rad/s, throttle position).
+//! Plenum/duct/shaft plant (seed 000 eq. 1): the model of [`crate::machine::plenum_duct`]
+//! (one copy, shared with the controller's delay predictor) integrated with adaptive steps,
+//! started at a steady state, with its field instruments.
 
 use super::file::{PlantDescription, PlenumDuctParams};
 use super::{sensor_snapshot, PlantError, PlantInputs, PlantTruth};
-use crate::physics::compressor_map::{CompressorMap, FlowCoordinate};
+pub use crate::machine::plenum_duct::{PlenumDuctModel, N};
+use crate::physics::compressor_map::FlowCoordinate;
 use crate::physics::gas::Gas;
-use crate::physics::orifice::Orifice;
-use crate::physics::shaft::Shaft;
 use crate::signals::SensorSnapshot;
-use crate::solver::{self, OdeSystem, StepSettings};
+use crate::solver::{self, StepSettings};
 use nalgebra::SVector;
-
-/// State dimension.
-pub const N: usize = 4;
 
 /// Throttle flow to ambient: see [`PlenumDuctParams::throttle_flow_kg_s`], kg/s.
 #[inline]
@@ -27,21 +17,11 @@ pub fn throttle_flow_kg_s(pp: &PlenumDuctParams, gas: &Gas, p_pa: f64, position:
     pp.throttle_flow_kg_s(gas, p_pa, position)
 }
 
-/// Seed 000 plant.
+/// Seed 000 plant: the model (its fields read through `Deref`) and the integration state.
 #[derive(Debug, Clone)]
 pub struct PlenumDuctPlant {
-    /// Parameters.
-    pub params: PlenumDuctParams,
-    /// Compressor map.
-    pub map: CompressorMap,
-    /// Shaft.
-    pub shaft: Shaft,
-    /// Gas.
-    pub gas: Gas,
-    /// Orifice.
-    pub orifice: Orifice,
-    /// Drive torque limits (min, max), N·m.
-    pub torque_limits_nm: (f64, f64),
+    /// The model, seed 000 eq. 1.
+    pub model: PlenumDuctModel,
     /// Integration settings.
     pub settings: StepSettings,
     /// State (p, m, ω, throttle position).
@@ -50,9 +30,13 @@ pub struct PlenumDuctPlant {
     pub t_s: f64,
     /// Step size carried between periods by adaptive integration, s.
     pub h_state_s: f64,
-    // inputs held over the current step
-    torque_nm: f64,
-    throttle_cmd: f64,
+}
+
+impl std::ops::Deref for PlenumDuctPlant {
+    type Target = PlenumDuctModel;
+    fn deref(&self) -> &PlenumDuctModel {
+        &self.model
+    }
 }
 
 impl PlenumDuctPlant {
@@ -62,19 +46,21 @@ impl PlenumDuctPlant {
         let params = f
             .plenum_duct
             .expect("validated: plenum_duct section present");
-        let mut plant = PlenumDuctPlant {
+        let mut model = PlenumDuctModel::new(
             params,
-            map: desc.map,
-            shaft: f.shaft,
-            gas: f.gas,
-            orifice: f.orifice,
-            torque_limits_nm: (f.drive.min_torque_nm, f.drive.rated_torque_nm),
+            desc.map,
+            f.shaft,
+            f.gas,
+            f.orifice,
+            (f.drive.min_torque_nm, f.drive.rated_torque_nm),
+        );
+        model.throttle_cmd = inputs.throttle_target();
+        let mut plant = PlenumDuctPlant {
+            model,
             settings: f.integration,
             x: SVector::zeros(),
             t_s: 0.0,
             h_state_s: 0.0,
-            torque_nm: 0.0,
-            throttle_cmd: inputs.throttle_target(),
         };
         let omega = f.drive.nominal_speed_rad_s;
         let eq = plant
@@ -86,70 +72,8 @@ impl PlenumDuctPlant {
                 what: format!("throttle {:.3} at {omega} rad/s", inputs.throttle_target()),
             })?;
         plant.x = eq;
-        plant.torque_nm = plant.shaft.load_torque_nm(eq[1], omega);
+        plant.model.torque_nm = plant.shaft.load_torque_nm(eq[1], omega);
         Ok(plant)
-    }
-
-    #[inline]
-    fn map_flow(&self, m: f64) -> f64 {
-        match self.map.flow_coordinate {
-            FlowCoordinate::MassKgS => m,
-            FlowCoordinate::InletVolumeM3S => {
-                m / self.gas.density_kg_m3(
-                    self.params.ambient_pressure_pa,
-                    self.params.ambient_temperature_k,
-                )
-            }
-        }
-    }
-
-    /// The model without a state, for the controller's delay predictor (the same eq. 1 the
-    /// simulated plant integrates, built from the controller's own plant description).
-    pub fn for_prediction(
-        params: PlenumDuctParams,
-        map: CompressorMap,
-        shaft: Shaft,
-        gas: Gas,
-        orifice: Orifice,
-        torque_limits_nm: (f64, f64),
-    ) -> Self {
-        PlenumDuctPlant {
-            params,
-            map,
-            shaft,
-            gas,
-            orifice,
-            torque_limits_nm,
-            settings: StepSettings::default(),
-            x: SVector::zeros(),
-            t_s: 0.0,
-            h_state_s: 0.0,
-            torque_nm: 0.0,
-            throttle_cmd: 0.0,
-        }
-    }
-
-    /// Advance the state `x` (p, m, ω, throttle position) by `h_s` with the drive torque and
-    /// the throttle target held: one classical RK4 step (fixed work, for the control cycle).
-    #[inline]
-    pub fn predict_step(
-        &mut self,
-        x: &mut SVector<f64, N>,
-        torque_nm: f64,
-        throttle_target: f64,
-        h_s: f64,
-    ) {
-        let (lo, hi) = self.torque_limits_nm;
-        self.torque_nm = torque_nm.clamp(lo, hi);
-        self.throttle_cmd = throttle_target;
-        *x = solver::rk4::step(self, 0.0, x, h_s);
-        self.project(x);
-    }
-
-    /// Throttle flow m_t at plenum pressure p and stem position l, kg/s.
-    #[inline]
-    pub fn throttle_flow(&self, p_pa: f64, position: f64) -> f64 {
-        throttle_flow_kg_s(&self.params, &self.gas, p_pa, position)
     }
 
     /// All steady states at speed ω and throttle opening `throttle`, ordered by flow (the last
@@ -182,11 +106,11 @@ impl PlenumDuctPlant {
     /// Advance by `dt_s` with `inputs` held.
     pub fn step(&mut self, inputs: &PlantInputs, dt_s: f64) {
         let (lo, hi) = self.torque_limits_nm;
-        self.torque_nm = inputs.drive_torque(lo, hi, self.torque_nm);
-        self.throttle_cmd = inputs.throttle_target();
+        self.model.torque_nm = inputs.drive_torque(lo, hi, self.model.torque_nm);
+        self.model.throttle_cmd = inputs.throttle_target();
         let mut x = self.x;
         let mut h = self.h_state_s;
-        solver::advance_adaptive(self, self.settings, self.t_s, &mut x, dt_s, &mut h);
+        solver::advance_adaptive(&self.model, self.settings, self.t_s, &mut x, dt_s, &mut h);
         self.h_state_s = h;
         self.x = x;
         self.t_s += dt_s;
@@ -222,29 +146,7 @@ impl PlenumDuctPlant {
 
     /// Set the held inputs without stepping (for analysis).
     pub fn hold_inputs(&mut self, torque_nm: f64, throttle_cmd: f64) {
-        self.torque_nm = torque_nm;
-        self.throttle_cmd = throttle_cmd;
-    }
-}
-
-impl OdeSystem<N> for PlenumDuctPlant {
-    #[inline]
-    fn rhs(&self, _t: f64, x: &SVector<f64, N>) -> SVector<f64, N> {
-        let pp = &self.params;
-        let (p, m, omega, l) = (x[0], x[1], x[2], x[3]);
-        let m_t = self.throttle_flow(p, l);
-        let psi = self.map.eval(self.map_flow(m), omega).value;
-        let a2_v = pp.sonic_velocity_m_s * pp.sonic_velocity_m_s / pp.plenum_volume_m3;
-        SVector::<f64, N>::new(
-            a2_v * (m - m_t), // seed 000 eq. 1a
-            pp.duct_area_m2 / pp.duct_length_m * (psi * pp.ambient_pressure_pa - p), // eq. 1b
-            self.shaft.acceleration_rad_s2(self.torque_nm, m, omega), // eq. 1c
-            pp.throttle.positioner_rate(self.throttle_cmd, l),
-        )
-    }
-
-    fn project(&self, x: &mut SVector<f64, N>) {
-        x[3] = x[3].clamp(0.0, 1.0);
-        x[2] = x[2].max(0.0);
+        self.model.torque_nm = torque_nm;
+        self.model.throttle_cmd = throttle_cmd;
     }
 }

@@ -24,7 +24,7 @@ use crate::physics::characteristic::{MapPoint, MooreGreitzerCubic};
 use crate::physics::compressor_map::{CompressorMap, FlowCoordinate};
 use crate::physics::gas::Gas;
 use crate::physics::orifice::Orifice;
-use crate::physics::smooth_signed_sqrt;
+use crate::physics::spool_throttle::throttle_function;
 use crate::signals::{ActuatorId, SensorSnapshot};
 use crate::solver::{self, OdeSystem, StepSettings};
 use nalgebra::SVector;
@@ -138,7 +138,7 @@ impl SpoolPlant {
     /// the peak flow for the first sign change, then bisect.
     pub fn operating_flow(&self, throttle: f64, omega: f64) -> f64 {
         let gamma = self.params.gamma_max * throttle.clamp(0.0, 1.0);
-        let r = |phi: f64| Self::throttle_function(gamma, self.psi_c(phi, omega).value) - phi;
+        let r = |phi: f64| throttle_function(gamma, self.psi_c(phi, omega).value) - phi;
         let hi = 4.0 * self.cubic.peak(omega, 0.0).0.max(1e-6);
         let n = 200;
         let (mut a, mut b) = (0.0, hi);
@@ -186,16 +186,10 @@ impl SpoolPlant {
         self.cubic.eval(phi, omega, 0.0)
     }
 
-    /// Throttle function F(γ, ψ) = γ √ψ (seed 003 §III-B, after [3], [11]); smooth through 0.
-    #[inline]
-    pub fn throttle_function(gamma: f64, psi: f64) -> f64 {
-        gamma * smooth_signed_sqrt(psi, 1e4)
-    }
-
     /// Steady states at speed ω̃ and throttle opening, ordered by flow.
     pub fn equilibria(&self, throttle: f64, omega: f64) -> Vec<SVector<f64, N>> {
         let gamma = self.params.gamma_max * throttle;
-        let resid = |phi: f64| Self::throttle_function(gamma, self.psi_c(phi, omega).value) - phi;
+        let resid = |phi: f64| throttle_function(gamma, self.psi_c(phi, omega).value) - phi;
         let hi = 4.0 * self.cubic.peak(omega, 0.0).0.max(1e-6);
         super::analysis::roots_1d(resid, 1e-6 * hi, hi, 4000)
             .into_iter()
@@ -287,7 +281,7 @@ impl SpoolPlant {
             p_discharge_pa: p.ambient_pressure_pa + x[2] * p.pressure_scale_pa,
             omega_rad_s: x[0] * p.speed_scale_rad_s,
             t_suction_k: p.ambient_temperature_k,
-            throttle_flow_kg_s: Self::throttle_function(gamma, x[2]) * p.flow_scale_kg_s,
+            throttle_flow_kg_s: throttle_function(gamma, x[2]) * p.flow_scale_kg_s,
             throttle_position: x[3],
             drive_torque_nm: self.torque * p.torque_scale_nm,
             load_torque_nm: p.torque_coefficient * x[1] * x[0] * p.torque_scale_nm,
@@ -338,7 +332,7 @@ impl OdeSystem<N> for SpoolPlant {
         SVector::<f64, N>::new(
             inv_t * p.a_bar * (self.torque - p.torque_coefficient * phi * w + delta), // seed 003 eq. 4
             inv_t * p.b_bar * (self.psi_c(phi, w).value - psi + self.ccv + delta),    // eq. 5
-            inv_t * p.c_bar * (phi - Self::throttle_function(gamma, psi)),            // eq. 6
+            inv_t * p.c_bar * (phi - throttle_function(gamma, psi)),                  // eq. 6
             p.throttle.positioner_rate(self.throttle_cmd, l),
         )
     }

@@ -101,19 +101,22 @@ impl RtuConfig {
     /// Check baud, stop and data bits.
     pub fn validate(&self) -> Result<(), ConfigError> {
         if self.baud == 0 {
-            return Err(ConfigError::Invalid("baud must be > 0".into()));
+            return Err(ConfigError::invalid(
+                "transport.baud",
+                "baud must be > 0".into(),
+            ));
         }
         if !matches!(self.stop_bits, 1 | 2) {
-            return Err(ConfigError::Invalid(format!(
-                "stop_bits must be 1 or 2, got {}",
-                self.stop_bits
-            )));
+            return Err(ConfigError::invalid(
+                "transport.stop_bits",
+                format!("stop_bits must be 1 or 2, got {}", self.stop_bits),
+            ));
         }
         if !(5..=8).contains(&self.data_bits) {
-            return Err(ConfigError::Invalid(format!(
-                "data_bits must be 5..=8, got {}",
-                self.data_bits
-            )));
+            return Err(ConfigError::invalid(
+                "transport.data_bits",
+                format!("data_bits must be 5..=8, got {}", self.data_bits),
+            ));
         }
         Ok(())
     }
@@ -214,13 +217,19 @@ impl ClientConfig {
     /// Check ranges: timeout > 0, max backoff ≥ initial backoff, serial settings.
     pub fn validate(&self) -> Result<(), ConfigError> {
         if self.timeout_ms == 0 {
-            return Err(ConfigError::Invalid("timeout_ms must be > 0".into()));
+            return Err(ConfigError::invalid(
+                "timeout_ms",
+                "timeout_ms must be > 0".into(),
+            ));
         }
         if self.backoff_max_ms < self.backoff_initial_ms {
-            return Err(ConfigError::Invalid(format!(
-                "backoff_max_ms ({}) < backoff_initial_ms ({})",
-                self.backoff_max_ms, self.backoff_initial_ms
-            )));
+            return Err(ConfigError::invalid(
+                "backoff_max_ms",
+                format!(
+                    "backoff_max_ms ({}) < backoff_initial_ms ({})",
+                    self.backoff_max_ms, self.backoff_initial_ms
+                ),
+            ));
         }
         if let TransportConfig::Rtu(rtu) = &self.transport {
             rtu.validate()?;
@@ -232,9 +241,27 @@ impl ClientConfig {
 /// A configuration that cannot be used.
 #[derive(Debug, Clone, PartialEq, Eq, Error)]
 pub enum ConfigError {
-    /// A value is out of range; the message says which.
-    #[error("invalid Modbus client config: {0}")]
-    Invalid(String),
+    /// A value is out of range.
+    #[error("invalid Modbus client config: {message}")]
+    Invalid {
+        /// The key, relative to the client settings (`timeout_ms`, `transport.baud`).
+        key: &'static str,
+        /// What is wrong with it.
+        message: String,
+    },
+}
+
+impl ConfigError {
+    fn invalid(key: &'static str, message: String) -> ConfigError {
+        ConfigError::Invalid { key, message }
+    }
+
+    /// The key the error is about, relative to the client settings.
+    pub fn key(&self) -> &'static str {
+        match self {
+            ConfigError::Invalid { key, .. } => key,
+        }
+    }
 }
 
 /// What went wrong with a Modbus operation.

@@ -129,10 +129,13 @@ impl HeartbeatRegister {
     /// Whether the block fits below address 65536.
     pub fn validate(&self) -> Result<(), LinkError> {
         if u32::from(self.address) + u32::from(HEARTBEAT_REGISTERS) > 1 << 16 {
-            return Err(LinkError::Invalid(format!(
-                "heartbeat_register: {HEARTBEAT_REGISTERS} registers from address {} run past 65535",
-                self.address
-            )));
+            return Err(LinkError::Invalid {
+                key: "heartbeat_register",
+                message: format!(
+                    "heartbeat_register: {HEARTBEAT_REGISTERS} registers from address {} run past 65535",
+                    self.address
+                ),
+            });
         }
         Ok(())
     }
@@ -259,13 +262,19 @@ impl ModbusLinkConfig {
             && self.poll_rate_hz > 0.0
             && self.poll_rate_hz <= MAX_POLL_RATE_HZ)
         {
-            return Err(LinkError::Invalid(format!(
-                "poll_rate_hz must be in (0, {MAX_POLL_RATE_HZ}], got {}",
-                self.poll_rate_hz
-            )));
+            return Err(LinkError::Invalid {
+                key: "poll_rate_hz",
+                message: format!(
+                    "poll_rate_hz must be in (0, {MAX_POLL_RATE_HZ}], got {}",
+                    self.poll_rate_hz
+                ),
+            });
         }
         if self.max_output_age_ms == 0 {
-            return Err(LinkError::Invalid("max_output_age_ms must be > 0".into()));
+            return Err(LinkError::Invalid {
+                key: "max_output_age_ms",
+                message: "max_output_age_ms must be > 0".into(),
+            });
         }
         if let Some(hb) = &self.heartbeat_register {
             hb.validate()?;
@@ -343,9 +352,14 @@ pub enum LinkError {
     /// The client settings are unusable.
     #[error(transparent)]
     Client(#[from] ConfigError),
-    /// A link setting is out of range; the message says which.
-    #[error("invalid Modbus link config: {0}")]
-    Invalid(String),
+    /// A link setting is out of range.
+    #[error("invalid Modbus link config: {message}")]
+    Invalid {
+        /// The key, relative to the link settings (`poll_rate_hz`, `heartbeat_register`).
+        key: &'static str,
+        /// What is wrong with it.
+        message: String,
+    },
     /// The signal map's Modbus bindings are inconsistent (overlaps, read-only actuators,
     /// heartbeat block on top of a signal).
     #[error("signal map: {0}")]
@@ -362,6 +376,18 @@ pub enum LinkError {
         #[source]
         source: io::Error,
     },
+}
+
+impl LinkError {
+    /// The settings key a configuration error is about, relative to the link settings
+    /// (`poll_rate_hz`, `client.timeout_ms`); `None` for errors that are not about one key.
+    pub fn config_key(&self) -> Option<String> {
+        match self {
+            LinkError::Invalid { key, .. } => Some((*key).to_string()),
+            LinkError::Client(c) => Some(format!("client.{}", c.key())),
+            _ => None,
+        }
+    }
 }
 
 /// Check the map and that the heartbeat block does not sit on a mapped signal.
@@ -1242,7 +1268,10 @@ mod tests {
         assert!(c.validate().is_ok());
         for rate in [0.0, -1.0, f64::NAN, 1000.5] {
             c.poll_rate_hz = rate;
-            assert!(matches!(c.validate(), Err(LinkError::Invalid(_))), "{rate}");
+            assert!(
+                matches!(c.validate(), Err(LinkError::Invalid { .. })),
+                "{rate}"
+            );
         }
         c.poll_rate_hz = 1000.0;
         assert!(c.validate().is_ok());

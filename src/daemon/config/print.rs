@@ -3,7 +3,8 @@
 //! (main file, a `conf.d/` drop-in), the environment variable, the plant file's tuned
 //! `[controller]` table, or `default`. The machine description follows with its file's lines.
 
-use super::config::{resolve, Layer, Loaded, ENV_PREFIX};
+use super::layers::{resolve, Layer, ENV_PREFIX};
+use super::Loaded;
 use crate::config::toml_file::locate_key;
 use std::path::Path;
 

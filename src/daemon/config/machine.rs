@@ -6,7 +6,8 @@
 //! With both sections, `[machine]` is what the controller knows and `[plant]` the simulated
 //! skid (`antisurge plant`, in-process): the controller is then told nothing of the plant.
 
-use super::config::{locate, resolve, Layer, Loaded, Problem, Transport};
+use super::layers::{locate, resolve, Layer};
+use super::{Loaded, Problem, Transport};
 use crate::config::FileError;
 use crate::control::config::{ControllerConfig, FlowSource};
 use crate::control::law::LawError;
