@@ -592,6 +592,9 @@ fn draw_map(
     legend.draw(&area, corner)
 }
 
+/// A box in pixels: (left, top, right, bottom).
+type PxBox = (f64, f64, f64, f64);
+
 /// Label every speed line with its speed, centred *on* its own curve (as contour labels are),
 /// on a translucent background: a label beside its line can land on the neighbouring line of a
 /// crowded map, one centred on it cannot. Of the points along the visible line (the falling
@@ -650,10 +653,10 @@ fn draw_speed_labels(
             if s.run { ", running" } else { "" }
         );
         let height = s.peak.1 - 1.0;
-        let mut chosen: Option<(String, (f64, f64, f64, f64), Pt)> = None;
+        let mut chosen: Option<(String, PxBox, Pt)> = None;
         for label in [full, short] {
             let tw = text_width(&label, TICK_SIZE);
-            let mut best: Option<(f64, (f64, f64, f64, f64), Pt)> = None;
+            let mut best: Option<(f64, PxBox, Pt)> = None;
             for p in seg.iter() {
                 let c = to_px(*p);
                 let bx = (

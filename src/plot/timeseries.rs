@@ -275,7 +275,7 @@ fn margin_panel(rows: &[TraceRow], t: &[f64], marks: &TimeMarks<'_>) -> Option<P
     let bucket = ((t1 - t0) / 250.0).max(1e-12);
     let mut off_scale: Vec<Pt> = Vec::new();
     for (&ti, &v) in t.iter().zip(&pct) {
-        if !(v.abs() > lim) || !ti.is_finite() {
+        if v.is_nan() || v.abs() <= lim || !ti.is_finite() {
             continue;
         }
         let y = lim.copysign(v);
