@@ -342,6 +342,31 @@ for d in plants machines maps scenarios; do
     fi
 done
 
+# 5b. The operator token (web HMI and `antisurge operate`): created once, random, root-owned,
+# readable by the service's group only; an existing token is never replaced (delete it and
+# run install.sh again to issue a new one), its owner and mode are enforced.
+TOKEN_PATH=$CONF_DIR/operator.token
+if [[ -f $ROOT$TOKEN_PATH ]]; then
+    UNCHANGED=$((UNCHANGED + 1))
+else
+    report created create "$TOKEN_PATH (operator token: random, root:$SVC_GROUP 0640)"
+    if [[ $DRY_RUN == 0 ]]; then
+        (
+            umask 077
+            head -c 32 /dev/urandom | od -An -tx1 | tr -d ' \n' >"$ROOT$TOKEN_PATH.new.$$"
+            echo >>"$ROOT$TOKEN_PATH.new.$$"
+        )
+        own "root:$SVC_GROUP" "$ROOT$TOKEN_PATH.new.$$"
+        chmod 0640 "$ROOT$TOKEN_PATH.new.$$"
+        mv -f "$ROOT$TOKEN_PATH.new.$$" "$ROOT$TOKEN_PATH"
+        CHANGED=$((CHANGED + 1))
+    fi
+fi
+if [[ $DRY_RUN == 0 && -f $ROOT$TOKEN_PATH ]]; then
+    chmod 0640 "$ROOT$TOKEN_PATH"
+    own "root:$SVC_GROUP" "$ROOT$TOKEN_PATH"
+fi
+
 # 6. State and log directories (systemd would create them too, with the unit's modes).
 ensure_dir "$STATE_DIR" 0750 "$SVC_USER:$SVC_GROUP"
 ensure_dir "$LOG_DIR" 0750 "$SVC_USER:$SVC_GROUP"
@@ -385,5 +410,6 @@ Next steps:
   3. Start now and at every boot:          systemctl enable --now antisurge
   4. Follow the daemon's log:              journalctl -u antisurge -f
   5. Events of the last hour:              $cli events --since 1h
+  6. Operator token (HMI, \`$cli operate\`):  sudo cat $TOKEN_PATH   (new token: delete it, run install.sh)
 See $DOC_PATH
 EOF

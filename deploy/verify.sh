@@ -269,6 +269,11 @@ mode_is 750 etc/antisurge/scenarios
 mode_is 640 etc/antisurge/scenarios/s.toml
 mode_is 750 var/lib/antisurge
 mode_is 750 var/log/antisurge
+mode_is 640 etc/antisurge/operator.token
+tok=$(head -1 "$st/etc/antisurge/operator.token" 2>/dev/null || true)
+check "operator.token holds a random token (64 hex digits)" bash -c '[[ $1 =~ ^[0-9a-f]{64}$ ]]' _ "$tok"
+[[ $(id -u) == 0 ]] && check "operator.token owned by root (staged as root)" test "$(stat -c %u "$st/etc/antisurge/operator.token")" = 0
+check "operator.token is not world-readable" bash -c '[[ $(( 0$(stat -c %a "$1") & 07 )) == 0 ]]' _ "$st/etc/antisurge/operator.token"
 check "developer files (*.py, __pycache__) not installed" \
     test ! -e "$st/etc/antisurge/maps/gen.py" -a ! -e "$st/etc/antisurge/maps/__pycache__"
 check "installed binary is the given one" cmp -s "$TMP/fake-antisurge" "$st/usr/local/bin/antisurge"
@@ -279,6 +284,9 @@ check "installed .network is deploy/80-can0.network" cmp -s "$NETWORK" "$st/etc/
 out=$(bash "$INSTALL" --root "$st" --config-src "$cfg" 2>&1) && rc=0 || rc=$?
 check "second run exits 0 and writes nothing (idempotent)" \
     bash -c '[[ $1 == 0 ]] && grep -q "0 file(s) written" <<<"$2"' _ "$rc" "$out"
+check "second run keeps the operator token" test "$(head -1 "$st/etc/antisurge/operator.token")" = "$tok"
+other=$(bash "$INSTALL" --root "$TMP/stage2" --config-src "$cfg" >/dev/null 2>&1; head -1 "$TMP/stage2/etc/antisurge/operator.token" 2>/dev/null || true)
+check "another install gets another token" bash -c '[[ -n $1 && $1 != "$2" ]]' _ "$other" "$tok"
 
 # Operator edits: antisurge.toml and conf.d are kept; shipped files are replaced with
 # the previous version saved as .old.

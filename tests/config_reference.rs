@@ -9,6 +9,7 @@
 
 mod common;
 
+use antisurge::daemon::config::tls::TlsSection;
 use antisurge::daemon::config::{
     load_with_env, BusSection, ControlSection, DaemonConfig, InputSection, PlantSection,
     ReloadSection, SimulationSection, StartMode, StatusSection, Transport,
@@ -125,6 +126,10 @@ fn populated() -> DaemonConfig {
             metrics_listen: Some("127.0.0.1:9650".into()),
             metrics_allow_remote: false,
             hmi_listen: Some("127.0.0.1:9651".into()),
+            tls: Some(TlsSection {
+                cert_file: PathBuf::from("tls/hmi.crt"),
+                key_file: PathBuf::from("tls/hmi.key"),
+            }),
             modbus_listen: Some("0.0.0.0:502".into()),
             operator_token_file: Some(PathBuf::from("/etc/antisurge/operator.token")),
         },

@@ -14,7 +14,7 @@ use antisurge::runtime::handoff::{monotonic_ns, OutputBoard, SensorBoard, Wakeup
 use antisurge::runtime::rt_loop::{CycleStats, Tick};
 use antisurge::signals::SensorId;
 use common::counting_alloc::{allocations, Counting};
-use std::sync::atomic::{AtomicBool, Ordering};
+use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
 use std::sync::Arc;
 
 #[global_allocator]
@@ -74,8 +74,10 @@ fn control_node_cycle_with_live_snapshot_allocates_nothing_while_polled() {
 
     // readers: status report, metrics exposition and the status line, as fast as they go
     let stop = Arc::new(AtomicBool::new(false));
+    let reads_so_far = Arc::new(AtomicU64::new(0));
     let reader = {
         let (live, stats, stop) = (Arc::clone(&live), Arc::clone(&stats), Arc::clone(&stop));
+        let reads_so_far = Arc::clone(&reads_so_far);
         std::thread::spawn(move || {
             let mut reads = 0u64;
             while !stop.load(Ordering::Relaxed) {
@@ -89,6 +91,7 @@ fn control_node_cycle_with_live_snapshot_allocates_nothing_while_polled() {
                     std::hint::black_box(antisurge::live::report::human(&r));
                     std::hint::black_box(antisurge::live::metrics::render(&live, &stats));
                     reads += 1;
+                    reads_so_far.store(reads, Ordering::Relaxed);
                 }
             }
             reads
@@ -102,6 +105,18 @@ fn control_node_cycle_with_live_snapshot_allocates_nothing_while_polled() {
         let now = t0 + k * 1_000_000;
         for id in SensorId::ALL {
             sensors.publish(id, plant.sensors().get(id), now);
+        }
+        if k == 10 {
+            // on a loaded machine the reader thread may not have been scheduled yet: the
+            // counted cycles start once it reads concurrently
+            let t = std::time::Instant::now();
+            while reads_so_far.load(Ordering::Relaxed) == 0 {
+                assert!(
+                    t.elapsed() < std::time::Duration::from_secs(10),
+                    "the reader never ran"
+                );
+                std::thread::yield_now();
+            }
         }
         if k == 1500 {
             // an operator action through the ring mid-run (manual, then back to auto)

@@ -14,6 +14,10 @@ pub struct StatusArgs {
     /// ./out/status.sock).
     #[arg(long)]
     pub socket: Option<PathBuf>,
+    /// The report of the snapshot of this control cycle, as served recently to the web HMI
+    /// (its page shows the cycle) or to a status client, instead of the latest one.
+    #[arg(long, value_name = "N")]
+    pub cycle: Option<u64>,
 }
 
 /// Arguments of `antisurge operate`.
@@ -49,7 +53,11 @@ fn ask(sock: &std::path::Path, line: &str) -> Result<serde_json::Value> {
 /// Print the daemon's status.
 pub fn status(args: &StatusArgs) -> Result<()> {
     let sock = socket(&args.socket);
-    let v = ask(&sock, "status")?;
+    let request = match args.cycle {
+        Some(c) => format!("status {c}"),
+        None => "status".into(),
+    };
+    let v = ask(&sock, &request)?;
     if let Some(e) = v.get("error") {
         return Err(anyhow!(
             "the daemon says: {}",

@@ -8,15 +8,17 @@
 //! `output 20`, `reset-surge-counter`, `ack`) need `Authorization: Bearer <token>` with the
 //! token of the root-owned token file; anything else gets 401 and changes nothing. Each
 //! accepted action is recorded in the event log with what changed. The HMI binds loopback
-//! only (`status.hmi_listen`, default `127.0.0.1:9651`): this build has no TLS, so a
-//! non-loopback address is refused (put a TLS reverse proxy in front to reach it remotely).
+//! by default (`status.hmi_listen`, default `127.0.0.1:9651`); a non-loopback address is
+//! accepted only with `[status.tls]` (HTTPS, [`super::tls`]) and a usable operator token file
+//! (checked by `check-config`, `daemon::config::tls`). With TLS, a plain-HTTP request gets a
+//! 400 that says to use https:// and nothing else.
 
 use std::net::SocketAddr;
 use std::path::PathBuf;
 use std::time::Duration;
 
 use serde::Serialize;
-use tokio::io::{AsyncReadExt, AsyncWriteExt};
+use tokio::io::{AsyncRead, AsyncReadExt, AsyncWrite, AsyncWriteExt};
 
 use super::server::{LiveContext, OpError};
 use crate::control::model::ControlModel;
@@ -109,8 +111,9 @@ impl MapLines {
     }
 }
 
-/// Where the HMI binds (None: off). Non-loopback is refused: no TLS in this build.
-pub fn listen_addr(listen: Option<&str>) -> Result<Option<SocketAddr>, String> {
+/// Where the HMI binds (None: off). A non-loopback address is refused unless `tls` (the
+/// token file is checked by `check-config`).
+pub fn listen_addr(listen: Option<&str>, tls: bool) -> Result<Option<SocketAddr>, String> {
     let text = listen.unwrap_or(DEFAULT_LISTEN).trim();
     if text.is_empty() {
         return Ok(None);
@@ -118,11 +121,10 @@ pub fn listen_addr(listen: Option<&str>) -> Result<Option<SocketAddr>, String> {
     let addr: SocketAddr = text
         .parse()
         .map_err(|e| format!("status.hmi_listen `{text}`: {e} (expected host:port)"))?;
-    if !addr.ip().is_loopback() {
+    if !addr.ip().is_loopback() && !tls {
         return Err(format!(
             "status.hmi_listen `{text}` is not a loopback address: the HMI is served beyond \
-             loopback only over TLS, which this build does not terminate; keep it on 127.0.0.1 \
-             and put a TLS reverse proxy in front"
+             loopback only over TLS ([status.tls] cert_file and key_file) with the operator token"
         ));
     }
     Ok(Some(addr))
@@ -214,10 +216,11 @@ impl Hmi {
     }
 }
 
-/// Serve the HMI on `listener` until `shutdown`.
+/// Serve the HMI on `listener` until `shutdown`; over TLS when `tls` is given.
 pub async fn serve(
     listener: tokio::net::TcpListener,
     hmi: Hmi,
+    tls: Option<tokio_rustls::TlsAcceptor>,
     mut shutdown: tokio::sync::watch::Receiver<bool>,
 ) {
     loop {
@@ -229,43 +232,77 @@ pub async fn serve(
             _ = shutdown.changed() => break,
         };
         let hmi = hmi.clone();
+        let tls = tls.clone();
         tokio::spawn(async move {
-            let mut buf = vec![0u8; 8192];
-            let mut n = 0;
-            let _ = tokio::time::timeout(Duration::from_secs(2), async {
-                loop {
-                    if n == buf.len() {
-                        break;
-                    }
-                    match sock.read(&mut buf[n..]).await {
-                        Ok(0) | Err(_) => break,
-                        Ok(k) => n += k,
-                    }
-                    let text = String::from_utf8_lossy(&buf[..n]);
-                    if let Some(end) = text.find("\r\n\r\n") {
-                        let len = text[..end]
-                            .lines()
-                            .find_map(|l| {
-                                let (k, v) = l.split_once(':')?;
-                                k.trim()
-                                    .eq_ignore_ascii_case("content-length")
-                                    .then(|| v.trim().parse::<usize>().ok())?
-                            })
-                            .unwrap_or(0);
-                        if n >= end + 4 + len.min(1024) {
-                            break;
-                        }
-                    }
+            let who = format!("HMI {peer}");
+            let Some(acceptor) = tls else {
+                return answer_connection(sock, &hmi, &who).await;
+            };
+            // a TLS connection opens with a handshake record (0x16); anything else is refused
+            let mut first = [0u8; 1];
+            let opened = tokio::time::timeout(Duration::from_secs(5), sock.peek(&mut first)).await;
+            if !matches!(opened, Ok(Ok(1))) {
+                return;
+            }
+            if first[0] != 0x16 {
+                let resp = response(
+                    "400 Bad Request",
+                    "text/plain",
+                    "this HMI is served over TLS only: open it with https://\n",
+                );
+                let _ = sock.write_all(resp.as_bytes()).await;
+                let _ = sock.shutdown().await;
+                return;
+            }
+            match tokio::time::timeout(Duration::from_secs(5), acceptor.accept(sock)).await {
+                Ok(Ok(stream)) => answer_connection(stream, &hmi, &format!("{who} (TLS)")).await,
+                Ok(Err(e)) => {
+                    tracing::debug!(target: "status", "HMI TLS handshake with {peer}: {e}")
                 }
-            })
-            .await;
-            let text = String::from_utf8_lossy(&buf[..n]).into_owned();
-            let (head, body) = text.split_once("\r\n\r\n").unwrap_or((&text, ""));
-            let resp = hmi.answer(head, body, &format!("HMI {peer}"));
-            let _ = sock.write_all(resp.as_bytes()).await;
-            let _ = sock.shutdown().await;
+                Err(_) => {
+                    tracing::debug!(target: "status", "HMI TLS handshake with {peer}: timed out")
+                }
+            }
         });
     }
+}
+
+/// Read one request from `sock` (head and body, at most 8 KiB, 2 s) and answer it.
+async fn answer_connection<S: AsyncRead + AsyncWrite + Unpin>(mut sock: S, hmi: &Hmi, who: &str) {
+    let mut buf = vec![0u8; 8192];
+    let mut n = 0;
+    let _ = tokio::time::timeout(Duration::from_secs(2), async {
+        loop {
+            if n == buf.len() {
+                break;
+            }
+            match sock.read(&mut buf[n..]).await {
+                Ok(0) | Err(_) => break,
+                Ok(k) => n += k,
+            }
+            let text = String::from_utf8_lossy(&buf[..n]);
+            if let Some(end) = text.find("\r\n\r\n") {
+                let len = text[..end]
+                    .lines()
+                    .find_map(|l| {
+                        let (k, v) = l.split_once(':')?;
+                        k.trim()
+                            .eq_ignore_ascii_case("content-length")
+                            .then(|| v.trim().parse::<usize>().ok())?
+                    })
+                    .unwrap_or(0);
+                if n >= end + 4 + len.min(1024) {
+                    break;
+                }
+            }
+        }
+    })
+    .await;
+    let text = String::from_utf8_lossy(&buf[..n]).into_owned();
+    let (head, body) = text.split_once("\r\n\r\n").unwrap_or((&text, ""));
+    let resp = hmi.answer(head, body, who);
+    let _ = sock.write_all(resp.as_bytes()).await;
+    let _ = sock.shutdown().await;
 }
 
 #[cfg(test)]
@@ -275,12 +312,17 @@ mod tests {
     #[test]
     fn loopback_only() {
         assert_eq!(
-            listen_addr(None).expect("default"),
+            listen_addr(None, false).expect("default"),
             Some(DEFAULT_LISTEN.parse().expect("addr"))
         );
-        assert!(listen_addr(Some("[::1]:9651")).expect("v6").is_some());
-        let e = listen_addr(Some("0.0.0.0:9651")).unwrap_err();
+        assert!(listen_addr(Some("[::1]:9651"), false)
+            .expect("v6")
+            .is_some());
+        let e = listen_addr(Some("0.0.0.0:9651"), false).unwrap_err();
         assert!(e.contains("TLS"), "{e}");
-        assert_eq!(listen_addr(Some("")).expect("off"), None);
+        assert!(listen_addr(Some("0.0.0.0:9651"), true)
+            .expect("tls")
+            .is_some());
+        assert_eq!(listen_addr(Some(""), false).expect("off"), None);
     }
 }

@@ -5,6 +5,7 @@
 //! - [`persist`]: surge counter, safety-on steps and last mode kept across restarts.
 //! - [`server`]: the status socket (`antisurge status`) and the operator actions on it.
 //! - [`metrics`]: the Prometheus/OpenMetrics endpoint.
+//! - [`hmi`]: the web HMI; [`tls`]: its HTTPS.
 
 pub mod commands;
 pub mod dcs;
@@ -14,11 +15,16 @@ pub mod persist;
 pub mod report;
 pub mod server;
 pub mod snapshot;
+pub mod tls;
 
 use std::path::{Path, PathBuf};
 use std::sync::{Arc, Mutex};
 
 use crate::daemon::config::StatusSection;
+
+/// The operator token file when `status.operator_token_file` is not set (created by
+/// `deploy/install.sh`: random, root:antisurge, mode 0640).
+pub const DEFAULT_TOKEN_FILE: &str = "/etc/antisurge/operator.token";
 
 /// Where the status socket is: `status.socket` (relative: under `$RUNTIME_DIRECTORY`, else
 /// `./out/`), default `status.sock`.
@@ -106,11 +112,40 @@ pub fn prepare(status: &StatusSection) -> LiveSetup {
         state,
         kept,
         socket: socket_path(status),
-        token_file: status
-            .operator_token_file
-            .clone()
-            .unwrap_or_else(|| PathBuf::from("/etc/antisurge/operator.token")),
+        token_file: crate::daemon::config::tls::token_file(status),
     }
+}
+
+/// The HMI's listener and TLS acceptor (None: the HMI is off). Beyond loopback only with TLS
+/// and a usable token file (the rules `check-config` applies, checked again here).
+fn hmi_listener(
+    status: &StatusSection,
+) -> Result<
+    Option<(
+        tokio::net::TcpListener,
+        std::net::SocketAddr,
+        Option<tokio_rustls::TlsAcceptor>,
+    )>,
+    String,
+> {
+    let Some(addr) = hmi::listen_addr(status.hmi_listen.as_deref(), status.tls.is_some())? else {
+        return Ok(None);
+    };
+    if !addr.ip().is_loopback() {
+        let file = crate::daemon::config::tls::token_file(status);
+        if let Some(why) = crate::daemon::config::tls::token_file_problem(&file) {
+            return Err(format!("not serving on {addr} beyond loopback: {why}"));
+        }
+    }
+    let tls = match &status.tls {
+        Some(t) => Some(tls::acceptor(t).map_err(|e| e.to_string())?),
+        None => None,
+    };
+    let l = std::net::TcpListener::bind(addr)
+        .and_then(|l| l.set_nonblocking(true).map(|()| l))
+        .and_then(tokio::net::TcpListener::from_std)
+        .map_err(|e| format!("{addr}: {e}"))?;
+    Ok(Some((l, addr, tls)))
 }
 
 /// Start the status socket, the metrics endpoint and the persistence task on `tasks`;
@@ -135,6 +170,7 @@ pub fn spawn(
         events,
         token_file: setup.token_file,
         started: std::time::Instant::now(),
+        served: Arc::default(),
     };
     match server::bind_status_socket(&setup.socket) {
         Ok(l) => {
@@ -170,22 +206,17 @@ pub fn spawn(
         Ok(None) => {}
         Err(e) => tracing::error!(target: "status", "no metrics endpoint: {e}"),
     }
-    match hmi::listen_addr(status.hmi_listen.as_deref()) {
-        Ok(Some(addr)) => match std::net::TcpListener::bind(addr)
-            .and_then(|l| l.set_nonblocking(true).map(|()| l))
-            .and_then(tokio::net::TcpListener::from_std)
-        {
-            Ok(l) => {
-                tracing::info!(target: "status", "web HMI on http://{addr}/");
-                let h = hmi::Hmi {
-                    ctx: ctx.clone(),
-                    map_json: serde_json::to_string(&map).unwrap_or_default(),
-                    events_path,
-                };
-                tasks.spawn(hmi::serve(l, h, shutdown.clone()));
-            }
-            Err(e) => tracing::error!(target: "status", "no web HMI on {addr}: {e}"),
-        },
+    match hmi_listener(status) {
+        Ok(Some((l, addr, tls))) => {
+            let scheme = if tls.is_some() { "https" } else { "http" };
+            tracing::info!(target: "status", "web HMI on {scheme}://{addr}/");
+            let h = hmi::Hmi {
+                ctx: ctx.clone(),
+                map_json: serde_json::to_string(&map).unwrap_or_default(),
+                events_path,
+            };
+            tasks.spawn(hmi::serve(l, h, tls, shutdown.clone()));
+        }
         Ok(None) => {}
         Err(e) => tracing::error!(target: "status", "no web HMI: {e}"),
     }

@@ -1,13 +1,17 @@
 //! The daemon's operator services, off the control thread (tokio tasks):
 //! - the status socket (`antisurge status`): a Unix socket in the runtime directory, mode
 //!   0660 (the service's group reads it). A client writes one line and reads one JSON line:
-//!   `status` → the [`StatusReport`]; `op TOKEN WORDS…` → an operator action (see
+//!   `status` → the [`StatusReport`]; `status CYCLE` → the report of a snapshot served
+//!   recently (to the HMI or a status client) by its cycle number, so that what a page shows
+//!   can be compared with the daemon's own report of the same snapshot;
+//!   `op TOKEN WORDS…` → an operator action (see
 //!   [`OperatorCommand::parse`]), refused without the right token, recorded in the event log
 //!   with what changed;
 //! - persistence: the surge counter, safety-on steps and last mode written to the state
 //!   directory whenever they change;
 //! - `sd_notify STATUS=` with the one-line status every second.
 
+use std::collections::VecDeque;
 use std::path::{Path, PathBuf};
 use std::sync::{Arc, Mutex};
 use std::time::{Duration, Instant};
@@ -40,19 +44,45 @@ pub struct LiveContext {
     pub token_file: PathBuf,
     /// Daemon start.
     pub started: Instant,
+    /// The snapshots served last (HMI, status socket), newest at the back.
+    pub served: Arc<Mutex<VecDeque<LiveSnapshot>>>,
 }
 
+/// How many served snapshots [`LiveContext::report_of`] can find (at the HMI's 2 Hz poll,
+/// about two minutes).
+pub const SERVED_KEPT: usize = 256;
+
 impl LiveContext {
-    /// The current report (None before the first cycle).
+    /// The current report (None before the first cycle); its snapshot is kept among the
+    /// served ones.
     pub fn report(&self) -> Option<StatusReport> {
         let s = self.live.latest()?;
+        if let Ok(mut q) = self.served.lock() {
+            if q.back().map(|b| b.cycle) != Some(s.cycle) {
+                if q.len() == SERVED_KEPT {
+                    q.pop_front();
+                }
+                q.push_back(s);
+            }
+        }
+        Some(self.report_for(&s))
+    }
+
+    /// The report of the served snapshot of control cycle `cycle` (None: not served, or no
+    /// longer kept). Statistics, links and uptime are today's.
+    pub fn report_of(&self, cycle: u64) -> Option<StatusReport> {
+        let s = *self.served.lock().ok()?.iter().find(|s| s.cycle == cycle)?;
+        Some(self.report_for(&s))
+    }
+
+    fn report_for(&self, s: &LiveSnapshot) -> StatusReport {
         let stats = serde_json::to_value(self.stats.report()).unwrap_or_default();
-        Some(StatusReport::new(
-            &s,
+        StatusReport::new(
+            s,
             self.started.elapsed().as_secs_f64(),
             stats,
             (self.links)(),
-        ))
+        )
     }
 
     /// Check the token and hand the action to the control thread; returns what changed.
@@ -212,6 +242,13 @@ async fn answer(ctx: &LiveContext, stream: UnixStream) -> std::io::Result<()> {
         ["status"] | [] => match ctx.report() {
             Some(r) => serde_json::to_value(r).unwrap_or_default(),
             None => serde_json::json!({"error": "no control cycle has run yet"}),
+        },
+        ["status", cycle] => match cycle.parse::<u64>().map(|c| (c, ctx.report_of(c))) {
+            Ok((_, Some(r))) => serde_json::to_value(r).unwrap_or_default(),
+            Ok((c, None)) => serde_json::json!({"error": format!(
+                "the snapshot of cycle {c} was not served or is no longer kept (the last {SERVED_KEPT} served are)"
+            )}),
+            Err(_) => serde_json::json!({"error": format!("`{cycle}` is not a cycle number")}),
         },
         ["op", token, rest @ ..] => match ctx.operate(token, rest, &who) {
             Ok(what) => serde_json::json!({"ok": what}),

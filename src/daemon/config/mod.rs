@@ -19,7 +19,7 @@
 //! - [`layers`]: files, `conf.d/`, the environment layer, merge, flatten, locating a key;
 //! - one file per section with its types, defaults and a `validate` returning typed
 //!   [`KeyProblem`]s that carry their key path ([`control`], [`cycle`], [`inputs`], [`bus`],
-//!   [`controller`], [`event_log`], [`simulation`], [`status`], [`reload`], [`plant`],
+//!   [`controller`], [`event_log`], [`simulation`], [`status`] with [`tls`], [`reload`], [`plant`],
 //!   [`machine`]);
 //! - [`cross`]: the rules between sections (the law on this machine, what the law needs
 //!   bound, signal map against the buses, DBC, bus load, risky combinations), in one place;
@@ -40,6 +40,7 @@ pub mod problem;
 pub mod reload;
 pub mod simulation;
 pub mod status;
+pub mod tls;
 
 pub use bus::{BusSection, Transport};
 pub use control::{ControlSection, StartMode};
@@ -221,6 +222,7 @@ pub fn load_with_env(main: &Path, vars: &[(String, String)]) -> Result<Loaded, V
     let mut config = config;
     config.event_log.path = output_path(&config.event_log.path);
     config.status.stats_file = config.status.stats_file.as_deref().map(output_path);
+    config.status.tls = config.status.tls.as_ref().map(|t| t.resolved(main));
     let mut loaded = Loaded {
         config,
         main_path: main.to_path_buf(),

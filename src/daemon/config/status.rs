@@ -29,10 +29,13 @@ pub struct StatusSection {
     /// Allow the metrics endpoint on a non-loopback address (read-only data).
     #[serde(default)]
     pub metrics_allow_remote: bool,
-    /// Web HMI `host:port` (default `127.0.0.1:9651`; empty: off). Loopback only: this build
-    /// does not terminate TLS.
+    /// Web HMI `host:port` (default `127.0.0.1:9651`; empty: off). Beyond loopback only
+    /// with `[status.tls]` and the operator token file in place.
     #[serde(default)]
     pub hmi_listen: Option<String>,
+    /// `[status.tls]`: serve the HMI over HTTPS (certificate and key, PEM).
+    #[serde(default)]
+    pub tls: Option<super::tls::TlsSection>,
     /// Modbus TCP server block for the DCS, `host:port` (default: off). Read-only input
     /// registers; register map in README.md.
     #[serde(default)]
@@ -57,6 +60,7 @@ impl Default for StatusSection {
             metrics_listen: None,
             metrics_allow_remote: false,
             hmi_listen: None,
+            tls: None,
             modbus_listen: None,
             operator_token_file: None,
         }
@@ -64,16 +68,21 @@ impl Default for StatusSection {
 }
 
 impl StatusSection {
-    /// The section's own rules.
+    /// The section's own rules: the status-line interval, and where the HMI and the metrics
+    /// endpoint may listen with the TLS files ([`super::tls::bind_problems`]).
     pub fn validate(&self) -> Vec<KeyProblem> {
+        let mut out = super::tls::bind_problems(self);
         let s = self.log_interval_s;
-        if s.is_finite() && s >= 0.0 {
-            return Vec::new();
+        if !(s.is_finite() && s >= 0.0) {
+            out.insert(
+                0,
+                KeyProblem::error(
+                    "status.log_interval_s",
+                    format!("{s} s must be ≥ 0 (0: no status line)"),
+                ),
+            );
         }
-        vec![KeyProblem::error(
-            "status.log_interval_s",
-            format!("{s} s must be ≥ 0 (0: no status line)"),
-        )]
+        out
     }
 }
 
