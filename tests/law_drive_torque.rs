@@ -11,8 +11,9 @@ use antisurge::sim::SimResult;
 
 const PLANT: &str = "bohagen2007_plenum";
 /// Largest uniform white noise (both pressure transmitters) at which the closure stays out of
-/// surge for every seed tried. Measured edge (bisection, 5 seeds): ≈ 25.7 Pa; tested with margin.
-const TOLERATED_NOISE_PA: f64 = 20.0;
+/// surge for every seed tried, with the 0.5 kg·m² rotor: 6 Pa holds on 3 seeds, 8 Pa saturates
+/// the drive a quarter of the time, 14 Pa surges (≈ 25 Pa with the former 0.2 kg·m² rotor).
+const TOLERATED_NOISE_PA: f64 = 6.0;
 
 fn bohagen() -> PlantDescription {
     common::plant(PLANT)
@@ -81,7 +82,7 @@ fn eq8_bound_from_the_map_and_tuned_gains_satisfy_eq8_and_eq9() {
     );
     let law = DriveTorque::new(cfg, &model).expect("law");
     assert_eq!(law.k2(), law.k1() * law.c1(), "eq. 9");
-    assert!((law.k2() - 140.0 * 180.0).abs() < 1e-9);
+    assert!((law.k2() - 350.0 * 180.0).abs() < 1e-9);
     // over a wider region the inequality reverses where ∂Ψ/∂ω < 0 (deep choke side of the
     // linearly continued cubic): eq. 8 holds on a region only (ERRATA.md)
     let wide = eq8_bound(
@@ -121,8 +122,10 @@ fn throttle_closure_is_stabilised_with_torque_within_rating() {
         .iter()
         .map(|t| t.drive_torque_nm)
         .fold(f64::INFINITY, f64::min);
+    // the law brakes the 0.5 kg·m² rotor down to ≈ −175 N·m where the closure ends (four-
+    // quadrant drive); a quarter of the rating at most
     assert!(
-        tau_min >= plant.file.drive.min_torque_nm && tau_min > -100.0,
+        tau_min >= plant.file.drive.min_torque_nm && tau_min > -0.25 * rating,
         "{tau_min}"
     );
     // speed: excursion within ±5 % of ω0, and the speed loop brings it back (law is zero at the
@@ -162,8 +165,9 @@ fn throttle_step_and_sweep_are_stabilised() {
         "{step:#?}"
     );
     assert!(step.settle_time_s.expect("settles") < 3.0, "{step:#?}");
+    // peak 428 N·m with the 0.5 kg·m² rotor (1.07× the nominal load)
     assert!(
-        step.actuator_peaks.drive_torque_nm <= 1.05 * 400.0,
+        step.actuator_peaks.drive_torque_nm <= 1.1 * 400.0,
         "{step:#?}"
     );
     // minimum stable flow: down to 5 % throttle, 0.62 kg/s against a surge point of 7 kg/s
@@ -322,9 +326,11 @@ fn bumpless_switch_from_none_mid_closure() {
         at <= 0.01 * rating,
         "step at the switch {at} N·m (natural {before})"
     );
+    // the hand-over offset −K1·ω̄ decays with transfer_time_constant_s; K1 = 350 (0.5 kg·m²)
+    // makes it 2.5× what K1 = 140 (0.2 kg·m²) did: 38 N·m per ms at most
     let after = max_step(&r, 5.8, 5.9);
     assert!(
-        after <= 0.02 * rating,
+        after <= 0.05 * rating,
         "largest step in 100 ms after: {after}"
     );
     let s = &r.summary;

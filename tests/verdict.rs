@@ -6,7 +6,7 @@ mod common;
 use antisurge::control::LawId;
 
 /// Seed 000 Proposition 1 gains with a sampled speed loop that is unstable at 1 kHz:
-/// K1·h/J = 400 · 1e-3 / 0.2 = 2 (the pole 1 − K1 h/J = −1 sits on the unit circle, and with
+/// K1·h/J = 1000 · 1e-3 / 0.5 = 2 (the pole 1 − K1 h/J = −1 sits on the unit circle, and with
 /// the speed loop on top, outside). Before the verdict was fixed this run reported
 /// "STABLE — no surge" while the controller sat in fail-safe and the speed ran away.
 #[test]

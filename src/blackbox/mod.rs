@@ -19,6 +19,7 @@
 //! written with Rust's shortest round-trip formatting (`NaN`, `inf` included), so parsing a row
 //! gives back the exact bits the core saw: a replay is bit-exact.
 
+pub mod candump;
 pub mod replay;
 
 use crate::control::measurements::{OperatorInputs, RawSensors};

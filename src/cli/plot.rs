@@ -116,7 +116,7 @@ pub fn run(args: &PlotArgs) -> Result<()> {
         desc.name(),
         args.trace.file_name().unwrap_or_default().to_string_lossy()
     );
-    for f in super::pictures::draw_trace(&dir, &desc, &trace, &title)? {
+    for f in super::pictures::draw_trace(&dir, &desc, &trace, &title, &[])? {
         println!("{}", f.display());
     }
     Ok(())

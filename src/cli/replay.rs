@@ -9,8 +9,18 @@ use std::path::PathBuf;
 /// Arguments.
 #[derive(Debug, clap::Args)]
 pub struct ReplayArgs {
-    /// A black-box file (`blackbox-<reason>-cycle<N>.csv`, written next to the event log).
+    /// A black-box file (`blackbox-<reason>-cycle<N>.csv`, written next to the event log), or
+    /// with `--candump` a `candump -l` log.
     pub file: PathBuf,
+    /// FILE is a `candump -l` log captured on the skid's bus: its frames are decoded through
+    /// the configuration's signal map and DBC (`--config`, default ./config/antisurge.toml)
+    /// by the daemon's own receive path and replayed on the configured control period. The
+    /// commands compared against are the actuator frames on the bus.
+    #[arg(long)]
+    pub candump: bool,
+    /// With `--candump`: the interface whose frames are imported (default: the first frame's).
+    #[arg(long, requires = "candump")]
+    pub interface: Option<String>,
     /// Replay with this configuration instead of the recorded one (what would this config
     /// have commanded?). Environment overrides (`ANTISURGE_<SECTION>__<KEY>`) apply as usual.
     #[arg(long)]
@@ -29,22 +39,41 @@ pub struct ReplayArgs {
 /// Run the command; exit status 1 when a replay with the recorded settings does not reproduce
 /// every command.
 pub fn run(args: &ReplayArgs) -> Result<std::process::ExitCode> {
-    let rec = blackbox::read_file(&args.file)?;
+    let load = |cfg_path: &std::path::Path| {
+        config::load(cfg_path).map_err(|p| {
+            anyhow!(
+                "the configuration {} is invalid:\n{}",
+                cfg_path.display(),
+                p.iter()
+                    .map(|p| p.to_string())
+                    .collect::<Vec<_>>()
+                    .join("\n")
+            )
+        })
+    };
+    let (rec, loaded, cfg_path, import) = if args.candump {
+        let cfg_path = args
+            .config
+            .clone()
+            .unwrap_or_else(super::daemon::default_config);
+        let loaded = load(&cfg_path)?;
+        let (rec, stats) = import_candump(&args.file, args.interface.as_deref(), &loaded)?;
+        (rec, loaded, cfg_path, Some(stats))
+    } else {
+        let rec = blackbox::read_file(&args.file)?;
+        let cfg_path = args
+            .config
+            .clone()
+            .unwrap_or_else(|| rec.header.config.clone());
+        let loaded = load(&cfg_path)?;
+        (rec, loaded, cfg_path, None)
+    };
     let h = &rec.header;
-    let cfg_path = args.config.clone().unwrap_or_else(|| h.config.clone());
-    let loaded = config::load(&cfg_path).map_err(|p| {
-        anyhow!(
-            "the configuration {} is invalid:\n{}",
-            cfg_path.display(),
-            p.iter()
-                .map(|p| p.to_string())
-                .collect::<Vec<_>>()
-                .join("\n")
-        )
-    })?;
     let env_overrides =
         std::env::vars().any(|(k, _)| k.starts_with("ANTISURGE_") && k.contains("__"));
-    let recorded = args.config.is_none() && args.law.is_none() && !env_overrides;
+    // a bus log carries no settings: it is always replayed with the configuration's
+    let recorded =
+        import.is_none() && args.config.is_none() && args.law.is_none() && !env_overrides;
     let law: LawId = match &args.law {
         Some(l) => l.parse()?,
         None => h.law.parse()?,
@@ -82,9 +111,33 @@ pub fn run(args: &ReplayArgs) -> Result<std::process::ExitCode> {
             h.law,
             law.name()
         );
+        if let Some(st) = &import {
+            let s = &st.sensor_side;
+            println!(
+                "  bus log         {} frames of {} over {:.3} s ({} of other interfaces skipped); \
+                 sensor frames published {}, unknown id {}, wrong length {}, bad CRC {}, \
+                 repeated alive {}, remote/FD/error {}; commands on the bus: {} frames",
+                st.frames - st.other_interface,
+                st.interface,
+                st.span_s,
+                st.other_interface,
+                s.rx_published,
+                s.unknown_id,
+                s.wrong_dlc,
+                s.bad_crc,
+                s.alive_repeated,
+                s.remote_frames + s.fd_frames + s.error_frames,
+                st.command_side.rx_published,
+            );
+        }
         println!(
             "  settings        {}",
-            if recorded {
+            if import.is_some() {
+                format!(
+                    "{} (a bus log carries none); inputs replayed open loop",
+                    cfg_path.display()
+                )
+            } else if recorded {
                 "as recorded".to_string()
             } else {
                 format!(
@@ -103,12 +156,17 @@ pub fn run(args: &ReplayArgs) -> Result<std::process::ExitCode> {
             );
         }
         println!(
-            "  commands        {} of {} cycles bit-identical{}",
+            "  commands        {} of {} cycles bit-identical{}{}",
             rep.identical_cycles,
             rep.cycles,
             rep.first_difference
                 .map(|(c, t)| format!("; first difference at cycle {c} (t = {t:.3} s)"))
-                .unwrap_or_default()
+                .unwrap_or_default(),
+            if import.is_some() {
+                " to the commands last seen on the bus"
+            } else {
+                ""
+            }
         );
         for a in &rep.actuators {
             println!(
@@ -120,7 +178,7 @@ pub fn run(args: &ReplayArgs) -> Result<std::process::ExitCode> {
             println!("  side by side in {}", out.display());
         }
     }
-    let exact = rep.identical_cycles == rep.cycles;
+    let exact = rep.identical_cycles == rep.cycles || import.is_some();
     Ok(
         if recorded && rep.starts_at_first_cycle && rep.updates_at_cycles.is_empty() && !exact {
             std::process::ExitCode::from(1)
@@ -128,4 +186,38 @@ pub fn run(args: &ReplayArgs) -> Result<std::process::ExitCode> {
             std::process::ExitCode::SUCCESS
         },
     )
+}
+
+/// Import a `candump -l` log through the configuration's signal map and DBC.
+fn import_candump(
+    file: &std::path::Path,
+    interface: Option<&str>,
+    loaded: &config::Loaded,
+) -> Result<(blackbox::Recording, blackbox::candump::ImportStats)> {
+    let can = loaded.config.bus.can.as_ref().ok_or_else(|| {
+        anyhow!(
+            "{}: [bus.can] is missing: a candump log is decoded with the DBC and the signal map's CAN bindings",
+            loaded.main_path.display()
+        )
+    })?;
+    let dbc = config::resolve(&loaded.main_path, &can.dbc);
+    let bindings = loaded.signal_map.can_bindings();
+    if bindings.is_empty() {
+        return Err(anyhow!(
+            "{}: the signal map binds no CAN signals: nothing in a candump log maps to a sensor",
+            loaded.main_path.display()
+        ));
+    }
+    let codec = antisurge::io::can::bus::BusCodec::load(&dbc, &bindings)
+        .with_context(|| format!("loading {}", dbc.display()))?;
+    let frames = blackbox::candump::read(file)?;
+    let imp = blackbox::candump::import(
+        &frames,
+        std::sync::Arc::new(codec),
+        antisurge::daemon::service::blackbox_header(loaded),
+        antisurge::daemon::service::operator_inputs(loaded),
+        interface,
+        file,
+    )?;
+    Ok((imp.recording, imp.stats))
 }

@@ -146,7 +146,7 @@ pub fn run(args: &SimArgs) -> Result<()> {
     let mut files = sim::output::write_data(&out_dir, &result, &desc.map)
         .with_context(|| format!("writing results to {}", out_dir.display()))?;
     if !args.no_plots {
-        files.extend(super::pictures::draw(&out_dir, &desc, &result)?);
+        files.extend(super::pictures::draw(&out_dir, &desc, &scenario, &result)?);
     }
     if args.json {
         println!("{}", serde_json::to_string_pretty(&result.summary)?);

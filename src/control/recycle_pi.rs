@@ -605,16 +605,7 @@ impl RecyclePi {
     }
 
     fn trip_margin_at(&self, ratio: f64) -> f64 {
-        if self.cfg.trip_margin_pct > 0.0 {
-            return 0.01 * self.cfg.trip_margin_pct;
-        }
-        let j = self.scl.surge_line().flow_at_ratio(ratio);
-        let c = self.scl.flow_at_ratio(ratio);
-        if j > 0.0 {
-            0.5 * (c - j) / j
-        } else {
-            0.0
-        }
+        trip_margin_at(self.cfg.trip_margin_pct, &self.scl, ratio)
     }
 
     /// Allowed closing rate, fraction/s: the base rate, plus one base rate per
@@ -854,5 +845,21 @@ impl SurgeLaw for RecyclePi {
             self.shifts = self.shifts.saturating_add(1);
             self.shift_pending = true;
         }
+    }
+}
+
+/// The trip line at a pressure ratio, as a surge margin (fraction of surge-line flow):
+/// `trip_margin_pct` when set (> 0), else halfway between the surge line and the control line
+/// `scl`. The law trips on it and the pictures draw it from here.
+pub fn trip_margin_at(trip_margin_pct: f64, scl: &SurgeControlLine, ratio: f64) -> f64 {
+    if trip_margin_pct > 0.0 {
+        return 0.01 * trip_margin_pct;
+    }
+    let j = scl.surge_line().flow_at_ratio(ratio);
+    let c = scl.flow_at_ratio(ratio);
+    if j > 0.0 {
+        0.5 * (c - j) / j
+    } else {
+        0.0
     }
 }

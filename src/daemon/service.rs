@@ -179,6 +179,23 @@ use crate::sim::PlantRun;
 
 /// Initial torque of the speed loop: the machine's load torque at its initial operating
 /// point, from the controller's own model (a bumpless start on a running machine).
+/// The black-box header of a daemon started from `loaded`: what `antisurge replay` builds the
+/// control core from (also used to import a `candump -l` log with the same settings).
+pub fn blackbox_header(loaded: &Loaded) -> crate::blackbox::Header {
+    let cfg = &loaded.config;
+    crate::blackbox::Header {
+        version: env!("CARGO_PKG_VERSION").to_string(),
+        config: std::fs::canonicalize(&loaded.main_path).unwrap_or(loaded.main_path.clone()),
+        law: loaded.law.name().to_string(),
+        auto: cfg.control.mode == config::StartMode::Auto,
+        initial_torque_nm: initial_torque_nm(loaded),
+        period_ns: cfg.cycle.period_ns(),
+        controller: loaded.controller.clone(),
+        reason: String::new(),
+        dropped: 0,
+    }
+}
+
 fn initial_torque_nm(l: &Loaded) -> f64 {
     let Some(plant) = &l.plant else {
         return 0.0; // no simulated plant: the torque is not the controller's to start from
@@ -465,17 +482,7 @@ async fn serve(loaded: Loaded, opts: RunOptions) -> Result<()> {
         .map_or_else(|| PathBuf::from("blackbox"), |d| d.join("blackbox"));
     let (bb_tx, recorder) = crate::blackbox::Recorder::start(
         bb_dir,
-        crate::blackbox::Header {
-            version: env!("CARGO_PKG_VERSION").to_string(),
-            config: std::fs::canonicalize(&loaded.main_path).unwrap_or(loaded.main_path.clone()),
-            law: loaded.law.name().to_string(),
-            auto: cfg.control.mode == config::StartMode::Auto,
-            initial_torque_nm: initial_torque_nm(&loaded),
-            period_ns: cfg.cycle.period_ns(),
-            controller: loaded.controller.clone(),
-            reason: String::new(),
-            dropped: 0,
-        },
+        blackbox_header(&loaded),
         crate::blackbox::DEFAULT_CAPACITY,
     )
     .context("cannot start the black-box recorder")?;

@@ -222,6 +222,9 @@ pub(crate) fn thin_min_max(t: &[f64], y: &[f64], buckets: usize) -> Vec<Pt> {
     out
 }
 
+/// Opacity of shaded time intervals (mode bands).
+pub(crate) const BAND_ALPHA: f64 = 0.22;
+
 /// How a legend entry is drawn.
 #[derive(Debug, Clone, Copy)]
 pub(crate) enum Swatch {
@@ -235,6 +238,10 @@ pub(crate) enum Swatch {
     Circle(RGBColor),
     /// A filled square marker.
     Square(RGBColor),
+    /// A filled triangle marker (pointing up).
+    Triangle(RGBColor),
+    /// A translucent band (a shaded time interval).
+    Band(RGBColor),
 }
 
 /// One legend entry.
@@ -427,6 +434,24 @@ impl Legend {
                         area.draw(&Rectangle::new(
                             [px(x + 6.0, yc - 5.0), px(x + 16.0, yc + 5.0)],
                             c.filled(),
+                        ))
+                        .map_err(de)?;
+                    }
+                    Swatch::Triangle(c) => {
+                        area.draw(&Polygon::new(
+                            vec![
+                                px(x + 5.0, yc + 5.0),
+                                px(x + 17.0, yc + 5.0),
+                                px(x + 11.0, yc - 6.0),
+                            ],
+                            c.filled(),
+                        ))
+                        .map_err(de)?;
+                    }
+                    Swatch::Band(c) => {
+                        area.draw(&Rectangle::new(
+                            [px(x, yc - 7.0), px(x + SWATCH_W - 4.0, yc + 7.0)],
+                            c.mix(BAND_ALPHA).filled(),
                         ))
                         .map_err(de)?;
                     }

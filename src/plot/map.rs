@@ -23,6 +23,12 @@ const TRAJ_COLOR: RGBColor = RGBColor(31, 110, 190);
 const START_COLOR: RGBColor = RGBColor(0, 165, 70);
 const END_COLOR: RGBColor = RGBColor(20, 20, 20);
 const REF_COLOR: RGBColor = RGBColor(150, 150, 150);
+/// Stroke colour of the running-speed line(s) (tests find them by it).
+pub(crate) const RUN_SPEED_COLOR: RGBColor = RGBColor(0, 125, 140);
+/// Stroke colour of the throughput trajectory (tests find it by it).
+pub(crate) const THROUGHPUT_COLOR: RGBColor = RGBColor(150, 60, 170);
+/// Start and end markers closer than this, pixels, are drawn as one.
+const SAME_POINT_PX: f64 = 14.0;
 
 const SIZE: (u32, u32) = (1100, 800);
 const MARGIN: u32 = 18;
@@ -33,15 +39,15 @@ const TITLE_AREA: u32 = 42;
 pub(crate) const N_SPEED_LINES: usize = 6;
 const SPEED_LINE_SAMPLES: usize = 600;
 const MAX_TRAJ_POINTS: usize = 20_000;
-/// Candidate label positions, in order of preference: where a speed line has fallen (right of
-/// its surge point) to this fraction of its height above ratio 1.
-const LABEL_HEIGHT_FRACTIONS: [f64; 7] = [0.72, 0.85, 0.6, 0.5, 0.93, 0.4, 0.3];
+/// Preferred label position: where a speed line has fallen (right of its surge point) to this
+/// fraction of its height above ratio 1.
+const LABEL_HEIGHT_FRACTION: f64 = 0.72;
 
 /// One speed line to draw.
 #[derive(Debug, Clone, Copy)]
 struct SpeedLine {
     omega: f64,
-    /// The run's speed outside the map's range (labelled as such).
+    /// A speed the run ran at (at its start or end), drawn as its own line and labelled so.
     run: bool,
     /// Surge point (flow, ratio).
     peak: Pt,
@@ -53,15 +59,21 @@ struct MapLayers {
     surge_line: Vec<Vec<Pt>>,
     scl: Vec<Vec<Pt>>,
     trajectory: Vec<Vec<Pt>>,
+    /// Flow to the process, where it differs from the compressor's (recycle plants).
+    throughput: Vec<Vec<Pt>>,
 }
 
 /// Draw the compressor map with the operating-point trajectory of `trace` into an SVG at `path`.
 ///
-/// Six speed lines span [`CompressorMap::omega_range`] (plus the run's speed when it lies
-/// outside), each labelled in rad/s and rpm, from slightly negative flow to past choke. The
-/// derived surge line, the surge control line `scl` (pressure ratio → flow, same coordinates)
-/// when given, and the trajectory `flow_map` vs `pressure_ratio` with its start (circle) and end
-/// (square) are drawn over it. Axis ranges cover both the map and the whole trajectory.
+/// Six speed lines span [`CompressorMap::omega_range`], each labelled in rad/s and rpm on its
+/// own curve, from slightly negative flow to past choke; the speed the run ran at (start, and
+/// end if different) is a line of its own in another colour. The derived surge line, the surge
+/// control line `scl` (pressure ratio → flow, same coordinates) when given, and the trajectory
+/// `flow_map` vs `pressure_ratio` with its start (circle) and end (square) are drawn over it;
+/// start and end closer than a marker's size are one marker. Where recycle makes the flow to
+/// the process (throttle flow) differ from the compressor's, it is drawn too, at the same
+/// pressure ratio; the legend gives both at the end in kg/s, the summary's unit, whatever the
+/// map's flow coordinate. Axis ranges cover both the map and the whole trajectory.
 ///
 /// Errors: [`PlotError::NoData`] for an empty trace; drawing and write failures. A trace whose
 /// flows or ratios are all NaN gives the map with a note instead of a trajectory.
@@ -94,39 +106,37 @@ pub fn map_svg(
     let start = finite_rows.next().copied();
     let end = finite_rows.next_back().copied().or(start);
 
+    let through = throughput_trajectory(trace, stride);
     let speeds = speed_lines(map, trace);
     let mut bounds = initial_bounds(map, &speeds, &traj);
-    let mut entries = vec![LegendEntry::line("surge line", SURGE_COLOR, 3, false)];
-    if scl.is_some() {
-        entries.push(LegendEntry::line("surge control line", SCL_COLOR, 2, true));
+    if let Some(xr) = finite_range(through.iter().filter(|p| p.1.is_finite()).map(|p| p.0)) {
+        let (x0, _) = pad(xr, 0.03);
+        bounds.x0 = bounds.x0.min(x0);
     }
-    if let (Some(s), Some(e)) = (start, end) {
-        entries.push(LegendEntry::line("operating point", TRAJ_COLOR, 2, false));
-        entries.push(LegendEntry {
-            label: format!("start (t = {})", fmt_time(s.t_s)),
-            swatch: Swatch::Circle(START_COLOR),
-        });
-        entries.push(LegendEntry {
-            label: format!("end (t = {})", fmt_time(e.t_s)),
-            swatch: Swatch::Square(END_COLOR),
-        });
-    }
-    let legend = Legend::layout(&entries, 1e9, true);
     let plot_dim = (
         (SIZE.0 - 2 * MARGIN - Y_LABEL_AREA) as f64,
         (SIZE.1 - 2 * MARGIN - X_LABEL_AREA - TITLE_AREA) as f64,
     );
+    let entries = legend_entries(
+        scl.is_some(),
+        &speeds,
+        (start, end),
+        !through.is_empty(),
+        same_point(start, end, &bounds, plot_dim),
+    );
+    let legend = Legend::layout(&entries, 1e9, true);
     // legend in the emptiest corner; if every corner hides data, make headroom above it
-    let mut layers = build_layers(map, &speeds, scl, &traj, &bounds);
+    let mut layers = build_layers(map, &speeds, scl, &traj, &through, &bounds);
     let (mut corner, hidden) = legend.best_corner(&layers.all_points(), &bounds, plot_dim);
     if hidden > 0 {
         let f = legend.height_fraction(plot_dim.1);
         bounds.y1 += (bounds.y1 - bounds.y0) * f / (1.0 - f);
-        layers = build_layers(map, &speeds, scl, &traj, &bounds);
+        layers = build_layers(map, &speeds, scl, &traj, &through, &bounds);
         corner = legend
             .best_corner(&layers.all_points(), &bounds, plot_dim)
             .0;
     }
+    let one_marker = same_point(start, end, &bounds, plot_dim);
 
     let x_desc = match map.flow_coordinate {
         FlowCoordinate::MassKgS => format!("mass flow ({})", map.flow_coordinate.unit()),
@@ -144,11 +154,140 @@ pub fn map_svg(
             &layers,
             (start, end),
             has_traj,
-            map,
+            one_marker,
             &legend,
             corner,
         )
     })
+}
+
+/// Whether start and end of the trajectory would be drawn on top of each other.
+fn same_point(start: Option<TraceRow>, end: Option<TraceRow>, b: &Bounds, dim: (f64, f64)) -> bool {
+    let (Some(s), Some(e)) = (start, end) else {
+        return false;
+    };
+    let dx = (e.flow_map - s.flow_map) / (b.x1 - b.x0) * dim.0;
+    let dy = (e.pressure_ratio - s.pressure_ratio) / (b.y1 - b.y0) * dim.1;
+    dx.hypot(dy) < SAME_POINT_PX
+}
+
+/// End flows in kg/s (the summary's unit): compressor, and throughput when it differs.
+fn fmt_kg_s(v: f64) -> String {
+    if v.abs() >= 100.0 {
+        format!("{v:.1} kg/s")
+    } else if v.abs() >= 1.0 {
+        format!("{v:.2} kg/s")
+    } else {
+        format!("{v:.3} kg/s")
+    }
+}
+
+fn legend_entries(
+    has_scl: bool,
+    speeds: &[SpeedLine],
+    (start, end): (Option<TraceRow>, Option<TraceRow>),
+    has_throughput: bool,
+    one_marker: bool,
+) -> Vec<LegendEntry> {
+    let mut entries = vec![LegendEntry::line("surge line", SURGE_COLOR, 3, false)];
+    if has_scl {
+        entries.push(LegendEntry::line("surge control line", SCL_COLOR, 2, true));
+    }
+    if speeds.iter().any(|s| s.run) {
+        entries.push(LegendEntry::line(
+            "running speed",
+            RUN_SPEED_COLOR,
+            2,
+            false,
+        ));
+    }
+    if let (Some(s), Some(e)) = (start, end) {
+        let end_flow = |what: &str, v: f64| {
+            if v.is_finite() {
+                format!(", {what} {}", fmt_kg_s(v))
+            } else {
+                String::new()
+            }
+        };
+        entries.push(LegendEntry::line(
+            format!(
+                "operating point{}",
+                if has_throughput { " (compressor)" } else { "" }
+            ),
+            TRAJ_COLOR,
+            2,
+            false,
+        ));
+        if has_throughput {
+            entries.push(LegendEntry::line(
+                "throughput (to the process)",
+                THROUGHPUT_COLOR,
+                2,
+                true,
+            ));
+        }
+        let mut end_label = format!("end (t = {})", fmt_time(e.t_s));
+        end_label.push_str(&end_flow("compressor", e.m_kg_s));
+        if has_throughput {
+            end_label.push_str(&end_flow("throughput", e.throttle_flow_kg_s));
+        }
+        if one_marker {
+            entries.push(LegendEntry {
+                label: format!(
+                    "start and end (t = {} and {}: the same point)",
+                    fmt_time(s.t_s),
+                    fmt_time(e.t_s)
+                ),
+                swatch: Swatch::Square(END_COLOR),
+            });
+            if end_label.contains(',') {
+                entries.push(LegendEntry {
+                    label: end_label,
+                    swatch: Swatch::Square(WHITE),
+                });
+            }
+        } else {
+            entries.push(LegendEntry {
+                label: format!("start (t = {})", fmt_time(s.t_s)),
+                swatch: Swatch::Circle(START_COLOR),
+            });
+            entries.push(LegendEntry {
+                label: end_label,
+                swatch: Swatch::Square(END_COLOR),
+            });
+        }
+    }
+    entries
+}
+
+/// The throughput (throttle flow) in map coordinates at each row's pressure ratio, when it
+/// differs from the compressor flow somewhere by more than 1 % (gas recycled); else empty.
+/// Map coordinates from kg/s by each row's own ratio flow_map / m_kg_s (inlet density).
+fn throughput_trajectory(trace: &[TraceRow], stride: usize) -> Vec<Pt> {
+    let differs = trace.iter().any(|r| {
+        r.throttle_flow_kg_s.is_finite()
+            && r.m_kg_s.is_finite()
+            && (r.m_kg_s - r.throttle_flow_kg_s).abs() > 0.01 * r.m_kg_s.abs().max(1e-9)
+    });
+    if !differs {
+        return Vec::new();
+    }
+    let mut last_factor = f64::NAN;
+    let mut out: Vec<Pt> = trace
+        .iter()
+        .enumerate()
+        .filter(|(i, _)| i % stride == 0 || *i + 1 == trace.len())
+        .map(|(_, r)| {
+            if r.m_kg_s.abs() > 1e-6 && r.flow_map.is_finite() {
+                last_factor = r.flow_map / r.m_kg_s;
+            }
+            (r.throttle_flow_kg_s * last_factor, r.pressure_ratio)
+        })
+        .collect();
+    if !out.iter().any(|p| p.0.is_finite() && p.1.is_finite()) {
+        out.clear();
+    }
+    out
 }
 
 impl MapLayers {
@@ -159,6 +298,7 @@ impl MapLayers {
             .chain(self.surge_line.iter().map(|s| s.as_slice()))
             .chain(self.scl.iter().map(|s| s.as_slice()))
             .chain(self.trajectory.iter().map(|s| s.as_slice()))
+            .chain(self.throughput.iter().map(|s| s.as_slice()))
             .collect()
     }
 }
@@ -187,36 +327,37 @@ fn surge_point(map: &CompressorMap, omega: f64) -> Pt {
         })
 }
 
-/// Evenly spaced speeds across the map's range, plus the run's lowest/highest speed when they
-/// lie outside it.
+/// Evenly spaced speeds across the map's range, plus the speed the run ran at: at its start,
+/// and at its end when that differs by more than 1 % of the range. A regular line within 3 %
+/// of the range of a running speed is left out (the running line takes its place).
 fn speed_lines(map: &CompressorMap, trace: &[TraceRow]) -> Vec<SpeedLine> {
     let (lo, hi) = map.omega_range();
-    let mut out: Vec<SpeedLine> = (0..N_SPEED_LINES)
-        .map(|k| {
-            let omega = lo + (hi - lo) * k as f64 / (N_SPEED_LINES - 1) as f64;
-            SpeedLine {
-                omega,
-                run: false,
-                peak: surge_point(map, omega),
-            }
-        })
+    let finite: Vec<f64> = trace
+        .iter()
+        .map(|r| r.omega_rad_s)
+        .filter(|w| w.is_finite() && *w > 0.05 * lo)
         .collect();
-    if let Some((r_lo, r_hi)) = finite_range(trace.iter().map(|r| r.omega_rad_s)) {
-        let tol = 0.02 * (hi - lo);
-        let mut add = |omega: f64| {
-            out.push(SpeedLine {
-                omega,
-                run: true,
-                peak: surge_point(map, omega),
-            })
-        };
-        if r_lo < lo - tol && r_lo > 0.1 * lo {
-            add(r_lo);
-        }
-        if r_hi > hi + tol {
-            add(r_hi);
+    let mut run: Vec<f64> = Vec::new();
+    if let (Some(&first), Some(&last)) = (finite.first(), finite.last()) {
+        run.push(first);
+        if (last - first).abs() > 0.01 * (hi - lo) {
+            run.push(last);
         }
     }
+    let mut out: Vec<SpeedLine> = (0..N_SPEED_LINES)
+        .map(|k| lo + (hi - lo) * k as f64 / (N_SPEED_LINES - 1) as f64)
+        .filter(|w| run.iter().all(|r| (r - w).abs() > 0.03 * (hi - lo)))
+        .map(|omega| SpeedLine {
+            omega,
+            run: false,
+            peak: surge_point(map, omega),
+        })
+        .collect();
+    out.extend(run.into_iter().map(|omega| SpeedLine {
+        omega,
+        run: true,
+        peak: surge_point(map, omega),
+    }));
     out.sort_by(|a, b| a.omega.total_cmp(&b.omega));
     out
 }
@@ -275,6 +416,7 @@ fn build_layers(
     speeds: &[SpeedLine],
     scl: Option<&dyn Fn(f64) -> f64>,
     traj: &[Pt],
+    through: &[Pt],
     b: &Bounds,
 ) -> MapLayers {
     let speed_lines = speeds
@@ -322,6 +464,7 @@ fn build_layers(
         surge_line,
         scl,
         trajectory: clip_polyline(traj, b),
+        throughput: clip_polyline(through, b),
     }
 }
 
@@ -334,7 +477,7 @@ fn draw_map(
     layers: &MapLayers,
     (start, end): (Option<TraceRow>, Option<TraceRow>),
     has_traj: bool,
-    map: &CompressorMap,
+    one_marker: bool,
     legend: &Legend,
     corner: Corner,
 ) -> DrawResult<()> {
@@ -388,22 +531,44 @@ fn draw_map(
         )?;
     }
 
-    for (_, seg) in &layers.speed_lines {
-        draw_line(&mut chart, seg, SPEED_LINE_COLOR.stroke_width(1), false)?;
+    for (s, seg) in &layers.speed_lines {
+        let style = if s.run {
+            RUN_SPEED_COLOR.stroke_width(2)
+        } else {
+            SPEED_LINE_COLOR.stroke_width(1)
+        };
+        draw_line(&mut chart, seg, style, false)?;
     }
     let (w, h) = chart.plotting_area().dim_in_pixel();
     let legend_box = legend.pixel_box(corner, (w as f64, h as f64));
-    draw_speed_labels(&chart, b, layers, map, legend_box)?;
+    draw_speed_labels(&chart, layers, legend_box)?;
     for seg in &layers.surge_line {
         draw_line(&mut chart, seg, SURGE_COLOR.stroke_width(3), false)?;
     }
     for seg in &layers.scl {
         draw_line(&mut chart, seg, SCL_COLOR.stroke_width(2), true)?;
     }
+    for seg in &layers.throughput {
+        draw_line(&mut chart, seg, THROUGHPUT_COLOR.stroke_width(2), true)?;
+    }
     for seg in &layers.trajectory {
         draw_line(&mut chart, seg, TRAJ_COLOR.stroke_width(2), false)?;
     }
-    if let Some(s) = start {
+    if let Some(e) = end.filter(|_| !layers.throughput.is_empty()) {
+        let p = (
+            e.throttle_flow_kg_s * e.flow_map / e.m_kg_s,
+            e.pressure_ratio,
+        );
+        if p.0.is_finite() && p.1.is_finite() {
+            chart
+                .draw_series(std::iter::once(
+                    EmptyElement::at(p)
+                        + Rectangle::new([(-5, -5), (5, 5)], THROUGHPUT_COLOR.filled()),
+                ))
+                .map_err(de)?;
+        }
+    }
+    if let Some(s) = start.filter(|_| !one_marker) {
         let p = (s.flow_map, s.pressure_ratio);
         chart
             .draw_series([
@@ -427,15 +592,19 @@ fn draw_map(
     legend.draw(&area, corner)
 }
 
-/// Label every speed line with its speed, above the line right of its surge point, on a
-/// translucent background. Of a few positions along the line's falling branch, the one crossing
-/// the fewest drawn curves (trajectory, surge and control lines) and no other label or the
-/// legend is taken.
+/// A box in pixels: (left, top, right, bottom).
+type PxBox = (f64, f64, f64, f64);
+
+/// Label every speed line with its speed, centred *on* its own curve (as contour labels are),
+/// on a translucent background: a label beside its line can land on the neighbouring line of a
+/// crowded map, one centred on it cannot. Of the points along the visible line (the falling
+/// branch right of the surge point preferred, at about 70 % of its height above ratio 1), the
+/// one whose label box crosses the fewest other drawn curves (other speed lines, trajectory,
+/// surge and control lines), stays inside the plotting area and overlaps no other label or the
+/// legend is taken. A label that fits nowhere in full is tried without its rpm.
 fn draw_speed_labels(
     chart: &ChartContext<'_, SVGBackend<'_>, Cartesian2d<RangedCoordf64, RangedCoordf64>>,
-    b: &Bounds,
     layers: &MapLayers,
-    map: &CompressorMap,
     legend_box: (f64, f64, f64, f64),
 ) -> DrawResult<()> {
     let area = chart.plotting_area().strip_coord_spec();
@@ -446,13 +615,22 @@ fn draw_speed_labels(
         let (x, y) = chart.backend_coord(&p);
         ((x - xr.start) as f64, (y - yr.start) as f64)
     };
-    // obstacles: drawn curves as pixel segments
-    let curves: Vec<(Pt, Pt)> = layers
-        .trajectory
+    let segments = |segs: &[Vec<Pt>]| -> Vec<(Pt, Pt)> {
+        segs.iter()
+            .flat_map(|seg| seg.windows(2).map(|w| (to_px(w[0]), to_px(w[1]))))
+            .collect()
+    };
+    // obstacles: drawn curves as pixel segments; each speed line's own kept apart
+    let others: Vec<(Pt, Pt)> = segments(&layers.trajectory)
+        .into_iter()
+        .chain(segments(&layers.surge_line))
+        .chain(segments(&layers.scl))
+        .chain(segments(&layers.throughput))
+        .collect();
+    let speed_px: Vec<Vec<(Pt, Pt)>> = layers
+        .speed_lines
         .iter()
-        .chain(&layers.surge_line)
-        .chain(&layers.scl)
-        .flat_map(|seg| seg.windows(2).map(|w| (to_px(w[0]), to_px(w[1]))))
+        .map(|(_, seg)| segments(std::slice::from_ref(seg)))
         .collect();
     let overlaps = |a: (f64, f64, f64, f64), c: (f64, f64, f64, f64)| {
         a.0 < c.2 && c.0 < a.2 && a.1 < c.3 && c.1 < a.3
@@ -460,71 +638,85 @@ fn draw_speed_labels(
     let mut placed: Vec<(f64, f64, f64, f64)> = vec![legend_box];
     let style = TextStyle::from((FONT, TICK_SIZE).into_font())
         .color(&SPEED_LABEL_COLOR)
-        .pos(Pos::new(HPos::Left, VPos::Bottom));
+        .pos(Pos::new(HPos::Center, VPos::Center));
     let th = TICK_SIZE / 1.24;
-    let px_per_x = w_px / (b.x1 - b.x0);
-    for (s, seg) in &layers.speed_lines {
-        let mut label = format!("{:.0} rad/s ({:.0} rpm)", s.omega, rpm(s.omega));
-        if s.run {
-            label.push_str(", run");
-        }
-        let tw = text_width(&label, TICK_SIZE);
-        // (text left, text baseline) for a label anchored where the line has fallen to `frac`
-        let position = |frac: f64| -> Option<(f64, f64)> {
-            let target = 1.0 + frac * (s.peak.1 - 1.0);
-            let anchor = seg
-                .iter()
-                .find(|p| p.0 > s.peak.0 && p.1 <= target)
-                .or(seg.last())?;
-            let left = (to_px(*anchor).0 + 4.0).min(w_px - tw - 6.0).max(2.0);
-            // highest point of the line under the label's span
-            let (q_left, q_right) = (b.x0 + left / px_per_x, b.x0 + (left + tw) / px_per_x);
-            let top = (0..=20)
-                .map(|k| {
-                    let q = q_left + (q_right - q_left) * k as f64 / 20.0;
-                    map.pressure_ratio(q, s.omega)
-                })
-                .fold(f64::NEG_INFINITY, f64::max)
-                .min(b.y1);
-            let bottom = (to_px((q_left, top)).1 - 3.0).max(th + 2.0);
-            Some((left, bottom))
-        };
-        let mut best: Option<(f64, (f64, f64))> = None;
-        for (rank, frac) in LABEL_HEIGHT_FRACTIONS.into_iter().enumerate() {
-            let Some((left, bottom)) = position(frac) else {
-                continue;
-            };
-            let bx = (left - 2.0, bottom - th - 2.0, left + tw + 2.0, bottom + 2.0);
-            let outside = bx.1 < 0.0 || bx.3 > h_px;
-            let collide = placed.iter().any(|p| overlaps(bx, *p));
-            let r = Bounds {
-                x0: bx.0,
-                x1: bx.2,
-                y0: bx.1,
-                y1: bx.3,
-            };
-            let crossings = curves
-                .iter()
-                .filter(|(a, c)| clip_segment(*a, *c, &r).is_some())
-                .count();
-            let score =
-                crossings as f64 + if collide || outside { 1e6 } else { 0.0 } + 0.5 * rank as f64;
-            if best.is_none_or(|(s0, _)| score < s0) {
-                best = Some((score, (left, bottom)));
+    for (k, (s, seg)) in layers.speed_lines.iter().enumerate() {
+        let full = format!(
+            "{:.0} rad/s ({:.0} rpm){}",
+            s.omega,
+            rpm(s.omega),
+            if s.run { ", running" } else { "" }
+        );
+        let short = format!(
+            "{:.0} rad/s{}",
+            s.omega,
+            if s.run { ", running" } else { "" }
+        );
+        let height = s.peak.1 - 1.0;
+        let mut chosen: Option<(String, PxBox, Pt)> = None;
+        for label in [full, short] {
+            let tw = text_width(&label, TICK_SIZE);
+            let mut best: Option<(f64, PxBox, Pt)> = None;
+            for p in seg.iter() {
+                let c = to_px(*p);
+                let bx = (
+                    c.0 - tw / 2.0 - 3.0,
+                    c.1 - th / 2.0 - 3.0,
+                    c.0 + tw / 2.0 + 3.0,
+                    c.1 + th / 2.0 + 3.0,
+                );
+                if bx.0 < 0.0 || bx.1 < 0.0 || bx.2 > w_px || bx.3 > h_px {
+                    continue;
+                }
+                if placed.iter().any(|q| overlaps(bx, *q)) {
+                    continue;
+                }
+                let r = Bounds {
+                    x0: bx.0,
+                    x1: bx.2,
+                    y0: bx.1,
+                    y1: bx.3,
+                };
+                let crossings = others
+                    .iter()
+                    .chain(
+                        speed_px
+                            .iter()
+                            .enumerate()
+                            .filter(|(j, _)| *j != k)
+                            .flat_map(|(_, v)| v.iter()),
+                    )
+                    .filter(|(a, b)| clip_segment(*a, *b, &r).is_some())
+                    .count();
+                // preference: the falling branch, near LABEL_HEIGHT_FRACTION of the height
+                let frac = if height > 0.0 {
+                    (p.1 - 1.0) / height
+                } else {
+                    0.5
+                };
+                let branch = if p.0 >= s.peak.0 { 0.0 } else { 2.0 };
+                let score =
+                    100.0 * crossings as f64 + branch + (frac - LABEL_HEIGHT_FRACTION).abs();
+                if best.is_none_or(|(b, _, _)| score < b) {
+                    best = Some((score, bx, c));
+                }
+            }
+            if let Some((_, bx, c)) = best {
+                chosen = Some((label, bx, c));
+                break;
             }
         }
-        let Some((_, (left, bottom))) = best else {
+        let Some((label, bx, c)) = chosen else {
             continue;
         };
-        let bx = (left - 2.0, bottom - th - 2.0, left + tw + 2.0, bottom + 2.0);
         placed.push(bx);
         let r = |x: f64, y: f64| (x.round() as i32, y.round() as i32);
         area.draw(&Rectangle::new(
             [r(bx.0, bx.1), r(bx.2, bx.3)],
-            WHITE.mix(0.75).filled(),
+            WHITE.mix(0.8).filled(),
         ))
         .map_err(de)?;
-        area.draw(&Text::new(label, r(left, bottom), style.clone()))
+        area.draw(&Text::new(label, r(c.0, c.1), style.clone()))
             .map_err(de)?;
     }
     Ok(())

@@ -29,6 +29,18 @@ pub use timeseries::timeseries_svg;
 
 use crate::sim::summary::Summary;
 
+/// What the time series mark besides the trace's own columns.
+#[derive(Default)]
+pub struct TimeMarks<'a> {
+    /// Scenario events: time, s, and what happened in words ([`crate::scenario::Scenario::event_labels`]).
+    pub events: Vec<(f64, String)>,
+    /// The surge control line as a surge margin (fraction of surge-line flow, like the trace's
+    /// `surge_margin`) at a pressure ratio, for the margin panel; `None` where the law has none.
+    pub control_line: Option<&'a dyn Fn(f64) -> f64>,
+    /// The recycle trip line likewise.
+    pub trip_line: Option<&'a dyn Fn(f64) -> f64>,
+}
+
 /// Errors drawing or writing a picture; every variant names the file.
 #[derive(Debug, thiserror::Error)]
 pub enum PlotError {

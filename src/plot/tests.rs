@@ -1,6 +1,7 @@
 //! Tests of the pictures on a synthetic cubic map and a synthetic deep-surge trace.
 
-use super::map::{N_SPEED_LINES, SPEED_LINE_COLOR};
+use super::map::{N_SPEED_LINES, RUN_SPEED_COLOR, SPEED_LINE_COLOR, THROUGHPUT_COLOR};
+use super::timeseries::{FAIL_SAFE_COLOR, MANUAL_COLOR, MARGIN_LIMIT_PCT, OFF_SCALE_COLOR};
 use super::*;
 use crate::physics::characteristic::MooreGreitzerCubic;
 use crate::physics::compressor_map::{CompressorMap, FlowCoordinate};
@@ -60,6 +61,7 @@ fn trace(with_torque: bool) -> Vec<TraceRow> {
                 tip_clearance_m: nan,
                 cmd_tip_clearance_m: nan,
                 surge_margin: (m - 10.0) / 10.0,
+                throttle_flow_kg_s: m,
                 meas_m_kg_s: m + 0.3 * (t * 97.0).sin(),
                 est_m_kg_s: m + 0.1,
                 used_m_kg_s: m,
@@ -101,15 +103,80 @@ fn has_text(svg: &str, label: &str) -> bool {
     texts(svg).iter().any(|t| t == label)
 }
 
+fn hex(c: plotters::style::RGBColor) -> String {
+    format!("#{:02X}{:02X}{:02X}", c.0, c.1, c.2)
+}
+
+/// Polylines stroked in colour `c`, legend swatches (two points) left out.
+fn paths_of(svg: &str, c: plotters::style::RGBColor) -> usize {
+    polylines_of(svg, c).len()
+}
+
 /// Speed-line paths: polylines stroked in the speed-line colour.
 fn speed_line_paths(svg: &str) -> usize {
-    let stroke = format!(
-        "stroke=\"#{:02X}{:02X}{:02X}\"",
-        SPEED_LINE_COLOR.0, SPEED_LINE_COLOR.1, SPEED_LINE_COLOR.2
-    );
+    paths_of(svg, SPEED_LINE_COLOR)
+}
+
+/// The value of attribute `name` in one SVG element's text.
+fn attr<'a>(element: &'a str, name: &str) -> Option<&'a str> {
+    let k = element.find(&format!(" {name}=\""))? + name.len() + 3;
+    Some(&element[k..k + element[k..].find('"')?])
+}
+
+/// Points of the polylines stroked in `c`, in pixels, in drawing order.
+fn polylines_of(svg: &str, c: plotters::style::RGBColor) -> Vec<Vec<(f64, f64)>> {
+    let stroke = format!("stroke=\"{}\"", hex(c));
     svg.lines()
         .filter(|l| l.contains("<polyline") && l.contains(&stroke))
-        .count()
+        .map(|l| {
+            attr(l, "points")
+                .unwrap_or("")
+                .split_whitespace()
+                .filter_map(|p| {
+                    let (x, y) = p.split_once(',')?;
+                    Some((x.parse().ok()?, y.parse().ok()?))
+                })
+                .collect::<Vec<(f64, f64)>>()
+        })
+        .filter(|p| p.len() > 2)
+        .collect()
+}
+
+/// `<text>` elements whose content contains `needle`: (x, y, content).
+fn texts_at(svg: &str, needle: &str) -> Vec<(f64, f64, String)> {
+    svg.split("<text")
+        .skip(1)
+        .filter_map(|t| {
+            let open = &t[..t.find('>')?];
+            let body = &t[t.find('>')? + 1..];
+            let body = body[..body.find("</text>")?].trim().to_string();
+            if !body.contains(needle) {
+                return None;
+            }
+            Some((
+                attr(open, "x")?.parse().ok()?,
+                attr(open, "y")?.parse().ok()?,
+                body,
+            ))
+        })
+        .collect()
+}
+
+/// Distance from a point to a polyline, pixels.
+fn distance_to(p: (f64, f64), line: &[(f64, f64)]) -> f64 {
+    line.windows(2)
+        .map(|w| {
+            let (a, b) = (w[0], w[1]);
+            let (dx, dy) = (b.0 - a.0, b.1 - a.1);
+            let l2 = dx * dx + dy * dy;
+            let t = if l2 > 0.0 {
+                (((p.0 - a.0) * dx + (p.1 - a.1) * dy) / l2).clamp(0.0, 1.0)
+            } else {
+                0.0
+            };
+            (p.0 - a.0 - t * dx).hypot(p.1 - a.1 - t * dy)
+        })
+        .fold(f64::INFINITY, f64::min)
 }
 
 #[test]
@@ -130,8 +197,11 @@ fn map_has_axes_speed_lines_legend_and_scl() {
     assert!(has_text(&svg, "operating point"));
     assert!(has_text(&svg, "start (t = 0.00 s)"));
     assert!(texts(&svg).iter().any(|t| t.starts_with("end (t = ")));
-    // the run's speed is inside the map's range: exactly the regular speed lines
+    // the run's speed (2000 rad/s, steady) is a line of its own; no regular line is near it
     assert_eq!(speed_line_paths(&svg), N_SPEED_LINES);
+    assert_eq!(paths_of(&svg, RUN_SPEED_COLOR), 1);
+    assert!(has_text(&svg, "running speed"), "running speed legend");
+    assert!(has_text(&svg, "2000 rad/s (19099 rpm), running"));
     // labelled in rad/s and rpm: 1400 rad/s = 13369 rpm, 2600 rad/s = 24828 rpm
     assert!(
         has_text(&svg, "1400 rad/s (13369 rpm)"),
@@ -145,7 +215,7 @@ fn map_has_axes_speed_lines_legend_and_scl() {
         .iter()
         .filter(|t| t.contains(" rad/s ("))
         .count();
-    assert_eq!(labels, N_SPEED_LINES);
+    assert_eq!(labels, N_SPEED_LINES + 1);
 }
 
 #[test]
@@ -161,8 +231,9 @@ fn map_without_scl_has_no_scl_legend_and_adds_run_speed_outside_range() {
     let svg = read_svg(&path);
     assert!(has_text(&svg, "surge line"));
     assert!(!svg.contains("surge control line"));
-    assert_eq!(speed_line_paths(&svg), N_SPEED_LINES + 1);
-    assert!(has_text(&svg, "3000 rad/s (28648 rpm), run"));
+    assert_eq!(speed_line_paths(&svg), N_SPEED_LINES);
+    assert_eq!(paths_of(&svg, RUN_SPEED_COLOR), 1);
+    assert!(has_text(&svg, "3000 rad/s (28648 rpm), running"));
 }
 
 #[test]
@@ -187,7 +258,8 @@ fn map_volumetric_axis_and_all_nan_trajectory_draws_map_with_note() {
 fn timeseries_has_panels_units_and_legends() {
     let dir = tempfile::tempdir().expect("tempdir");
     let path = dir.path().join("ts.svg");
-    timeseries_svg(&path, &trace(true), "synthetic run").expect("timeseries");
+    timeseries_svg(&path, &trace(true), "synthetic run", &TimeMarks::default())
+        .expect("timeseries");
     let svg = read_svg(&path);
     for label in [
         "time (s)",
@@ -222,7 +294,7 @@ fn timeseries_has_panels_units_and_legends() {
 fn timeseries_without_torque_has_no_torque_panel() {
     let dir = tempfile::tempdir().expect("tempdir");
     let path = dir.path().join("ts.svg");
-    timeseries_svg(&path, &trace(false), "no torque").expect("timeseries");
+    timeseries_svg(&path, &trace(false), "no torque", &TimeMarks::default()).expect("timeseries");
     let svg = read_svg(&path);
     assert!(!svg.contains("torque (N·m)"));
     assert!(!svg.contains("drive"));
@@ -238,7 +310,7 @@ fn pressure_unit_follows_magnitude() {
         r.p_suction_pa = 2.0e6;
         r.p_discharge_pa = 4.0e6;
     }
-    timeseries_svg(&path, &rows, "high pressure").expect("timeseries");
+    timeseries_svg(&path, &rows, "high pressure", &TimeMarks::default()).expect("timeseries");
     assert!(has_text(&read_svg(&path), "pressure (MPa)"));
 }
 
@@ -252,7 +324,7 @@ fn empty_trace_is_an_error_naming_the_file() {
     assert!(e.to_string().contains("empty-map.svg"), "{e}");
     assert!(!path.exists());
     let path = dir.path().join("empty-ts.svg");
-    let e = timeseries_svg(&path, &[], "empty").unwrap_err();
+    let e = timeseries_svg(&path, &[], "empty", &TimeMarks::default()).unwrap_err();
     assert!(matches!(e, PlotError::NoData { .. }), "{e:?}");
     assert!(e.to_string().contains("empty-ts.svg"), "{e}");
 }
@@ -292,14 +364,14 @@ fn all_nan_trace_and_single_row_do_not_panic() {
             r
         })
         .collect();
-    let e = timeseries_svg(&path, &rows, "all nan").unwrap_err();
+    let e = timeseries_svg(&path, &rows, "all nan", &TimeMarks::default()).unwrap_err();
     assert!(matches!(e, PlotError::NoData { .. }), "{e:?}");
     // one row: drawn without panicking (a single point makes no line)
     let one = [TraceRow {
         m_kg_s: 5.0,
         ..rows[0]
     }];
-    timeseries_svg(&path, &one, "one row").expect("one row");
+    timeseries_svg(&path, &one, "one row", &TimeMarks::default()).expect("one row");
     read_svg(&path);
     map_svg(&dir.path().join("m.svg"), &cubic_map(), &rows, None, "nan").expect("map");
 }
@@ -308,7 +380,7 @@ fn all_nan_trace_and_single_row_do_not_panic() {
 fn unwritable_path_is_a_write_error_naming_the_file() {
     let dir = tempfile::tempdir().expect("tempdir");
     let path = dir.path().join("missing-dir").join("ts.svg");
-    let e = timeseries_svg(&path, &trace(false), "x").unwrap_err();
+    let e = timeseries_svg(&path, &trace(false), "x", &TimeMarks::default()).unwrap_err();
     assert!(matches!(e, PlotError::Write { .. }), "{e:?}");
     assert!(e.to_string().contains("ts.svg"), "{e}");
 }
@@ -337,6 +409,7 @@ fn write_examples() {
         &dir.join("timeseries.svg"),
         &trace(true),
         "synthetic · deep surge",
+        &TimeMarks::default(),
     )
     .expect("timeseries");
     // every benchmark plant through the throttle closure, no law
@@ -365,6 +438,251 @@ fn write_examples() {
             &title,
         )
         .expect("map");
-        timeseries_svg(&dir.join(format!("{name}-ts.svg")), &res.trace, &title).expect("ts");
+        timeseries_svg(
+            &dir.join(format!("{name}-ts.svg")),
+            &res.trace,
+            &title,
+            &TimeMarks::default(),
+        )
+        .expect("ts");
     }
+}
+
+/// A crowded map: six speed lines within ±5 % of each other, a few pixels apart at their
+/// peaks, and a run at one of them. Every label must be centred on its own curve: nearer to it
+/// than to any other speed line.
+#[test]
+fn speed_labels_sit_on_their_own_curves_on_a_crowded_map() {
+    let dir = tempfile::tempdir().expect("tempdir");
+    let map = CompressorMap::cubic(
+        MooreGreitzerCubic {
+            psi_c0: 1.5,
+            semi_height: 0.4,
+            semi_width: 5.0,
+            omega_ref: 2000.0,
+        },
+        FlowCoordinate::MassKgS,
+        1900.0,
+        2100.0,
+    )
+    .expect("map");
+    let path = dir.path().join("crowded.svg");
+    let mut rows = trace(false);
+    for r in &mut rows {
+        r.omega_rad_s = 2000.0;
+    }
+    map_svg(&path, &map, &rows, None, "crowded").expect("map");
+    let svg = read_svg(&path);
+    // lines and labels in the same order (by speed); the running line among them
+    let regular = polylines_of(&svg, SPEED_LINE_COLOR);
+    let running = polylines_of(&svg, RUN_SPEED_COLOR);
+    assert_eq!(running.len(), 1, "one running-speed line");
+    let mut labels = texts_at(&svg, " rad/s");
+    assert_eq!(labels.len(), regular.len() + 1, "{labels:?}");
+    let omega = |l: &str| -> f64 { l.split(' ').next().unwrap().parse().unwrap() };
+    labels.sort_by(|a, b| omega(&a.2).total_cmp(&omega(&b.2)));
+    let mut lines = regular.clone();
+    let run_at = labels
+        .iter()
+        .position(|l| l.2.contains("running"))
+        .expect("running label");
+    lines.insert(run_at, running[0].clone());
+    for (k, (x, y, text)) in labels.iter().enumerate() {
+        let own = distance_to((*x, *y), &lines[k]);
+        assert!(
+            own < 2.5,
+            "{text:?} at ({x}, {y}) is {own:.1} px off its curve"
+        );
+        for (j, other) in lines.iter().enumerate().filter(|(j, _)| *j != k) {
+            let d = distance_to((*x, *y), other);
+            assert!(
+                d > own + 2.0,
+                "{text:?} is as near line {j} ({d:.1} px) as its own"
+            );
+        }
+    }
+}
+
+/// Near-zero and reversed flow: the margin reaches +25 000 % and −400 %. The panel stays within
+/// ±100 %, marks the samples beyond, and carries the control and trip lines.
+#[test]
+fn margin_panel_is_bounded_with_off_scale_marks_and_the_control_and_trip_lines() {
+    let dir = tempfile::tempdir().expect("tempdir");
+    let mut rows = trace(false);
+    for (k, r) in rows.iter_mut().enumerate() {
+        if k % 40 == 0 && r.t_s > 4.0 {
+            r.surge_margin = 250.0;
+        }
+        if k % 40 == 20 && r.t_s > 4.0 {
+            r.surge_margin = -4.0;
+        }
+    }
+    let control = |_r: f64| 0.10;
+    let trip = |_r: f64| 0.05;
+    let marks = TimeMarks {
+        events: vec![],
+        control_line: Some(&control),
+        trip_line: Some(&trip),
+    };
+    let panels = super::timeseries::panels(&rows, &marks);
+    let m = panels
+        .iter()
+        .find(|p| p.y_desc == "surge margin (%)")
+        .expect("margin panel");
+    let names: Vec<&str> = m.series.iter().map(|s| s.name).collect();
+    assert_eq!(names, ["surge margin", "control line", "trip line"]);
+    for s in &m.series {
+        for p in &s.points {
+            assert!(p.1.abs() <= MARGIN_LIMIT_PCT, "{} at {p:?}", s.name);
+        }
+    }
+    let line_at = |name: &str| m.series.iter().find(|s| s.name == name).unwrap().points[0].1;
+    assert!((line_at("control line") - 10.0).abs() < 1e-9);
+    assert!((line_at("trip line") - 5.0).abs() < 1e-9);
+    assert!(m.off_scale.iter().any(|p| p.1 == MARGIN_LIMIT_PCT));
+    assert!(m.off_scale.iter().any(|p| p.1 == -MARGIN_LIMIT_PCT));
+    assert!(m.off_scale.iter().all(|p| p.0 > 4.0));
+    let path = dir.path().join("ts.svg");
+    timeseries_svg(&path, &rows, "spikes", &marks).expect("timeseries");
+    let svg = read_svg(&path);
+    for label in ["control line", "trip line", "off scale (beyond ±100 %)"] {
+        assert!(has_text(&svg, label), "missing {label:?}");
+    }
+    let marker = format!("fill=\"{}\"", hex(OFF_SCALE_COLOR));
+    let n = svg
+        .lines()
+        .filter(|l| l.contains("<polygon") && l.contains(&marker))
+        .count();
+    assert!(n > 10, "{n} off-scale markers");
+    // without spikes: no marker, no legend entry
+    let path = dir.path().join("quiet.svg");
+    let mut quiet = trace(false);
+    for r in &mut quiet {
+        r.surge_margin = 0.2;
+    }
+    timeseries_svg(&path, &quiet, "quiet", &marks).expect("timeseries");
+    assert!(!read_svg(&path).contains("off scale"));
+}
+
+/// Scenario events are labelled above the panels; fail-safe and manual intervals are shaded
+/// in every panel and explained once.
+#[test]
+fn events_and_modes_are_marked_on_the_time_panels() {
+    let dir = tempfile::tempdir().expect("tempdir");
+    let mut rows = trace(false);
+    for r in &mut rows {
+        r.mode = if (5.0..6.0).contains(&r.t_s) {
+            3.0
+        } else if (7.0..8.0).contains(&r.t_s) {
+            1.0
+        } else {
+            2.0
+        };
+    }
+    let marks = TimeMarks {
+        events: vec![
+            (4.0, "throttle → 20 % over 2 s".to_string()),
+            (4.1, "pressure NaN".to_string()),
+        ],
+        ..TimeMarks::default()
+    };
+    let path = dir.path().join("ts.svg");
+    timeseries_svg(&path, &rows, "events", &marks).expect("timeseries");
+    let svg = read_svg(&path);
+    let a = texts_at(&svg, "throttle → 20 % over 2 s");
+    let b = texts_at(&svg, "pressure NaN");
+    assert_eq!((a.len(), b.len()), (1, 1));
+    // close together: on different rows, not on top of each other
+    assert!((a[0].1 - b[0].1).abs() >= 15.0, "{a:?} {b:?}");
+    assert!(b[0].0 > a[0].0, "later event further right");
+    assert_eq!(texts(&svg).iter().filter(|t| *t == "fail-safe").count(), 1);
+    assert_eq!(texts(&svg).iter().filter(|t| *t == "manual").count(), 1);
+    let panels = super::timeseries::panels(&rows, &marks).len();
+    for c in [FAIL_SAFE_COLOR, MANUAL_COLOR] {
+        let fill = format!("fill=\"{}\"", hex(c));
+        let bands = svg
+            .lines()
+            .filter(|l| l.contains("<rect") && l.contains(&fill))
+            .count();
+        // one band per panel plus the legend swatch
+        assert_eq!(bands, panels + 1, "{c:?}");
+    }
+    // no mode change, no events: nothing of the kind
+    let path = dir.path().join("plain.svg");
+    timeseries_svg(&path, &trace(false), "plain", &TimeMarks::default()).expect("ts");
+    let svg = read_svg(&path);
+    assert!(!has_text(&svg, "fail-safe") && !has_text(&svg, "manual"));
+}
+
+/// A recycle run that ends where it started (the compressor held on its control line while
+/// the throughput falls): one marker, not two overlapping; the throughput drawn and given in
+/// kg/s.
+#[test]
+fn recycle_map_has_one_dot_and_the_throughput_in_kg_per_s() {
+    let dir = tempfile::tempdir().expect("tempdir");
+    let rows: Vec<TraceRow> = (0..=2000)
+        .map(|k| {
+            let t = k as f64 * 0.005;
+            let wobble = 0.05 * (t * 2.0).sin() * (-t).exp();
+            let through = 10.0 - 0.6 * t.min(7.5);
+            TraceRow {
+                t_s: t,
+                m_kg_s: 10.0 + wobble,
+                // a volumetric map: 0.8 m³/s per kg/s
+                flow_map: 0.8 * (10.0 + wobble),
+                pressure_ratio: 1.95,
+                omega_rad_s: 2000.0,
+                throttle_flow_kg_s: through,
+                recycle_flow_kg_s: 10.0 - through,
+                surge_margin: 0.1,
+                ..Default::default()
+            }
+        })
+        .collect();
+    let mut map = cubic_map();
+    map.flow_coordinate = FlowCoordinate::InletVolumeM3S;
+    let path = dir.path().join("map.svg");
+    map_svg(&path, &map, &rows, None, "recycle").expect("map");
+    let svg = read_svg(&path);
+    assert!(
+        texts(&svg)
+            .iter()
+            .any(|t| t.starts_with("start and end (t = 0.00 s and 10.0 s")),
+        "one marker legend"
+    );
+    assert!(!texts(&svg).iter().any(|t| t.starts_with("start (t = ")));
+    let start_fill = format!("fill=\"{}\"", hex(plotters::style::RGBColor(0, 165, 70)));
+    assert!(
+        !svg.lines()
+            .any(|l| l.contains("<circle") && l.contains(&start_fill)),
+        "no separate start circle"
+    );
+    assert!(
+        paths_of(&svg, THROUGHPUT_COLOR) > 0,
+        "throughput trajectory (dashed)"
+    );
+    assert!(has_text(&svg, "throughput (to the process)"));
+    // the end in the summary's unit: kg/s, not the map's m³/s
+    assert!(
+        has_text(
+            &svg,
+            "end (t = 10.0 s), compressor 10.00 kg/s, throughput 5.50 kg/s"
+        ),
+        "{:?}",
+        texts(&svg)
+    );
+    // its line reaches the throughput's map flow: 0.8 × 5.5 = 4.4 m³/s, left of the start
+    let line = polylines_of(&svg, THROUGHPUT_COLOR);
+    let traj = polylines_of(&svg, plotters::style::RGBColor(31, 110, 190));
+    let min_x = line
+        .iter()
+        .flatten()
+        .map(|p| p.0)
+        .fold(f64::INFINITY, f64::min);
+    let traj_min_x = traj
+        .iter()
+        .flatten()
+        .map(|p| p.0)
+        .fold(f64::INFINITY, f64::min);
+    assert!(min_x < traj_min_x - 100.0, "{min_x} vs {traj_min_x}");
 }

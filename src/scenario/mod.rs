@@ -346,6 +346,48 @@ impl Scenario {
         &self.file.name
     }
 
+    /// The timeline in words for the pictures: (time, s; e.g. "throttle → 20 % over 2 s").
+    pub fn event_labels(&self) -> Vec<(f64, String)> {
+        let signal = |s: Signal, v: f64| match s {
+            Signal::Throttle => format!("throttle → {:.0} %", 100.0 * v),
+            Signal::Feed => format!("feed → {:.0} %", 100.0 * v),
+            Signal::SpeedSetpoint => format!("speed setpoint → {:.0} %", 100.0 * v),
+            Signal::DownstreamPressure => format!("header pressure → {:.0} %", 100.0 * v),
+            Signal::FlowSetpointKgS => format!("flow setpoint → {v:.3} kg/s"),
+            Signal::RecycleManual => format!("recycle manual → {:.0} %", 100.0 * v),
+        };
+        self.actions
+            .iter()
+            .map(|(t, a)| {
+                let text = match a {
+                    Action::Ramp(r) => format!("{} over {} s", signal(r.signal, r.to), r.over_s),
+                    Action::Step(s) => signal(s.signal, s.to),
+                    Action::DriveTrip => "drive trip".to_string(),
+                    Action::Noise(i) => match self.noises.get(*i) {
+                        Some(n) if n.amplitude > 0.0 => format!("noise {}", n.amplitude),
+                        _ => "noise off".to_string(),
+                    },
+                    Action::SensorFault(f) => {
+                        let what = match f.fault {
+                            FaultKind::Stale => "stale",
+                            FaultKind::Nan => "NaN",
+                            FaultKind::Value => "stuck",
+                            FaultKind::Restore => "restored",
+                        };
+                        format!("{} {what}", f.sensor.name())
+                    }
+                    Action::Law(i) => format!(
+                        "law → {}",
+                        self.law_names.get(*i).map_or("?", String::as_str)
+                    ),
+                    Action::Mode(true) => "auto".to_string(),
+                    Action::Mode(false) => "manual".to_string(),
+                };
+                (*t, text)
+            })
+            .collect()
+    }
+
     /// Time of the last event, s (0 if none): settling is measured from here.
     pub fn last_event_s(&self) -> f64 {
         self.actions
