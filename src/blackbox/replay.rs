@@ -13,9 +13,11 @@
 
 use super::{CycleRecord, Recording};
 use crate::control::core::{ControlCore, CoreSettings};
+use crate::control::measurements::Measurements;
 use crate::control::model::ControlModel;
 use crate::control::{ControllerConfig, LawId};
-use crate::signals::ActuatorId;
+use crate::signals::{ActuatorId, SensorId};
+use crate::sim::trace::TraceRow;
 use serde::Serialize;
 
 /// Per-actuator comparison of recorded and replayed commands.
@@ -55,6 +57,9 @@ pub struct ReplayReport {
 pub struct Replay {
     /// Commands per record, with mode code.
     pub commands: Vec<(crate::signals::ActuatorCommands, u8)>,
+    /// What the laws saw in each record's cycle (flow, pressure ratio, valve positions): the
+    /// operating point of the pictures.
+    pub measurements: Vec<Measurements>,
     /// Report.
     pub report: ReplayReport,
 }
@@ -92,6 +97,7 @@ pub fn replay(
     )?;
     core.request_auto(h.auto);
     let mut commands = Vec::with_capacity(rec.records.len());
+    let mut measurements = Vec::with_capacity(rec.records.len());
     let mut identical = 0usize;
     let mut first = None;
     let mut diffs: Vec<ActuatorDiff> = ActuatorId::ALL
@@ -131,6 +137,7 @@ pub fn replay(
             first = Some((r.cycle, r.t_s));
         }
         commands.push((out.commands, out.mode.code()));
+        measurements.push(out.measurements);
     }
     let driven: Vec<ActuatorDiff> = diffs
         .into_iter()
@@ -142,6 +149,7 @@ pub fn replay(
         .collect();
     Ok(Replay {
         commands,
+        measurements,
         report: ReplayReport {
             cycles: rec.records.len(),
             identical_cycles: identical,
@@ -177,4 +185,79 @@ pub fn write_comparison(
         writeln!(w)?;
     }
     w.flush()
+}
+
+impl Replay {
+    /// The replayed run as trace rows for the pictures (`crate::plot`), one per record: the
+    /// measured operating point (flow the laws used in the map's coordinate, pressure ratio,
+    /// pressures, speed, valve positions) with its surge margin on `model`'s surge line, and
+    /// the replayed commands and mode. A recording holds no plant truth: the true-state columns
+    /// the recording cannot know (true mass flow, delivered torque, flows through the valves)
+    /// are NaN, so the pictures draw only what was measured.
+    pub fn trace(&self, records: &[CycleRecord], model: &ControlModel) -> Vec<TraceRow> {
+        records
+            .iter()
+            .zip(&self.measurements)
+            .zip(&self.commands)
+            .map(|((r, m), (c, mode))| {
+                let raw = |id| r.raw.values.get(id);
+                TraceRow {
+                    t_s: r.t_s,
+                    flow_map: m.flow_map,
+                    p_suction_pa: m.p_suction_pa,
+                    p_discharge_pa: m.p_discharge_pa,
+                    pressure_ratio: m.pressure_ratio,
+                    omega_rad_s: m.omega_rad_s,
+                    recycle_valve_position: m.recycle_position,
+                    throttle_position: m.throttle_position,
+                    tip_clearance_m: m.thrust_position_m,
+                    surge_margin: model.surge_margin(m.flow_map, m.pressure_ratio),
+                    meas_p_suction_pa: raw(SensorId::PSuction),
+                    meas_p_discharge_pa: raw(SensorId::PDischarge),
+                    meas_omega_rad_s: raw(SensorId::ShaftSpeed),
+                    meas_orifice_dp_pa: raw(SensorId::OrificeDp),
+                    meas_m_kg_s: m.m_measured_kg_s,
+                    est_m_kg_s: m.m_observer_kg_s,
+                    used_m_kg_s: m.m_kg_s,
+                    cmd_drive_torque_nm: c.get(ActuatorId::DriveTorque),
+                    cmd_recycle_valve: c.get(ActuatorId::RecycleValve),
+                    cmd_ccv: c.get(ActuatorId::CloseCoupledValve),
+                    cmd_throttle: c.get(ActuatorId::Throttle),
+                    cmd_tip_clearance_m: c.get(ActuatorId::TipClearance),
+                    mode: f64::from(*mode),
+                    law_diagnostic: f64::NAN,
+                    m_kg_s: f64::NAN,
+                    recycle_flow_kg_s: f64::NAN,
+                    throttle_flow_kg_s: f64::NAN,
+                    feed_flow_kg_s: f64::NAN,
+                    drive_torque_nm: f64::NAN,
+                    load_torque_nm: f64::NAN,
+                    ccv: f64::NAN,
+                    thrust_force_n: f64::NAN,
+                    thrust_slew_n_s: f64::NAN,
+                }
+            })
+            .collect()
+    }
+}
+
+/// The same rows with the recorded commands and mode in place of the replayed ones (the
+/// comparison the time series draws when the settings changed).
+pub fn with_recorded_commands(rows: &[TraceRow], records: &[CycleRecord]) -> Vec<TraceRow> {
+    rows.iter()
+        .zip(records)
+        .map(|(row, r)| {
+            let c = &r.commands;
+            TraceRow {
+                cmd_drive_torque_nm: c.get(ActuatorId::DriveTorque),
+                cmd_recycle_valve: c.get(ActuatorId::RecycleValve),
+                cmd_ccv: c.get(ActuatorId::CloseCoupledValve),
+                cmd_throttle: c.get(ActuatorId::Throttle),
+                cmd_tip_clearance_m: c.get(ActuatorId::TipClearance),
+                mode: f64::from(r.mode),
+                law_diagnostic: r.law_diagnostic,
+                ..*row
+            }
+        })
+        .collect()
 }

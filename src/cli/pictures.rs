@@ -1,13 +1,25 @@
 //! Pictures of a run (map and time series).
 
 use antisurge::control::recycle_pi;
-use antisurge::control::surge_control_line::SurgeControlLine;
+use antisurge::control::surge_control_line::{ControlLineForm, SurgeControlLine};
+use antisurge::physics::compressor_map::{CompressorMap, SurgeLine};
 use antisurge::plant::file::PlantDescription;
 use antisurge::plot;
 use antisurge::scenario::Scenario;
+use antisurge::sim::trace::TraceRow;
 use antisurge::sim::SimResult;
 use anyhow::{Context, Result};
 use std::path::{Path, PathBuf};
+
+/// What a run's pictures are drawn against.
+pub struct Machine<'a> {
+    /// The speed-line map (`None`: a machine described by its surge line only; no map.svg).
+    pub map: Option<&'a CompressorMap>,
+    /// The surge line (flow in the map's coordinate versus pressure ratio).
+    pub surge_line: SurgeLine,
+    /// With a recycle system: the recycle law's control-line form and trip margin, %.
+    pub recycle: Option<(ControlLineForm, f64)>,
+}
 
 /// Draw the pictures of a run of `scenario`; returns the files written.
 pub fn draw(
@@ -25,40 +37,67 @@ pub fn draw(
 pub fn draw_trace(
     dir: &Path,
     desc: &PlantDescription,
-    trace: &[antisurge::sim::trace::TraceRow],
+    trace: &[TraceRow],
     title: &str,
     events: &[(f64, String)],
 ) -> Result<Vec<PathBuf>> {
-    let title = title.to_string();
-    let map_path = dir.join("map.svg");
-    let scl = desc.file.recycle_system.map(|_| {
-        SurgeControlLine::new(
-            desc.map.surge_line,
-            desc.file.controller.recycle_pi.control_line,
-        )
-    });
-    let scl_fn = scl.map(|s| move |r: f64| s.flow_at_ratio(r));
-    let scl_ref: Option<&dyn Fn(f64) -> f64> = scl_fn.as_ref().map(|f| f as &dyn Fn(f64) -> f64);
-    plot::map_svg(&map_path, &desc.map, trace, scl_ref, &title)
-        .with_context(|| format!("drawing {}", map_path.display()))?;
+    let rp = &desc.file.controller.recycle_pi;
+    let machine = Machine {
+        map: Some(&desc.map),
+        surge_line: desc.map.surge_line,
+        recycle: desc
+            .file
+            .recycle_system
+            .map(|_| (rp.control_line, rp.trip_margin_pct)),
+    };
+    draw_run(dir, &machine, trace, title, events, None)
+}
+
+/// Draw map.svg (when the machine has a map) and timeseries.svg of `trace` into `dir`, with
+/// `events` marked and, when given, `recorded` commands beside the trace's (replay with
+/// changed settings). The one place the CLI's pictures are drawn (`sim`, `plot`, `replay`).
+pub fn draw_run(
+    dir: &Path,
+    machine: &Machine<'_>,
+    trace: &[TraceRow],
+    title: &str,
+    events: &[(f64, String)],
+    recorded: Option<&[TraceRow]>,
+) -> Result<Vec<PathBuf>> {
+    let mut files = Vec::new();
+    let scl = machine
+        .recycle
+        .map(|(form, _)| SurgeControlLine::new(machine.surge_line, form));
+    if let Some(map) = machine.map {
+        let map_path = dir.join("map.svg");
+        let scl_fn = scl.map(|s| move |r: f64| s.flow_at_ratio(r));
+        let scl_ref: Option<&dyn Fn(f64) -> f64> =
+            scl_fn.as_ref().map(|f| f as &dyn Fn(f64) -> f64);
+        plot::map_svg(&map_path, map, trace, scl_ref, title)
+            .with_context(|| format!("drawing {}", map_path.display()))?;
+        files.push(map_path);
+    }
     // the control and trip lines as surge margins (fraction of surge-line flow, as the
     // trace's surge_margin), the trip line as the recycle-pi law places it
-    let j = desc.map.surge_line;
+    let j = machine.surge_line;
     let control = scl.map(|s| {
         move |r: f64| {
             let q = j.flow_at_ratio(r);
             (s.flow_at_ratio(r) - q) / q
         }
     });
-    let trip_pct = desc.file.controller.recycle_pi.trip_margin_pct;
-    let trip = scl.map(|s| move |r: f64| recycle_pi::trip_margin_at(trip_pct, &s, r));
+    let trip = scl
+        .zip(machine.recycle)
+        .map(|(s, (_, trip_pct))| move |r: f64| recycle_pi::trip_margin_at(trip_pct, &s, r));
     let marks = plot::TimeMarks {
         events: events.to_vec(),
         control_line: control.as_ref().map(|f| f as &dyn Fn(f64) -> f64),
         trip_line: trip.as_ref().map(|f| f as &dyn Fn(f64) -> f64),
+        recorded,
     };
     let ts_path = dir.join("timeseries.svg");
-    plot::timeseries_svg(&ts_path, trace, &title, &marks)
+    plot::timeseries_svg(&ts_path, trace, title, &marks)
         .with_context(|| format!("drawing {}", ts_path.display()))?;
-    Ok(vec![map_path, ts_path])
+    files.push(ts_path);
+    Ok(files)
 }

@@ -28,9 +28,16 @@ pub struct ReplayArgs {
     /// Replay with this law instead of the recorded one.
     #[arg(long)]
     pub law: Option<String>,
-    /// Write recorded and replayed commands side by side here (CSV).
+    /// Where to write the pictures of the replayed run (map.svg with the operating point,
+    /// timeseries.svg with valves, mode and margin, and with changed settings the recorded
+    /// commands beside the replayed ones) and commands.csv (recorded and replayed commands side
+    /// by side). Default: out/replay-<FILE's name> (in the temporary directory when the
+    /// current one is not writable), as `sim`.
     #[arg(long)]
     pub out: Option<PathBuf>,
+    /// Write commands.csv only, no pictures.
+    #[arg(long)]
+    pub no_plots: bool,
     /// Print the report as JSON.
     #[arg(long)]
     pub json: bool,
@@ -95,9 +102,58 @@ pub fn run(args: &ReplayArgs) -> Result<std::process::ExitCode> {
     )
     .map_err(|e| anyhow!("{e}"))
     .context("building the control core")?;
-    if let Some(out) = &args.out {
-        replay::write_comparison(out, &rec.records, &r)
-            .with_context(|| format!("writing {}", out.display()))?;
+    let out_dir = args.out.clone().unwrap_or_else(|| {
+        let name = format!(
+            "replay-{}",
+            args.file.file_stem().unwrap_or_default().to_string_lossy()
+        );
+        let local = PathBuf::from("out");
+        if std::fs::create_dir_all(&local).is_ok() {
+            local.join(name)
+        } else {
+            std::env::temp_dir().join("antisurge-out").join(name)
+        }
+    });
+    std::fs::create_dir_all(&out_dir).with_context(|| format!("creating {}", out_dir.display()))?;
+    let csv = out_dir.join("commands.csv");
+    replay::write_comparison(&csv, &rec.records, &r)
+        .with_context(|| format!("writing {}", csv.display()))?;
+    let mut files = vec![csv];
+    let mut no_map = false;
+    if !args.no_plots {
+        let trace = r.trace(&rec.records, &loaded.model);
+        // with the recorded settings the commands are the recorded ones: nothing to compare
+        let recorded_cmds = (!recorded || r.report.identical_cycles < r.report.cycles)
+            .then(|| replay::with_recorded_commands(&trace, &rec.records));
+        let rp = &loaded.controller.recycle_pi;
+        let machine = super::pictures::Machine {
+            map: loaded.model.map.as_ref(),
+            surge_line: loaded.model.surge_line,
+            recycle: loaded
+                .model
+                .recycle_valve
+                .map(|_| (rp.control_line, rp.trip_margin_pct)),
+        };
+        no_map = machine.map.is_none();
+        let title = format!(
+            "replay of {} · {} → {}{}",
+            args.file.file_name().unwrap_or_default().to_string_lossy(),
+            h.law,
+            law.name(),
+            if recorded_cmds.is_some() {
+                " · replayed commands (dashed) vs recorded (solid, dark)"
+            } else {
+                ""
+            }
+        );
+        files.extend(super::pictures::draw_run(
+            &out_dir,
+            &machine,
+            &trace,
+            &title,
+            &[],
+            recorded_cmds.as_deref(),
+        )?);
     }
     let rep = &r.report;
     if args.json {
@@ -174,8 +230,12 @@ pub fn run(args: &ReplayArgs) -> Result<std::process::ExitCode> {
                 a.actuator, a.differing_cycles, a.max_abs_diff
             );
         }
-        if let Some(out) = &args.out {
-            println!("  side by side in {}", out.display());
+        if no_map {
+            println!("  note            the machine description has no speed-line map: no map.svg");
+        }
+        println!("  written to      {}", out_dir.display());
+        for f in &files {
+            println!("                  {}", f.display());
         }
     }
     let exact = rep.identical_cycles == rep.cycles || import.is_some();

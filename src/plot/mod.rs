@@ -39,6 +39,11 @@ pub struct TimeMarks<'a> {
     pub control_line: Option<&'a dyn Fn(f64) -> f64>,
     /// The recycle trip line likewise.
     pub trip_line: Option<&'a dyn Fn(f64) -> f64>,
+    /// Another run's commands to compare with this trace's (`antisurge replay` with changed
+    /// settings: the recorded commands beside the replayed ones). Each command line of the
+    /// valve, torque, tip-clearance and close-coupled-valve panels gets a "(recorded)" twin
+    /// from these rows' `cmd_*` columns, at their own times.
+    pub recorded: Option<&'a [crate::sim::trace::TraceRow]>,
 }
 
 /// Errors drawing or writing a picture; every variant names the file.

@@ -523,6 +523,7 @@ fn margin_panel_is_bounded_with_off_scale_marks_and_the_control_and_trip_lines()
         events: vec![],
         control_line: Some(&control),
         trip_line: Some(&trip),
+        recorded: None,
     };
     let panels = super::timeseries::panels(&rows, &marks);
     let m = panels
@@ -685,4 +686,43 @@ fn recycle_map_has_one_dot_and_the_throughput_in_kg_per_s() {
         .map(|p| p.0)
         .fold(f64::INFINITY, f64::min);
     assert!(min_x < traj_min_x - 100.0, "{min_x} vs {traj_min_x}");
+}
+
+/// With another run's commands to compare (replay with changed settings), each command line
+/// has a "(recorded)" twin drawn from those rows; without, none.
+#[test]
+fn recorded_commands_are_drawn_beside_the_trace_commands() {
+    let dir = tempfile::tempdir().expect("tempdir");
+    let rows = trace(false);
+    let mut recorded = rows.clone();
+    for r in &mut recorded {
+        r.cmd_recycle_valve = 0.9;
+    }
+    let marks = TimeMarks {
+        recorded: Some(&recorded),
+        ..TimeMarks::default()
+    };
+    let panels = super::timeseries::panels(&rows, &marks);
+    let valve = panels
+        .iter()
+        .find(|p| p.y_desc == "valve opening (–)")
+        .expect("valve panel");
+    let twin = valve
+        .series
+        .iter()
+        .find(|s| s.name == "recycle valve command (recorded)")
+        .expect("recorded twin");
+    assert!(
+        twin.points.iter().all(|p| p.1 == 0.9),
+        "{:?}",
+        &twin.points[..3]
+    );
+    let path = dir.path().join("ts.svg");
+    timeseries_svg(&path, &rows, "compare", &marks).expect("timeseries");
+    let svg = read_svg(&path);
+    assert!(has_text(&svg, "recycle valve command (recorded)"));
+    assert!(svg.contains(&hex(super::timeseries::RECORDED_COLOR)));
+    let path = dir.path().join("alone.svg");
+    timeseries_svg(&path, &rows, "alone", &TimeMarks::default()).expect("timeseries");
+    assert!(!read_svg(&path).contains("(recorded)"));
 }

@@ -38,6 +38,8 @@ pub(crate) const OFF_SCALE_COLOR: RGBColor = RGBColor(120, 0, 120);
 pub(crate) const FAIL_SAFE_COLOR: RGBColor = RGBColor(220, 30, 30);
 /// Manual-mode band.
 pub(crate) const MANUAL_COLOR: RGBColor = RGBColor(230, 170, 0);
+/// Recorded commands beside replayed ones (tests find them by it).
+pub(crate) const RECORDED_COLOR: RGBColor = RGBColor(40, 40, 40);
 const EVENT_COLOR: RGBColor = RGBColor(90, 90, 90);
 /// The margin panel shows ±100 % at most: beyond, it saturates and marks the samples (near zero
 /// or reversed flow, the margin's denominator, the surge-line flow at a pressure ratio near 1,
@@ -80,6 +82,19 @@ struct Builder<'a> {
     rows: &'a [TraceRow],
     t: Vec<f64>,
     panels: Vec<Panel>,
+    /// Rows whose commands are drawn as "(recorded)" twins of the command lines.
+    recorded: Option<&'a [TraceRow]>,
+}
+
+/// The legend name of a command line's recorded twin; `None` for lines that are not commands.
+fn recorded_name(name: &str) -> Option<&'static str> {
+    Some(match name {
+        "recycle valve command" => "recycle valve command (recorded)",
+        "throttle command" => "throttle command (recorded)",
+        "drive command" => "drive command (recorded)",
+        "command" => "command (recorded)",
+        _ => return None,
+    })
 }
 
 impl Builder<'_> {
@@ -104,10 +119,24 @@ impl Builder<'_> {
         always: Option<(f64, f64)>,
         reference: Option<(f64, &'static str)>,
     ) {
-        let series: Vec<Series> = lines
-            .iter()
-            .filter_map(|&(get, scale, style)| self.series(get, scale, style))
-            .collect();
+        let mut series: Vec<Series> = Vec::new();
+        for &(get, scale, style) in lines {
+            series.extend(self.series(get, scale, style));
+            if let (Some(rec), Some(name)) = (self.recorded, recorded_name(style.0)) {
+                // the recorded command: solid, thin, darker, under its own name
+                let t: Vec<f64> = rec.iter().map(|r| r.t_s).collect();
+                let y: Vec<f64> = rec.iter().map(|r| get(r) * scale).collect();
+                if y.iter().any(|v| v.is_finite()) {
+                    series.push(Series {
+                        name,
+                        color: RECORDED_COLOR,
+                        width: 1,
+                        dashed: false,
+                        points: thin_min_max(&t, &y, THIN_BUCKETS),
+                    });
+                }
+            }
+        }
         if !series.is_empty() {
             self.panels.push(Panel {
                 y_desc: y_desc.into(),
@@ -126,6 +155,7 @@ pub(crate) fn panels(rows: &[TraceRow], marks: &TimeMarks<'_>) -> Vec<Panel> {
         rows,
         t: rows.iter().map(|r| r.t_s).collect(),
         panels: Vec::new(),
+        recorded: marks.recorded,
     };
     b.panel(
         "mass flow (kg/s)",
