@@ -323,6 +323,8 @@ fn antisurge_replay_reads_a_candump_log() {
         .arg(fixture())
         .arg("--config")
         .arg(&cfg)
+        .arg("--out")
+        .arg(tmp.path().join("pictures"))
         .output()
         .expect("run antisurge replay");
     let text = String::from_utf8_lossy(&out.stdout);
@@ -334,6 +336,11 @@ fn antisurge_replay_reads_a_candump_log() {
     assert!(text.contains("791 cycles"), "{text}");
     assert!(text.contains("bad CRC 1"), "{text}");
     assert!(text.contains("repeated alive 1"), "{text}");
+    // the pictures of the replayed run, beside the commands
+    for f in ["commands.csv", "timeseries.svg"] {
+        let p = tmp.path().join("pictures").join(f);
+        assert!(p.is_file(), "{} missing\n{text}", p.display());
+    }
     // a broken line is located
     let bad = tmp.path().join("bad.log");
     std::fs::write(&bad, "(1.000000) can0 100#00\n(1.001000) can0 10#0\n").expect("write");

@@ -498,26 +498,29 @@ pub(crate) fn tick_label(v: f64, step: f64) -> String {
     format!("{v:.decimals$}")
 }
 
-/// A lower bound of the tick spacing plotters chooses for at most `n` labels over `range`
-/// (it picks the smallest of 1, 2, 5 × 10ᵏ giving no more than `n`), so labels formatted for
-/// this step show every digit that distinguishes them.
+/// The tick spacing plotters chooses for at most `n` labels over `range`: the smallest of
+/// 1, 2, 5 × 10ᵏ with no more than `n` of its multiples inside the range (plotters counts the
+/// ticks that fall inside, not the range over the step: 0.5 s ticks over 0.001–8.017 s are 16,
+/// not 17). Labels formatted for this step show every digit that distinguishes them.
 pub(crate) fn nice_step((lo, hi): (f64, f64), n: usize) -> f64 {
-    let raw = (hi - lo).abs() / n.max(1) as f64;
+    let (lo, hi) = (lo.min(hi), lo.max(hi));
+    let raw = (hi - lo) / n.max(1) as f64;
     if !(raw > 0.0 && raw.is_finite()) {
         return 1.0;
     }
-    let mag = 10f64.powf(raw.log10().floor());
-    let f = raw / mag;
-    let nice = if f <= 1.0 {
-        1.0
-    } else if f <= 2.0 {
-        2.0
-    } else if f <= 5.0 {
-        5.0
-    } else {
-        10.0
-    };
-    nice * mag
+    let inside = |s: f64| (hi / s).floor() - (lo / s).ceil() + 1.0;
+    // the step lies within a decade below the range over n (more multiples fit inside than
+    // the quotient says by at most one)
+    let mut mag = 10f64.powf(raw.log10().floor() - 1.0);
+    loop {
+        for f in [1.0, 2.0, 5.0] {
+            let s = f * mag;
+            if inside(s) <= n.max(1) as f64 {
+                return s;
+            }
+        }
+        mag *= 10.0;
+    }
 }
 
 /// A solid or dashed line through `points` in chart coordinates.

@@ -726,3 +726,43 @@ fn recorded_commands_are_drawn_beside_the_trace_commands() {
     timeseries_svg(&path, &rows, "alone", &TimeMarks::default()).expect("timeseries");
     assert!(!read_svg(&path).contains("(recorded)"));
 }
+
+/// The tick step the labels are formatted for is the one plotters draws: over 0.001–8.017 s
+/// with 16 labels plotters puts ticks every 0.5 s (16 inside), so the labels need a decimal
+/// (formatted for 1 s they read "0, 1, 2, 2, 2, 3 …").
+#[test]
+fn tick_step_matches_the_ticks_plotters_draws() {
+    use super::common::{nice_step, tick_label};
+    let step = |lo: f64, hi: f64, n: usize| {
+        let s = nice_step((lo, hi), n);
+        // to 9 significant digits: the step is a power of ten times 1, 2 or 5
+        let m = 10f64.powf(s.log10().floor());
+        (s / m * 1e6).round() / 1e6 * m
+    };
+    let close = |a: f64, b: f64| (a - b).abs() <= 1e-9 * b.abs();
+    assert!(close(step(0.001, 8.017, 16), 0.5));
+    assert_eq!(tick_label(2.5, nice_step((0.001, 8.017), 16)), "2.5");
+    assert!(close(step(0.0, 10.0, 16), 1.0));
+    // 0, 0.5, …, 8 would be 17 ticks
+    assert!(close(step(0.0, 8.0, 16), 1.0));
+    assert!(close(step(-0.5, 0.5, 5), 0.2));
+    assert!(close(step(990.0, 1010.0, 5), 5.0));
+    // whatever the range, no more than n multiples of the step fall inside it, and the next
+    // smaller nice step would put more
+    let inside = |lo: f64, hi: f64, s: f64| (hi / s).floor() - (lo / s).ceil() + 1.0;
+    for (lo, hi, n) in [
+        (0.3, 7.9, 16),
+        (-3.3, 41.0, 5),
+        (1e-4, 3e-3, 5),
+        (0.0, 1.0, 16),
+    ] {
+        let s = step(lo, hi, n);
+        assert!(inside(lo, hi, s) <= n as f64, "{lo}..{hi}: step {s}");
+        let mantissa = (s / 10f64.powf(s.log10().floor())).round();
+        let smaller = if mantissa == 5.0 { s * 0.4 } else { s / 2.0 };
+        assert!(
+            inside(lo, hi, smaller) > n as f64,
+            "{lo}..{hi}: {smaller} fits too"
+        );
+    }
+}
