@@ -2,9 +2,9 @@
 
 use antisurge::control::recycle_pi;
 use antisurge::control::surge_control_line::SurgeControlLine;
-use antisurge::plant::file::PlantDescription;
 use antisurge::plot;
 use antisurge::scenario::Scenario;
+use antisurge::sim::case::PlantCase;
 use antisurge::sim::SimResult;
 use anyhow::{Context, Result};
 use std::path::{Path, PathBuf};
@@ -12,7 +12,7 @@ use std::path::{Path, PathBuf};
 /// Draw the pictures of a run of `scenario`; returns the files written.
 pub fn draw(
     dir: &Path,
-    desc: &PlantDescription,
+    desc: &PlantCase,
     scenario: &Scenario,
     result: &SimResult,
 ) -> Result<Vec<PathBuf>> {
@@ -24,7 +24,7 @@ pub fn draw(
 /// scenario's `events` (time, words) marked on the time series.
 pub fn draw_trace(
     dir: &Path,
-    desc: &PlantDescription,
+    desc: &PlantCase,
     trace: &[antisurge::sim::trace::TraceRow],
     title: &str,
     events: &[(f64, String)],
@@ -32,10 +32,7 @@ pub fn draw_trace(
     let title = title.to_string();
     let map_path = dir.join("map.svg");
     let scl = desc.file.recycle_system.map(|_| {
-        SurgeControlLine::new(
-            desc.map.surge_line,
-            desc.file.controller.recycle_pi.control_line,
-        )
+        SurgeControlLine::new(desc.map.surge_line, desc.controller.recycle_pi.control_line)
     });
     let scl_fn = scl.map(|s| move |r: f64| s.flow_at_ratio(r));
     let scl_ref: Option<&dyn Fn(f64) -> f64> = scl_fn.as_ref().map(|f| f as &dyn Fn(f64) -> f64);
@@ -50,7 +47,7 @@ pub fn draw_trace(
             (s.flow_at_ratio(r) - q) / q
         }
     });
-    let trip_pct = desc.file.controller.recycle_pi.trip_margin_pct;
+    let trip_pct = desc.controller.recycle_pi.trip_margin_pct;
     let trip = scl.map(|s| move |r: f64| recycle_pi::trip_margin_at(trip_pct, &s, r));
     let marks = plot::TimeMarks {
         events: events.to_vec(),
