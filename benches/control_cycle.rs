@@ -10,9 +10,9 @@
 use antisurge::control::core::{ControlCore, CoreSettings};
 use antisurge::control::measurements::{OperatorInputs, RawSensors};
 use antisurge::control::LawId;
-use antisurge::plant::file::PlantDescription;
 use antisurge::plant::{PlantInputs, SimPlant};
 use antisurge::runtime::handoff::monotonic_ns;
+use antisurge::sim::case::PlantCase;
 use criterion::{criterion_group, Criterion};
 use std::path::Path;
 
@@ -38,7 +38,7 @@ struct Setup {
 const COMPENSATED: (&str, LawId, f64) = ("bohagen2007_plenum", LawId::DriveTorque, 0.5);
 
 fn setup(stem: &str, law: LawId, delay_compensation_ms: f64) -> Setup {
-    let desc = PlantDescription::load(Path::new(&format!(
+    let desc = PlantCase::load(Path::new(&format!(
         "{}/config/plants/{stem}.toml",
         env!("CARGO_MANIFEST_DIR")
     )))

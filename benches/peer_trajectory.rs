@@ -27,9 +27,9 @@
 //! [--restart-at S]`.
 
 use antisurge::physics::compressor_map::{FlowCoordinate, MapModel};
-use antisurge::plant::file::PlantDescription;
 use antisurge::plant::recycle_system::{ix, RecyclePlant, N};
 use antisurge::plant::{PlantInputs, SimPlant};
+use antisurge::sim::case::PlantCase;
 use antisurge::solver::{dormand_prince, rosenbrock, AdaptiveStats, OdeSystem, Tolerance};
 use nalgebra::SVector;
 use serde_json::{json, Value};
@@ -127,7 +127,7 @@ struct Problem {
 }
 
 impl Problem {
-    fn new(desc: &PlantDescription, a: &Args) -> Problem {
+    fn new(desc: &PlantCase, a: &Args) -> Problem {
         let init = desc.file.initial;
         let inputs = PlantInputs {
             throttle_process: init.throttle,
@@ -370,7 +370,7 @@ fn main() {
             std::process::exit(2);
         }
     };
-    let desc = PlantDescription::load(&args.plant).unwrap_or_else(|e| panic!("{e}"));
+    let desc = PlantCase::load(&args.plant).unwrap_or_else(|e| panic!("{e}"));
     let prob = Problem::new(&desc, &args);
     std::fs::create_dir_all(&args.out_dir).expect("create output directory");
 

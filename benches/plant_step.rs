@@ -13,8 +13,8 @@
 //!
 //! Run: `cargo bench --bench plant_step`.
 
-use antisurge::plant::file::PlantDescription;
 use antisurge::plant::{PlantInputs, SimPlant};
+use antisurge::sim::case::PlantCase;
 use antisurge::solver::{rk4, rosenbrock, OdeSystem};
 use criterion::{criterion_group, criterion_main, Criterion};
 use nalgebra::SVector;
@@ -33,11 +33,11 @@ const PLANTS: [&str; 5] = [
 /// Control period, s.
 const DT: f64 = 1e-3;
 
-fn load(stem: &str) -> (PlantDescription, PlantInputs, SimPlant) {
+fn load(stem: &str) -> (PlantCase, PlantInputs, SimPlant) {
     let path = PathBuf::from(env!("CARGO_MANIFEST_DIR"))
         .join("config/plants")
         .join(format!("{stem}.toml"));
-    let desc = PlantDescription::load(&path).unwrap_or_else(|e| panic!("{e}"));
+    let desc = PlantCase::load(&path).unwrap_or_else(|e| panic!("{e}"));
     let init = desc.file.initial;
     let inputs = PlantInputs {
         throttle_process: init.throttle,

@@ -14,8 +14,8 @@
 //! Run: `cargo bench --bench simulation`.
 
 use antisurge::control::LawId;
-use antisurge::plant::file::PlantDescription;
 use antisurge::scenario::Scenario;
+use antisurge::sim::case::PlantCase;
 use antisurge::sim::{run, SimOptions};
 use criterion::{criterion_group, criterion_main, Criterion};
 use std::hint::black_box;
@@ -59,11 +59,11 @@ fn scenario(text: &str) -> Scenario {
     Scenario::from_file(file, path, text).unwrap_or_else(|e| panic!("{e}"))
 }
 
-fn plant(stem: &str) -> PlantDescription {
+fn plant(stem: &str) -> PlantCase {
     let path = PathBuf::from(env!("CARGO_MANIFEST_DIR"))
         .join("config/plants")
         .join(format!("{stem}.toml"));
-    PlantDescription::load(&path).unwrap_or_else(|e| panic!("{e}"))
+    PlantCase::load(&path).unwrap_or_else(|e| panic!("{e}"))
 }
 
 /// CPU time consumed by the calling thread, s.

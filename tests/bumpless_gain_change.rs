@@ -17,11 +17,11 @@ use antisurge::control::measurements::OperatorInputs;
 use antisurge::control::model::ControlModel;
 use antisurge::control::{ControllerConfig, LawId};
 use antisurge::daemon::control_node::{ControlNode, ControlUpdate, ControlWiring, Health};
-use antisurge::plant::file::PlantDescription;
 use antisurge::plant::{PlantInputs, SimPlant};
 use antisurge::runtime::handoff::{monotonic_ns, OutputBoard, SensorBoard, Wakeup};
 use antisurge::runtime::rt_loop::{CycleStats, Tick};
 use antisurge::signals::{ActuatorId, SensorId};
+use antisurge::sim::case::PlantCase;
 use std::sync::atomic::Ordering;
 use std::sync::Arc;
 
@@ -69,7 +69,7 @@ fn range(model: &ControlModel, a: ActuatorId) -> f64 {
 /// Commands of every cycle, closed loop from the plant's initial state; `reloads` pushes the
 /// given settings at the given cycles.
 fn run(
-    desc: &PlantDescription,
+    desc: &PlantCase,
     law: LawId,
     reloads: &[(u64, ControllerConfig)],
 ) -> Vec<[f64; ActuatorId::COUNT]> {

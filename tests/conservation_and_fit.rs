@@ -6,7 +6,7 @@ mod common;
 
 use antisurge::control::LawId;
 use antisurge::physics::compressor_map::{read_map_csv, PolynomialMap};
-use antisurge::plant::file::PlantDescription;
+use antisurge::sim::case::PlantCase;
 
 #[test]
 fn steady_state_balances_every_flow() {
@@ -107,7 +107,7 @@ fn fitted_maps_reproduce_their_points_within_two_percent() {
 fn surge_line_is_derived_from_the_map() {
     // the tabulated surge line passes through the peak of every speed line
     for stem in common::PLANTS {
-        let plant: PlantDescription = common::plant(stem);
+        let plant: PlantCase = common::plant(stem);
         let (lo, hi) = plant.map.omega_range();
         for k in 0..=4 {
             let w = lo + (hi - lo) * k as f64 / 4.0;

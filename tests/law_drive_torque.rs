@@ -5,8 +5,8 @@ mod common;
 
 use antisurge::control::drive_torque::{check_eq8, eq8_bound, DriveTorque, Eq8Region};
 use antisurge::control::LawId;
-use antisurge::plant::file::PlantDescription;
 use antisurge::scenario::Scenario;
+use antisurge::sim::case::PlantCase;
 use antisurge::sim::SimResult;
 
 const PLANT: &str = "bohagen2007_plenum";
@@ -15,11 +15,11 @@ const PLANT: &str = "bohagen2007_plenum";
 /// the drive a quarter of the time, 14 Pa surges (≈ 25 Pa with the former 0.2 kg·m² rotor).
 const TOLERATED_NOISE_PA: f64 = 6.0;
 
-fn bohagen() -> PlantDescription {
+fn bohagen() -> PlantCase {
     common::plant(PLANT)
 }
 
-fn run(plant: &PlantDescription, scenario: &Scenario) -> SimResult {
+fn run(plant: &PlantCase, scenario: &Scenario) -> SimResult {
     common::simulate(plant, scenario, LawId::DriveTorque)
 }
 
@@ -184,7 +184,7 @@ fn gains_below_the_eq8_bound_do_not_stabilise() {
     // the seed's c1 = 100 (§6.2) with the tuned K1: c1 below the local ratio 137 at the 20 %
     // equilibrium leaves the effective characteristic rising, and the closure surges
     let mut plant = bohagen();
-    plant.file.controller.drive_torque.c1_rad_s_per_kg_s = 100.0;
+    plant.controller.drive_torque.c1_rad_s_per_kg_s = 100.0;
     let s = run(&plant, &common::scenario("throttle_closure")).summary;
     assert!(s.surge_cycles > 0 || s.flow_reversal, "{s:#?}");
 }
@@ -194,13 +194,9 @@ fn washout_equilibrium_fails_where_the_outflow_construction_holds() {
     // m0 = LP(m̂) instead of m0 = m_t(p, position) + slow bias: during the 2 s ramp the washed-out
     // flow deviation asks for hundreds of rad/s of speed change and the torque saturates
     let mut plant = bohagen();
-    plant.file.controller.drive_torque.equilibrium_flow =
+    plant.controller.drive_torque.equilibrium_flow =
         antisurge::control::drive_torque::EquilibriumFlow::Washout;
-    plant
-        .file
-        .controller
-        .drive_torque
-        .equilibrium_time_constant_s = 1.0;
+    plant.controller.drive_torque.equilibrium_time_constant_s = 1.0;
     let s = run(&plant, &common::scenario("throttle_closure")).summary;
     assert!(s.surge_cycles > 0, "{s:#?}");
 }
@@ -274,9 +270,8 @@ fn observer_feedback_survives_flow_transmitter_failure() {
     );
     // pressure-and-speed only: the core uses the observer as flow source, the law its choice
     let mut obs_only = bohagen();
-    obs_only.file.controller.flow_source = antisurge::control::config::FlowSource::Observer;
-    obs_only.file.controller.drive_torque.flow =
-        antisurge::control::drive_torque::FlowInput::Selected;
+    obs_only.controller.flow_source = antisurge::control::config::FlowSource::Observer;
+    obs_only.controller.drive_torque.flow = antisurge::control::drive_torque::FlowInput::Selected;
     let s = run(&obs_only, &sc).summary;
     assert!(
         s.stable && s.surge_cycles == 0 && !s.flow_reversal,
@@ -349,7 +344,7 @@ fn bumpless_switch_from_none_mid_closure() {
 /// `delay` periods plus up to `jitter` more.
 fn closure_with_delay(compensate_ms: f64, delay: usize, jitter: usize) -> SimResult {
     let mut p = bohagen();
-    p.file.controller.drive_torque.delay_compensation_ms = compensate_ms;
+    p.controller.drive_torque.delay_compensation_ms = compensate_ms;
     antisurge::sim::run(
         &p,
         &common::scenario("throttle_closure"),

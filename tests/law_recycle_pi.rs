@@ -10,11 +10,11 @@ use antisurge::control::model::ControlModel;
 use antisurge::control::recycle_pi::{ControlVariable, RecyclePi, RecyclePiConfig};
 use antisurge::control::surge_control_line::{ControlLineForm, SurgeControlLine};
 use antisurge::control::LawId;
-use antisurge::plant::file::PlantDescription;
 use antisurge::plant::recycle_system::{ix, RecyclePlant};
 use antisurge::plant::PlantInputs;
 use antisurge::scenario::Scenario;
 use antisurge::signals::ActuatorId;
+use antisurge::sim::case::PlantCase;
 use antisurge::sim::trace::TraceRow;
 use antisurge::sim::SimResult;
 
@@ -60,14 +60,14 @@ const KV: &str = "kvangardsnes2009_recycle";
 const HE: &str = "hemchi2016_recycle";
 
 /// A plant with its `[controller.recycle_pi]` table changed.
-fn plant_with(stem: &str, f: impl Fn(&mut RecyclePiConfig)) -> PlantDescription {
+fn plant_with(stem: &str, f: impl Fn(&mut RecyclePiConfig)) -> PlantCase {
     let mut p = common::plant(stem);
-    f(&mut p.file.controller.recycle_pi);
+    f(&mut p.controller.recycle_pi);
     p
 }
 
 /// The law as configured for a plant (for its control line and gains).
-fn law_of(p: &PlantDescription) -> RecyclePi {
+fn law_of(p: &PlantCase) -> RecyclePi {
     let model = antisurge::sim::control_model(p);
     RecyclePi::new(&model.controller.recycle_pi, &model).expect("law")
 }
@@ -93,7 +93,7 @@ fn line_settle_time(r: &SimResult, law: &RecyclePi, shift: f64, t0: f64, tol: f6
 }
 
 /// Every actuator within its rating, through the whole run.
-fn assert_within_ratings(stem: &str, p: &PlantDescription, r: &SimResult) {
+fn assert_within_ratings(stem: &str, p: &PlantCase, r: &SimResult) {
     let peaks = &r.summary.actuator_peaks;
     assert!(
         peaks.drive_torque_cmd_nm <= p.file.drive.rated_torque_nm + 1e-9,
@@ -127,7 +127,7 @@ fn assert_no_surge(what: &str, r: &SimResult) {
 }
 
 /// The acceptance check of one closed-loop run that must settle on the control line.
-fn assert_settles_on_line(what: &str, p: &PlantDescription, r: &SimResult, bound_s: f64) {
+fn assert_settles_on_line(what: &str, p: &PlantCase, r: &SimResult, bound_s: f64) {
     let law = law_of(p);
     let s = &r.summary;
     assert_no_surge(what, r);
@@ -151,7 +151,7 @@ fn assert_settles_on_line(what: &str, p: &PlantDescription, r: &SimResult, bound
         .map(|row| row.law_diagnostic)
         .collect();
     let zmax = tail.iter().fold(0.0f64, |a, z| a.max(z.abs()));
-    let scale = match p.file.controller.recycle_pi.control_variable {
+    let scale = match p.controller.recycle_pi.control_variable {
         ControlVariable::Strategy2 => 1.0,
         // z₁ = c² z₂: compare in strategy-2 units
         ControlVariable::Strategy1 => law.design_flow().powi(2),
@@ -170,7 +170,7 @@ fn assert_settles_on_line(what: &str, p: &PlantDescription, r: &SimResult, bound
     assert_within_ratings(what, p, r);
 }
 
-fn with_strategy(stem: &str, cv: ControlVariable) -> PlantDescription {
+fn with_strategy(stem: &str, cv: ControlVariable) -> PlantCase {
     plant_with(stem, |c| c.control_variable = cv)
 }
 
@@ -258,7 +258,7 @@ fn fine_step() -> Scenario {
 fn valve_never_closes_faster_than_its_closing_rate() {
     for stem in [KV, HE] {
         let p = common::plant(stem);
-        let rate = p.file.controller.recycle_pi.closing_rate_per_s;
+        let rate = p.controller.recycle_pi.closing_rate_per_s;
         let r = common::simulate(&p, &fine_step(), LawId::RecyclePi);
         let cmd: Vec<(f64, f64)> = r
             .trace
@@ -306,7 +306,7 @@ fn throttle_step_is_caught_by_the_recycle_trip() {
         assert_settles_on_line(&format!("{stem}/throttle_step"), &p, &r, bound);
         // the trace shows the open-loop step: within 3 s of the throttle step the command jumps
         // by the trip step between two consecutive 5 ms rows (the PI alone moves far less)
-        let step = p.file.controller.recycle_pi.trip_step;
+        let step = p.controller.recycle_pi.trip_step;
         let rows: Vec<&TraceRow> = r
             .trace
             .iter()
@@ -597,7 +597,7 @@ fn safety_on_shifts_after_a_surge_in_closed_loop() {
     );
     let r = common::simulate(&p, &sc, LawId::RecyclePi);
     let ev = r.summary.law_events;
-    let step = 0.01 * p.file.controller.recycle_pi.safety_on_step_pct;
+    let step = 0.01 * p.controller.recycle_pi.safety_on_step_pct;
     assert!(r.summary.surge_cycles >= 1, "{:?}", r.summary);
     assert!(ev.safety_on_shifts >= 1, "{ev:?}");
     assert!(
@@ -819,11 +819,7 @@ fn hot_retune_while_the_valve_closes_at_its_rate_limit_is_bumpless() {
     // the daemon's hot-reload case: K_p 10 → 16 while the trip-opened valve closes at its
     // closing rate and the PI demand lies below it
     let base = rate_limited_closure_with_switch(f64::INFINITY, |_| {});
-    let rate = common::plant(KV)
-        .file
-        .controller
-        .recycle_pi
-        .closing_rate_per_s;
+    let rate = common::plant(KV).controller.recycle_pi.closing_rate_per_s;
     // a moment during the throttle closure where the valve has closed at exactly the rate
     // limit for the last 20 ms
     let rows = &base.trace;
@@ -879,7 +875,7 @@ fn hot_reload_during_observer_fallback_stays_in_auto() {
     // fail-safe
     let p = common::plant(KV);
     let sc = common::scenario("flow_transmitter_failure");
-    let c2 = p.file.controller.observer.c2_pa_s_kg;
+    let c2 = p.controller.observer.c2_pa_s_kg;
     let r = common::simulate_with(&p, &sc, LawId::RecyclePi, &mut |t, core| {
         let mut cfg = core.config().clone();
         if (t - 6.0).abs() < 1e-9 {

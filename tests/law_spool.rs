@@ -8,8 +8,8 @@
 mod common;
 
 use antisurge::control::LawId;
-use antisurge::plant::file::PlantDescription;
 use antisurge::plant::{PlantInputs, SimPlant};
+use antisurge::sim::case::PlantCase;
 use antisurge::sim::trace::TraceRow;
 use antisurge::sim::SimResult;
 
@@ -17,13 +17,13 @@ const PLANT: &str = "liaw2004_spool";
 /// End of the throttle-closure ramp, s.
 const RAMP_END_S: f64 = 7.0;
 
-fn spool_plant() -> PlantDescription {
+fn spool_plant() -> PlantCase {
     common::plant(PLANT)
 }
 
 /// The rightmost steady state of the nominal model at a throttle opening and nominal speed:
 /// (flow kg/s, speed rad/s), from the plant's own equations (seed 003 eq. 8–9).
-fn equilibrium(plant: &PlantDescription, throttle: f64) -> (f64, f64) {
+fn equilibrium(plant: &PlantCase, throttle: f64) -> (f64, f64) {
     let inputs = PlantInputs {
         throttle_process: 0.6,
         ..PlantInputs::default()
@@ -85,7 +85,7 @@ fn last_reversal_after(r: &SimResult, t0: f64) -> Option<f64> {
 
 /// Every command of every trace row inside the ratings of the plant file; returns the peaks
 /// (|CCV command|, drive torque command max, min, throttle command min, max).
-fn assert_within_ratings(plant: &PlantDescription, r: &SimResult, law: LawId) -> [f64; 5] {
+fn assert_within_ratings(plant: &PlantCase, r: &SimResult, law: LawId) -> [f64; 5] {
     let sp = plant.file.spool.expect("spool");
     let d = plant.file.drive;
     let mut peaks = [0.0, f64::NEG_INFINITY, f64::INFINITY, f64::INFINITY, 0.0f64];
@@ -214,7 +214,7 @@ fn robust_stabilises_throttle_closure_within_ratings() {
 }
 
 /// The plant with the matched uncertainty A sin(k x₂) of seed 003 eq. 53.
-fn uncertain_plant(amplitude: f64, frequency: f64) -> PlantDescription {
+fn uncertain_plant(amplitude: f64, frequency: f64) -> PlantCase {
     let mut plant = spool_plant();
     let sp = plant.file.spool.as_mut().expect("spool");
     sp.uncertainty_amplitude = amplitude;
@@ -228,12 +228,12 @@ fn robust_beats_seed_ccv_under_eq53_uncertainty() {
     // eq. 48 as printed (u(x₂) = x₂); the robust law adds eq. 46–47 with δ₁ = δ₂ = 0.1.
     let sc = common::scenario("throttle_closure");
     let mut seed_ccv = uncertain_plant(0.1, 10.0);
-    seed_ccv.file.controller.ccv.x2_gain_nd = 1.0;
+    seed_ccv.controller.ccv.x2_gain_nd = 1.0;
     let ccv = common::simulate(&seed_ccv, &sc, LawId::Ccv);
     let robust = common::simulate(&uncertain_plant(0.1, 10.0), &sc, LawId::Robust);
     // the same nominal law without the uncertainty: the uncertainty must matter
     let mut nominal = spool_plant();
-    nominal.file.controller.ccv.x2_gain_nd = 1.0;
+    nominal.controller.ccv.x2_gain_nd = 1.0;
     let ccv_nominal = common::simulate(&nominal, &sc, LawId::Ccv);
 
     let (t_ccv, t_rob, t_nom) = (

@@ -9,8 +9,8 @@ use antisurge::control::law::{Law, LawError, LawInputs};
 use antisurge::control::measurements::{Measurements, OperatorInputs};
 use antisurge::control::model::ControlModel;
 use antisurge::control::LawId;
-use antisurge::plant::file::PlantDescription;
 use antisurge::signals::{ActuatorCommands, ActuatorId};
+use antisurge::sim::case::PlantCase;
 use antisurge::sim::trace::TraceRow;
 use antisurge::sim::SimResult;
 use std::alloc::{GlobalAlloc, Layout, System};
@@ -56,7 +56,7 @@ static GLOBAL: Counting = Counting;
 // ---------------------------------------------------------------- helpers
 
 /// Nominal tip clearance and modulation limit of the plant, m.
-fn clearance(plant: &PlantDescription) -> (f64, f64) {
+fn clearance(plant: &PlantCase) -> (f64, f64) {
     let r = plant.file.thrust_rating.expect("thrust rating");
     (r.nominal_clearance_m, r.modulation_max_m)
 }
@@ -162,7 +162,7 @@ fn minimum_stable_flow(st: &[Stair]) -> (f64, usize) {
     (st[first_bad - 1].mean_flow, first_bad)
 }
 
-fn run(plant: &PlantDescription, scenario: &str, law: LawId) -> SimResult {
+fn run(plant: &PlantCase, scenario: &str, law: LawId) -> SimResult {
     common::simulate(plant, &common::scenario(scenario), law)
 }
 
@@ -258,7 +258,7 @@ fn servo_prediction_matters() {
     // Without the prediction over the 70 Hz servo's lag (the seed's instantaneous-servo design)
     // the stairs below 0.16 kg/s oscillate; with it they hold.
     let mut plant = common::plant(PLANT);
-    plant.file.controller.tip_sliding.servo_prediction_fraction = 0.0;
+    plant.controller.tip_sliding.servo_prediction_fraction = 0.0;
     let res = run(&plant, "tip_sliding_stairs", LawId::TipSliding);
     let st = stairs(&res);
     let (m_min, bad) = minimum_stable_flow(&st);

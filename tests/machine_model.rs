@@ -8,8 +8,8 @@ mod common;
 use antisurge::control::model::ControlModel;
 use antisurge::control::LawId;
 use antisurge::machine::file as machine_file;
-use antisurge::plant::file::PlantDescription;
 use antisurge::scenario::Scenario;
+use antisurge::sim::case::PlantCase;
 use antisurge::sim::{SimOptions, Summary};
 use common::{plant, root, scenario, PLANTS};
 use std::path::Path;
@@ -18,7 +18,7 @@ use toml::Value;
 /// A machine file for a shipped plant: its gas, map, flow element, drive (owned), design
 /// point at the model's suction conditions and `[model]` with the family's tables, nothing of
 /// the simulator (initial state, integration, controller settings).
-fn machine_file_of(p: &PlantDescription, dir: &Path) -> std::path::PathBuf {
+fn machine_file_of(p: &PlantCase, dir: &Path) -> std::path::PathBuf {
     let text = std::fs::read_to_string(&p.path).expect("plant file");
     let v: toml::Table = toml::from_str(&text).expect("plant toml");
     let mut m = toml::Table::new();
@@ -84,7 +84,7 @@ fn machine_file_of(p: &PlantDescription, dir: &Path) -> std::path::PathBuf {
     out
 }
 
-fn run(p: &PlantDescription, model: ControlModel, s: &Scenario, law: LawId) -> Summary {
+fn run(p: &PlantCase, model: ControlModel, s: &Scenario, law: LawId) -> Summary {
     antisurge::sim::run_with_model(
         p,
         model,
@@ -100,7 +100,7 @@ fn run(p: &PlantDescription, model: ControlModel, s: &Scenario, law: LawId) -> S
     .summary
 }
 
-fn same_outcome(p: &PlantDescription, machine: ControlModel, s: &Scenario, law: LawId) {
+fn same_outcome(p: &PlantCase, machine: ControlModel, s: &Scenario, law: LawId) {
     let a = run(p, antisurge::sim::control_model(p), s, law);
     let b = run(p, machine, s, law);
     let what = format!("{} {} {law}", p.name(), s.name());
@@ -126,11 +126,11 @@ fn the_shipped_model_machine_file_runs_drive_torque_as_the_plant_file() {
         .unwrap_or_else(|e| panic!("{e}"));
     for stem in ["throttle_closure", "throttle_step"] {
         let s = scenario(stem);
-        let model = ControlModel::from_machine(&m, p.file.controller.clone());
+        let model = ControlModel::from_machine(&m, p.controller.clone());
         same_outcome(&p, model, &s, LawId::DriveTorque);
         let b = run(
             &p,
-            ControlModel::from_machine(&m, p.file.controller.clone()),
+            ControlModel::from_machine(&m, p.controller.clone()),
             &s,
             LawId::DriveTorque,
         );
@@ -153,7 +153,7 @@ fn every_model_based_law_runs_from_a_machine_file_with_the_plants_model() {
         let path = machine_file_of(&p, dir.path());
         let m = machine_file::load(&path).unwrap_or_else(|e| panic!("{stem}: {e}"));
         let from_plant = antisurge::sim::control_model(&p);
-        let from_file = ControlModel::from_machine(&m, p.file.controller.clone());
+        let from_file = ControlModel::from_machine(&m, p.controller.clone());
         assert_eq!(from_file.kind, from_plant.kind, "{stem}");
         assert_eq!(from_file.plenum_duct, from_plant.plenum_duct, "{stem}");
         assert_eq!(from_file.recycle, from_plant.recycle, "{stem}");

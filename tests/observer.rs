@@ -73,7 +73,7 @@ fn combined(sign: ZSign, throttle_target: f64) -> (Combined, SVector<f64, 6>) {
     plant.hold_inputs(plant.shaft.load_torque_nm(x0[1], x0[2]), throttle_target);
     let model = antisurge::sim::control_model(&desc);
     let obs = MassFlowObserver::new(
-        &desc.file.controller.observer,
+        &desc.controller.observer,
         model.observer_plant().expect("observer"),
     );
     let m_hat0 = 0.5 * x0[1]; // 50 % off
@@ -192,7 +192,7 @@ fn discrete_observer_in_the_control_cycle_converges_from_fifty_percent_off() {
     };
     let mut plant = SimPlant::new(&desc, &inputs).expect("plant");
     let mut obs = MassFlowObserver::new(
-        &desc.file.controller.observer,
+        &desc.controller.observer,
         model.observer_plant().expect("obs"),
     );
     let s = plant.sensors();
@@ -238,7 +238,7 @@ fn every_plant_gain_satisfies_eq17() {
         let desc = common::plant(stem);
         let model = antisurge::sim::control_model(&desc);
         if let Some(c2_min) = model.observer_min_gain() {
-            let c2 = desc.file.controller.observer.c2_pa_s_kg;
+            let c2 = desc.controller.observer.c2_pa_s_kg;
             assert!(c2 > c2_min, "{stem}: c2 = {c2} ≤ {c2_min} (eq. 17)");
         }
     }

@@ -5,7 +5,7 @@ mod common;
 
 use antisurge::bench_matrix::{self, CaseResult};
 use antisurge::control::LawId;
-use antisurge::plant::file::PlantDescription;
+use antisurge::sim::case::PlantCase;
 use std::process::Command;
 
 #[test]
@@ -42,11 +42,9 @@ fn readme_matrix_is_the_output_of_antisurge_bench_matrix() {
 
 fn matrix() -> Vec<CaseResult> {
     let cfg = common::root().join("config");
-    let plants: Vec<PlantDescription> = ["kvangardsnes2009_recycle", "hemchi2016_recycle"]
+    let plants: Vec<PlantCase> = ["kvangardsnes2009_recycle", "hemchi2016_recycle"]
         .iter()
-        .map(|s| {
-            PlantDescription::load(&cfg.join("plants").join(format!("{s}.toml"))).expect("plant")
-        })
+        .map(|s| PlantCase::load(&cfg.join("plants").join(format!("{s}.toml"))).expect("plant"))
         .collect();
     bench_matrix::run_matrix(&plants, &cfg, 2).expect("matrix")
 }
@@ -91,7 +89,7 @@ fn recycle_pi_with_defaults_holds_the_matrix_without_surge() {
 #[test]
 fn esd_stroke_verdict_names_a_stroke_that_holds() {
     let cfg = common::root().join("config");
-    let p = PlantDescription::load(&cfg.join("plants/kvangardsnes2009_recycle.toml")).unwrap();
+    let p = PlantCase::load(&cfg.join("plants/kvangardsnes2009_recycle.toml")).unwrap();
     let sc = bench_matrix::builtin_esd_scenario().expect("ESD scenario");
     let v = bench_matrix::esd_stroke(&p, &sc, 10.0)
         .unwrap()

@@ -7,11 +7,11 @@ use antisurge::control::law::{Law, LawId, LawInputs, LoopHistory};
 use antisurge::control::measurements::{Measurements, OperatorInputs};
 use antisurge::control::recycle_pi::RecyclePiConfig;
 use antisurge::control::surge_control_line::{ControlLineForm, SurgeControlLine};
-use antisurge::plant::file::PlantDescription;
 use antisurge::signals::{ActuatorCommands, ActuatorId};
+use antisurge::sim::case::PlantCase;
 
 fn run(plant: &str, right_of_line: f64, noise: f64) -> (f64, f64) {
-    let p = PlantDescription::load(&common::root().join("config/plants").join(plant)).unwrap();
+    let p = PlantCase::load(&common::root().join("config/plants").join(plant)).unwrap();
     let model = antisurge::sim::control_model(&p);
     let mut cfg = model.controller.clone();
     cfg.recycle_pi = RecyclePiConfig {
@@ -91,7 +91,7 @@ fn built_in_defaults_settle_the_closure_on_the_control_line_without_valve_ripple
     // issue 14 item 4: no [controller.recycle_pi] overrides on each shipped recycle plant
     for stem in ["kvangardsnes2009_recycle", "hemchi2016_recycle"] {
         let mut p = common::plant(stem);
-        p.file.controller.recycle_pi = RecyclePiConfig::default();
+        p.controller.recycle_pi = RecyclePiConfig::default();
         let r = common::simulate(&p, &common::scenario("throttle_closure"), LawId::RecyclePi);
         assert_eq!(r.summary.surge_cycles, 0, "{stem}");
         let tail: Vec<_> = r.trace.iter().filter(|row| row.t_s >= 15.0).collect();

@@ -8,7 +8,7 @@ mod common;
 use antisurge::control::LawId;
 use antisurge::plant::{PlantInputs, SimPlant};
 
-fn inputs(plant: &antisurge::plant::file::PlantDescription, throttle: f64) -> PlantInputs {
+fn inputs(plant: &antisurge::sim::case::PlantCase, throttle: f64) -> PlantInputs {
     let init = plant.file.initial;
     PlantInputs {
         throttle_process: throttle,

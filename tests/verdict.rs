@@ -14,7 +14,7 @@ fn drive_torque_with_k1_h_over_j_of_2_is_reported_unstable() {
     let mut plant = common::plant("bohagen2007_plenum");
     let j = plant.file.shaft.inertia_kg_m2;
     let h = 1e-3;
-    plant.file.controller.drive_torque.k1_nm_s_rad = 2.0 * j / h;
+    plant.controller.drive_torque.k1_nm_s_rad = 2.0 * j / h;
     let s = common::simulate(
         &plant,
         &common::scenario("throttle_closure"),
@@ -40,7 +40,7 @@ fn drive_torque_with_k1_h_over_j_of_2_is_reported_unstable() {
 #[test]
 fn drive_torque_with_the_seed_k1_is_reported_unstable() {
     let mut plant = common::plant("bohagen2007_plenum");
-    plant.file.controller.drive_torque.k1_nm_s_rad = 10_000.0;
+    plant.controller.drive_torque.k1_nm_s_rad = 10_000.0;
     let s = common::simulate(
         &plant,
         &common::scenario("throttle_closure"),

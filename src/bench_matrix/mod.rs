@@ -21,9 +21,9 @@ use crate::control::recycle_pi::RecyclePiConfig;
 use crate::control::supervisor::InputFault;
 use crate::control::surge_control_line::ControlLineForm;
 use crate::control::LawId;
-use crate::plant::file::PlantDescription;
 use crate::scenario::Scenario;
 use crate::signals::{ActuatorCommands, ActuatorId, SensorId};
+use crate::sim::case::PlantCase;
 use crate::sim::{ControllerView, PlantRun, SimError};
 use std::fmt::Write as _;
 use std::path::Path;
@@ -209,7 +209,7 @@ fn uniform(state: &mut u64) -> f64 {
 
 /// Run one case.
 pub fn run_case(
-    desc: &PlantDescription,
+    desc: &PlantCase,
     scenario: &Scenario,
     case: &Case,
     law: LawId,
@@ -418,7 +418,7 @@ pub fn run_case(
 /// Run the whole matrix on the recycle plants among `plants`, on up to `threads` threads.
 /// Scenarios are loaded from `config_dir/scenarios`.
 pub fn run_matrix(
-    plants: &[PlantDescription],
+    plants: &[PlantCase],
     config_dir: &Path,
     threads: usize,
 ) -> Result<Vec<CaseResult>, SimError> {
@@ -487,10 +487,7 @@ pub struct EsdStroke {
 }
 
 /// Check the ESD stroke of every recycle plant at every margin of the matrix.
-pub fn esd_strokes(
-    plants: &[PlantDescription],
-    config_dir: &Path,
-) -> Result<Vec<EsdStroke>, SimError> {
+pub fn esd_strokes(plants: &[PlantCase], config_dir: &Path) -> Result<Vec<EsdStroke>, SimError> {
     let path = config_dir.join("scenarios").join("emergency_shutdown.toml");
     let sc = Scenario::load(&path).map_err(|e| SimError::Scenario {
         scenario: "emergency-shutdown".into(),
@@ -514,7 +511,7 @@ pub fn esd_strokes(
 /// drive trip), recycle-pi with its defaults at `margin_pct`; the variants try the candidate
 /// strokes 1, 0.5 and 0.25 s shorter than the plant's.
 pub fn esd_stroke(
-    p: &PlantDescription,
+    p: &PlantCase,
     sc: &Scenario,
     margin_pct: f64,
 ) -> Result<Option<EsdStroke>, SimError> {
@@ -582,10 +579,7 @@ fn esd_verdict(r: &EsdStroke) -> String {
 /// `margin_pct` control line: None if the valve's stroke holds an ESD (drive trip) without
 /// surge (or the plant has no recycle valve), else one line naming the stroke time that
 /// would (or saying that none down to 0.25 s does).
-pub fn esd_stroke_warning(
-    p: &PlantDescription,
-    margin_pct: f64,
-) -> Result<Option<String>, SimError> {
+pub fn esd_stroke_warning(p: &PlantCase, margin_pct: f64) -> Result<Option<String>, SimError> {
     let sc = builtin_esd_scenario()?;
     let Some(v) = esd_stroke(p, &sc, margin_pct)? else {
         return Ok(None);

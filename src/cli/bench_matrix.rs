@@ -2,7 +2,7 @@
 //! textbook baseline-pi on every recycle plant, two margins, process events and signal faults).
 
 use super::locate;
-use antisurge::plant::file::PlantDescription;
+use antisurge::sim::case::PlantCase;
 use anyhow::{Context, Result};
 use std::path::PathBuf;
 
@@ -25,7 +25,7 @@ pub fn run(args: &BenchMatrixArgs) -> Result<()> {
     let cfg = locate::config_dir(args.config_dir.as_deref());
     let plants = locate::list(&cfg.join("plants"))?
         .iter()
-        .map(|p| PlantDescription::load(p).map_err(anyhow::Error::from))
+        .map(|p| PlantCase::load(p).map_err(anyhow::Error::from))
         .collect::<Result<Vec<_>>>()?;
     let threads = args.threads.unwrap_or_else(|| {
         std::thread::available_parallelism()

@@ -3,9 +3,9 @@
 use antisurge::control::recycle_pi;
 use antisurge::control::surge_control_line::{ControlLineForm, SurgeControlLine};
 use antisurge::physics::compressor_map::{CompressorMap, SurgeLine};
-use antisurge::plant::file::PlantDescription;
 use antisurge::plot;
 use antisurge::scenario::Scenario;
+use antisurge::sim::case::PlantCase;
 use antisurge::sim::trace::TraceRow;
 use antisurge::sim::SimResult;
 use anyhow::{Context, Result};
@@ -24,7 +24,7 @@ pub struct Machine<'a> {
 /// Draw the pictures of a run of `scenario`; returns the files written.
 pub fn draw(
     dir: &Path,
-    desc: &PlantDescription,
+    desc: &PlantCase,
     scenario: &Scenario,
     result: &SimResult,
 ) -> Result<Vec<PathBuf>> {
@@ -36,12 +36,12 @@ pub fn draw(
 /// scenario's `events` (time, words) marked on the time series.
 pub fn draw_trace(
     dir: &Path,
-    desc: &PlantDescription,
+    desc: &PlantCase,
     trace: &[TraceRow],
     title: &str,
     events: &[(f64, String)],
 ) -> Result<Vec<PathBuf>> {
-    let rp = &desc.file.controller.recycle_pi;
+    let rp = &desc.controller.recycle_pi;
     let machine = Machine {
         map: Some(&desc.map),
         surge_line: desc.map.surge_line,

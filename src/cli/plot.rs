@@ -102,8 +102,7 @@ pub fn run(args: &PlotArgs) -> Result<()> {
     let trace = read_trace(&args.trace)?;
     let cfg = locate::config_dir(args.config_dir.as_deref());
     let plant_path = locate::resolve(&cfg, "plants", &args.plant)?;
-    let desc =
-        antisurge::plant::file::PlantDescription::load(&plant_path).map_err(|e| anyhow!("{e}"))?;
+    let desc = antisurge::sim::case::PlantCase::load(&plant_path).map_err(|e| anyhow!("{e}"))?;
     let dir = args.out.clone().unwrap_or_else(|| {
         args.trace
             .parent()

@@ -2,8 +2,8 @@
 
 use super::locate;
 use antisurge::control::LawId;
-use antisurge::plant::file::PlantDescription;
 use antisurge::scenario::Scenario;
+use antisurge::sim::case::PlantCase;
 use antisurge::sim::{self, SimOptions, Summary};
 use anyhow::{Context, Result};
 use std::io::IsTerminal;
@@ -61,16 +61,13 @@ pub fn run(args: &SimArgs) -> Result<()> {
     let plant_path = locate::resolve(&cfg, "plants", &args.plant)?;
     let scenario_path = locate::resolve(&cfg, "scenarios", &args.scenario)?;
     let law = LawId::parse_sim(&args.law)?;
-    let desc = PlantDescription::load(&plant_path)?;
+    let desc = PlantCase::load(&plant_path)?;
     let scenario = Scenario::load(&scenario_path)?;
     let model = match &args.machine {
         Some(m) => {
             let path = locate::resolve(&cfg, "machines", m)?;
             let machine = antisurge::machine::file::load(&path)?;
-            antisurge::control::model::ControlModel::from_machine(
-                &machine,
-                desc.file.controller.clone(),
-            )
+            antisurge::control::model::ControlModel::from_machine(&machine, desc.controller.clone())
         }
         None => antisurge::sim::control_model(&desc),
     };
@@ -82,7 +79,7 @@ pub fn run(args: &SimArgs) -> Result<()> {
     if uses_drive_torque {
         // the same gain checks as check-config (sampled speed loop K1·h/J < 1, eq. 8)
         antisurge::control::drive_torque::check_gains(
-            &desc.file.controller.drive_torque,
+            &desc.controller.drive_torque,
             &model,
             scenario.file.control_period_s,
         )

@@ -1,8 +1,8 @@
 //! `antisurge table`: the benchmark table of README.md (every plant × applicable law).
 
 use super::locate;
-use antisurge::plant::file::PlantDescription;
 use antisurge::scenario::Scenario;
+use antisurge::sim::case::PlantCase;
 use anyhow::{Context, Result};
 use std::path::PathBuf;
 
@@ -37,13 +37,13 @@ pub fn run(args: &TableArgs) -> Result<()> {
     let cfg = locate::config_dir(args.config_dir.as_deref());
     let plants = locate::list(&cfg.join("plants"))?
         .iter()
-        .map(|p| PlantDescription::load(p).map_err(anyhow::Error::from))
+        .map(|p| PlantCase::load(p).map_err(anyhow::Error::from))
         .collect::<Result<Vec<_>>>()?;
     let sweep = Scenario::load(&locate::resolve(&cfg, "scenarios", &args.sweep)?)?;
     let feed_sweep = Scenario::load(&locate::resolve(&cfg, "scenarios", &args.feed_sweep)?)?;
     let closure = Scenario::load(&locate::resolve(&cfg, "scenarios", &args.closure)?)?;
     if let Some(name) = &args.inertia_sweep {
-        let plant = PlantDescription::load(&locate::resolve(&cfg, "plants", name)?)?;
+        let plant = PlantCase::load(&locate::resolve(&cfg, "plants", name)?)?;
         let rows =
             antisurge::sim::table::inertia_sweep(&plant, &sweep, &closure, &SWEEP_INERTIAS_KG_M2)
                 .context("running the inertia sweep")?;

@@ -922,15 +922,15 @@ impl ControlCore {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::plant::file::PlantDescription;
     use crate::scenario::Scenario;
+    use crate::sim::case::PlantCase;
     use crate::sim::PlantRun;
     use std::path::Path;
 
-    fn kvangardsnes() -> PlantDescription {
+    fn kvangardsnes() -> PlantCase {
         let p = Path::new(env!("CARGO_MANIFEST_DIR"))
             .join("config/plants/kvangardsnes2009_recycle.toml");
-        PlantDescription::load(&p).expect("plant")
+        PlantCase::load(&p).expect("plant")
     }
 
     fn hold() -> Scenario {
@@ -938,7 +938,7 @@ mod tests {
         Scenario::load(&p).expect("scenario")
     }
 
-    fn core_for(desc: &PlantDescription, grace_s: f64) -> ControlCore {
+    fn core_for(desc: &PlantCase, grace_s: f64) -> ControlCore {
         let model = crate::sim::control_model(desc);
         let mut settings = CoreSettings::defaults_for(&model);
         settings.startup_grace_s = grace_s;
@@ -980,7 +980,7 @@ mod tests {
         m.map = None;
         m.recycle = None;
         m.owns_drive_speed_loop = false;
-        let model = ControlModel::from_machine(&m, desc.file.controller.clone());
+        let model = ControlModel::from_machine(&m, desc.controller.clone());
         let mut settings = CoreSettings::defaults_for(&model);
         settings.startup_grace_s = 0.0;
         let config = model.controller.clone();

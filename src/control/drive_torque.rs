@@ -687,7 +687,7 @@ mod tests {
     fn bohagen() -> ControlModel {
         let path = std::path::Path::new(env!("CARGO_MANIFEST_DIR"))
             .join("config/plants/bohagen2007_plenum.toml");
-        let desc = crate::plant::file::PlantDescription::load(&path).expect("plant");
+        let desc = crate::sim::case::PlantCase::load(&path).expect("plant");
         crate::sim::control_model(&desc)
     }
 

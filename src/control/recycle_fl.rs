@@ -639,12 +639,12 @@ impl SurgeLaw for RecycleFl {
 mod tests {
     use super::*;
     use crate::control::measurements::{Measurements, OperatorInputs};
-    use crate::plant::file::PlantDescription;
+    use crate::sim::case::PlantCase;
 
     fn hemchi() -> ControlModel {
         let path = std::path::Path::new(env!("CARGO_MANIFEST_DIR"))
             .join("config/plants/hemchi2016_recycle.toml");
-        crate::sim::control_model(&PlantDescription::load(&path).expect("plant file"))
+        crate::sim::control_model(&PlantCase::load(&path).expect("plant file"))
     }
 
     /// A measurement snapshot.

@@ -976,17 +976,17 @@ impl SurgeLaw for Robust {
 mod tests {
     use super::*;
     use crate::control::measurements::{Measurements, OperatorInputs};
-    use crate::plant::file::PlantDescription;
     use crate::plant::spool::SpoolPlant;
     use crate::plant::{PlantInputs, SimPlant};
+    use crate::sim::case::PlantCase;
     use std::path::Path;
 
-    fn description() -> PlantDescription {
+    fn description() -> PlantCase {
         let p = Path::new(env!("CARGO_MANIFEST_DIR")).join("config/plants/liaw2004_spool.toml");
-        PlantDescription::load(&p).expect("plant file")
+        PlantCase::load(&p).expect("plant file")
     }
 
-    fn plant(desc: &PlantDescription) -> SpoolPlant {
+    fn plant(desc: &PlantCase) -> SpoolPlant {
         let inputs = PlantInputs {
             throttle_process: 0.6,
             ..PlantInputs::default()

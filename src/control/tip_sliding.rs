@@ -560,13 +560,13 @@ impl SurgeLaw for TipSliding {
 mod tests {
     use super::*;
     use crate::control::measurements::{Measurements, OperatorInputs};
-    use crate::plant::file::PlantDescription;
     use crate::plant::tip_clearance::throttle_flow_kg_s;
+    use crate::sim::case::PlantCase;
 
     fn model() -> ControlModel {
         let path = std::path::Path::new(env!("CARGO_MANIFEST_DIR"))
             .join("config/plants/sanadgol2006_tip.toml");
-        let desc = PlantDescription::load(&path).expect("plant file");
+        let desc = PlantCase::load(&path).expect("plant file");
         crate::sim::control_model(&desc)
     }
 

@@ -79,9 +79,11 @@ pub struct PlantFile {
     /// Fixed-step integration for real time.
     #[serde(default)]
     pub integration: StepSettings,
-    /// Controller settings tuned for this machine (defaults for the daemon's config).
-    #[serde(default)]
-    pub controller: crate::control::ControllerConfig,
+    /// The file's `[controller]` table (tuned settings for the controller) is not the plant
+    /// models' to read: the simulation layer (`sim::case::PlantCase`) parses it from the same
+    /// text. Accepted here unread so the plant schema stays closed to every other key.
+    #[serde(default, rename = "controller")]
+    controller_table: Option<serde::de::IgnoredAny>,
 }
 
 impl PlantFile {
@@ -111,7 +113,8 @@ pub struct PlantDescription {
 }
 
 impl PlantDescription {
-    /// Load and validate a plant file; errors name file, key and line.
+    /// Load and validate a plant file; errors name file, key and line. The `[controller]`
+    /// table is not checked here: load through `sim::case::PlantCase` to read it.
     pub fn load(path: &Path) -> Result<PlantDescription, FileError> {
         let (file, text): (PlantFile, String) = crate::config::toml_file::load(path)?;
         Self::from_file(file, path, &text)
@@ -125,7 +128,13 @@ impl PlantDescription {
         Self::from_file(file, path, text)
     }
 
-    fn from_file(file: PlantFile, path: &Path, text: &str) -> Result<PlantDescription, FileError> {
+    /// Validate a parsed plant file whose source is `text` (the checks after the schema); the
+    /// simulation layer's loader parses the same text once more for `[controller]` in between.
+    pub fn from_file(
+        file: PlantFile,
+        path: &Path,
+        text: &str,
+    ) -> Result<PlantDescription, FileError> {
         let at = |key: &str, msg: String| FileError::at_key(path, text, key, msg);
         validate_positive(&file, &at)?;
         // the model data: the same check a machine file's [model] goes through

@@ -418,7 +418,7 @@ fn write_examples() {
             .expect("scenario");
     for entry in std::fs::read_dir("config/plants").expect("plants") {
         let p = entry.expect("entry").path();
-        let desc = crate::plant::file::PlantDescription::load(&p).expect("plant");
+        let desc = crate::sim::case::PlantCase::load(&p).expect("plant");
         let res = crate::sim::runner::run(
             &desc,
             &scenario,

@@ -16,6 +16,7 @@ use crate::scenario::ScenarioState;
 use crate::scenario::{NoiseSource, Scenario, SensorState, Timeline};
 use crate::signals::ActuatorCommands;
 use crate::signals::{ActuatorId, SensorId, SensorSnapshot};
+use crate::sim::case::PlantCase;
 use crate::surge::{DetectorConfig, SurgeDetector};
 use std::time::Instant;
 
@@ -430,7 +431,12 @@ impl<'a> PlantRun<'a> {
             ..PlantInputs::default()
         };
         let plant = SimPlant::new(desc, &inputs)?;
-        let model = crate::sim::control_model(desc);
+        // the plant side scores against the machine only (surge margin, supervisor limits);
+        // the controller settings are not read here
+        let model = crate::control::model::ControlModel::from_machine(
+            &desc.machine(),
+            crate::control::ControllerConfig::default(),
+        );
         let t0_torque = plant.truth().load_torque_nm;
         let dt = scenario.file.control_period_s;
         let n_steps = (scenario.file.duration_s / dt).round() as usize;
@@ -758,7 +764,7 @@ impl<'a> PlantRun<'a> {
 
 /// Run a scenario on a plant with a law. `progress` receives the completed fraction.
 pub fn run(
-    desc: &PlantDescription,
+    desc: &PlantCase,
     scenario: &Scenario,
     options: SimOptions,
     progress: &mut dyn FnMut(f64),
@@ -770,7 +776,7 @@ pub fn run(
 /// the daemon does to a running controller (hot reload, law switch) can be replayed at an
 /// exact time.
 pub fn run_with(
-    desc: &PlantDescription,
+    desc: &PlantCase,
     scenario: &Scenario,
     options: SimOptions,
     progress: &mut dyn FnMut(f64),

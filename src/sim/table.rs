@@ -5,8 +5,8 @@
 use super::trace::TraceRow;
 use super::{run, SimError, SimOptions, Summary};
 use crate::control::LawId;
-use crate::plant::file::PlantDescription;
 use crate::scenario::{Action, Scenario};
+use crate::sim::case::PlantCase;
 use std::fmt::Write as _;
 
 /// One row of the table.
@@ -117,7 +117,7 @@ pub fn min_stable_flow(
 /// closure. `throttle_sweep` lowers the throughput by closing the throttle; plants whose feed is
 /// a fixed mass flow (seed 002) get `feed_sweep` instead, since their throughput is the feed.
 pub fn build(
-    plants: &[PlantDescription],
+    plants: &[PlantCase],
     throttle_sweep: &Scenario,
     feed_sweep: &Scenario,
     closure: &Scenario,
@@ -272,7 +272,7 @@ pub struct InertiaRow {
 /// active law needs torque ≈ J c1 × the flow deviation's rate of change (seed 000 eq. 1c, 4):
 /// a heavier rotor needs proportionally more, and the drive's rating caps it.
 pub fn inertia_sweep(
-    plant: &PlantDescription,
+    plant: &PlantCase,
     sweep: &Scenario,
     closure: &Scenario,
     inertias_kg_m2: &[f64],
@@ -284,12 +284,12 @@ pub fn inertia_sweep(
     let ol = run(plant, sweep, opts(LawId::None), &mut |_| {})?;
     let ol_min = min_stable_flow(&ol.trace, sweep, 2.0, 0.02).0;
     let j0 = plant.file.shaft.inertia_kg_m2;
-    let k0 = plant.file.controller.drive_torque.k1_nm_s_rad;
+    let k0 = plant.controller.drive_torque.k1_nm_s_rad;
     let mut rows = Vec::new();
     for &j in inertias_kg_m2 {
         let mut p = plant.clone();
         p.file.shaft.inertia_kg_m2 = j;
-        p.file.controller.drive_torque.k1_nm_s_rad = k0 * j / j0;
+        p.controller.drive_torque.k1_nm_s_rad = k0 * j / j0;
         let r = run(&p, sweep, opts(LawId::DriveTorque), &mut |_| {})?;
         let s = min_stable_flow(&r.trace, sweep, 2.0, 0.02).0;
         let c = run(&p, closure, opts(LawId::DriveTorque), &mut |_| {})?;

@@ -2,8 +2,8 @@
 #![allow(dead_code)]
 
 use antisurge::control::LawId;
-use antisurge::plant::file::PlantDescription;
 use antisurge::scenario::Scenario;
+use antisurge::sim::case::PlantCase;
 use antisurge::sim::{SimOptions, SimResult};
 use std::path::{Path, PathBuf};
 
@@ -22,9 +22,9 @@ pub const PLANTS: [&str; 5] = [
 ];
 
 /// Load a shipped plant by file stem.
-pub fn plant(stem: &str) -> PlantDescription {
+pub fn plant(stem: &str) -> PlantCase {
     let p = root().join("config/plants").join(format!("{stem}.toml"));
-    PlantDescription::load(&p).unwrap_or_else(|e| panic!("{e}"))
+    PlantCase::load(&p).unwrap_or_else(|e| panic!("{e}"))
 }
 
 /// Load a shipped scenario by file stem.
@@ -41,14 +41,14 @@ pub fn scenario_text(text: &str) -> Scenario {
 }
 
 /// Run a scenario through the same code path as `antisurge sim`.
-pub fn simulate(plant: &PlantDescription, scenario: &Scenario, law: LawId) -> SimResult {
+pub fn simulate(plant: &PlantCase, scenario: &Scenario, law: LawId) -> SimResult {
     simulate_with(plant, scenario, law, &mut |_, _| {})
 }
 
 /// [`simulate`], calling `before_cycle(t_s, core)` before every control cycle (a hot reload
 /// or a law switch at an exact time).
 pub fn simulate_with(
-    plant: &PlantDescription,
+    plant: &PlantCase,
     scenario: &Scenario,
     law: LawId,
     before_cycle: &mut dyn FnMut(f64, &mut antisurge::control::core::ControlCore),

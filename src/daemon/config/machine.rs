@@ -13,8 +13,8 @@ use crate::control::config::{ControllerConfig, FlowSource};
 use crate::control::law::LawError;
 use crate::machine::surge_line::element_dp_pa;
 use crate::machine::MachineDescription;
-use crate::plant::file::PlantDescription;
 use crate::signals::{ActuatorId, SensorId};
+use crate::sim::case::PlantCase;
 use serde::{Deserialize, Serialize};
 use std::path::{Path, PathBuf};
 
@@ -30,7 +30,7 @@ pub struct MachineSection {
 /// tuned controller defaults (a plant file's `[controller]`; seed defaults for vendor data).
 pub struct Resolved {
     /// The simulated plant (`[plant]`), if any.
-    pub plant: Option<PlantDescription>,
+    pub plant: Option<PlantCase>,
     /// The controller's machine.
     pub machine: MachineDescription,
     /// Controller defaults before the config's `[controller]` overrides.
@@ -48,7 +48,7 @@ pub fn resolve_machine(
     let plant = match plant {
         Some(p) => {
             let path = resolve(main, p);
-            Some(PlantDescription::load(&path).map_err(|e| {
+            Some(PlantCase::load(&path).map_err(|e| {
                 if e.line == 0 && e.key.is_empty() {
                     locate(
                         layers,
@@ -90,7 +90,7 @@ pub fn resolve_machine(
         }
         (None, Some(p)) => Ok(Resolved {
             machine: p.machine(),
-            controller: p.file.controller.clone(),
+            controller: p.controller.clone(),
             plant,
         }),
         (None, None) => Err(locate(
@@ -284,7 +284,7 @@ pub fn transport_problem(l: &Loaded) -> Option<Problem> {
 
 impl Loaded {
     /// The simulated plant (`[plant] file`), or a located error saying it is missing.
-    pub fn sim_plant(&self) -> Result<&PlantDescription, FileError> {
+    pub fn sim_plant(&self) -> Result<&PlantCase, FileError> {
         self.plant.as_ref().ok_or_else(|| {
             locate(
                 &self.layers,

@@ -64,9 +64,9 @@ use crate::control::model::ControlModel;
 use crate::control::supervisor::InputLimits;
 use crate::events::EventLogConfig;
 use crate::io::signal_map::SignalMap;
-use crate::plant::file::PlantDescription;
 use crate::runtime::rt_loop::RtSettings;
 use crate::signals::SensorId;
+use crate::sim::case::PlantCase;
 use layers::{layers_set, table_get, with_file_line_key};
 use serde::{Deserialize, Serialize};
 use std::collections::BTreeMap;
@@ -120,7 +120,7 @@ pub struct Loaded {
     /// Source layers, main first.
     pub layers: Vec<Layer>,
     /// The simulated plant (`[plant] file`), if any.
-    pub plant: Option<PlantDescription>,
+    pub plant: Option<PlantCase>,
     /// The controller's machine description (`[machine] file`, else derived from the plant).
     pub machine: crate::machine::MachineDescription,
     /// The controller's machine model.
