@@ -9,45 +9,19 @@ use std::path::{Path, PathBuf};
 use std::process::Child;
 use std::time::Duration;
 
-fn modbus_config(dir: &Path, port: u16, scenario: &str) -> std::path::PathBuf {
-    let cfg = format!(
-        r#"
-[plant]
-file = "{plant}"
-{recycle_pi_50hz}
-[bus]
-transport = "field"
-signal_map = "{map}"
-[bus.modbus]
-poll_rate_hz = 50.0
-heartbeat_register = {{ unit_id = 1, address = 300 }}
-[bus.modbus.client]
-timeout_ms = 100
-transport = {{ kind = "tcp", address = "127.0.0.1:{port}" }}
-[event_log]
-path = "{events}"
-[simulation]
-scenario = "{scenario}"
-heartbeat_timeout_ms = 200.0
-[simulation.modbus_server]
-listen = "127.0.0.1:{port}"
-heartbeat_register = {{ unit_id = 1, address = 300 }}
-[status]
-log_interval_s = 5.0
-"#,
-        recycle_pi_50hz = RECYCLE_PI_50HZ,
-        plant = shipped("plants/kvangardsnes2009_recycle.toml"),
-        map = shipped("signals_modbus.toml"),
-        events = dir.join("events.jsonl").display(),
-    );
-    let path = dir.join("antisurge.toml");
-    std::fs::write(&path, cfg).expect("write config");
-    path
-}
-
 /// Start `antisurge plant` (Modbus server) and, half a second later, `antisurge run`.
 fn start_pair(dir: &Path, scenario: &str) -> (Child, Child, PathBuf) {
-    let cfg = modbus_config(dir, free_port(), scenario);
+    let port = free_port();
+    let cfg = write_modbus_e2e_config(
+        dir,
+        &ModbusE2e {
+            client_port: port,
+            plant_port: port,
+            scenario,
+            heartbeat_timeout_ms: 200.0,
+            client_extra: "",
+        },
+    );
     let cfg_s = cfg.display().to_string();
     let out = dir.join("plant");
     let out_s = out.display().to_string();
@@ -118,18 +92,7 @@ fn kill_9_of_the_controller_leaves_the_plant_safe() {
     // 200 ms (timeout) + 20 ms (one 50-Hz heartbeat period) + 5 ms (trace row) after the
     // last command the controller sent
     let cmd = column(&out, "cmd_recycle_valve");
-    let t_fs = cmd
-        .iter()
-        .find(|(t, v)| *t > 1.0 && *v >= 0.999)
-        .expect("fail-safe command")
-        .0;
-    let t_last_ctl = cmd
-        .iter()
-        .take_while(|(t, _)| *t < t_fs)
-        .filter(|(_, v)| *v < 0.999)
-        .last()
-        .expect("controlled rows")
-        .0;
+    let (t_fs, t_last_ctl) = failsafe_after_last_command(&cmd);
     assert!(
         t_fs - t_last_ctl <= 0.2 + 0.02 + 0.005 + 0.005,
         "fail-safe after {:.3} s: {ctx}",

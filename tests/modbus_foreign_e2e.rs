@@ -156,18 +156,7 @@ fn kill_9_on_the_foreign_map_fails_the_valve_open() {
     let pos = column(&out, "recycle_valve_position");
     assert!(pos.last().expect("rows").1 > 0.95, "{ctx}");
     let cmd = column(&out, "cmd_recycle_valve");
-    let t_fs = cmd
-        .iter()
-        .find(|(t, v)| *t > 1.0 && *v >= 0.999)
-        .expect("fail-safe command")
-        .0;
-    let t_last = cmd
-        .iter()
-        .take_while(|(t, _)| *t < t_fs)
-        .filter(|(_, v)| *v < 0.999)
-        .last()
-        .expect("controlled rows")
-        .0;
+    let (t_fs, t_last) = failsafe_after_last_command(&cmd);
     // watchdog 300 ms + one 50-Hz write period + trace rows
     assert!(
         t_fs - t_last <= 0.3 + 0.02 + 0.01,

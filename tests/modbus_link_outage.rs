@@ -10,7 +10,6 @@ mod common;
 use common::daemon::*;
 use std::io::{Read, Write};
 use std::net::{Shutdown, TcpListener, TcpStream};
-use std::path::Path;
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::Arc;
 use std::time::Duration;
@@ -79,44 +78,6 @@ fn relay(upstream: u16, down: Arc<AtomicBool>, stop: Arc<AtomicBool>) -> u16 {
     port
 }
 
-fn config(dir: &Path, plant_port: u16, relay_port: u16) -> std::path::PathBuf {
-    let cfg = format!(
-        r#"
-[plant]
-file = "{plant}"
-{recycle_pi_50hz}
-[bus]
-transport = "field"
-signal_map = "{map}"
-[bus.modbus]
-poll_rate_hz = 50.0
-heartbeat_register = {{ unit_id = 1, address = 300 }}
-[bus.modbus.client]
-timeout_ms = 100
-backoff_initial_ms = 50
-backoff_max_ms = 200
-transport = {{ kind = "tcp", address = "127.0.0.1:{relay_port}" }}
-[event_log]
-path = "{events}"
-[simulation]
-scenario = "throttle-closure"
-heartbeat_timeout_ms = 10000.0
-[simulation.modbus_server]
-listen = "127.0.0.1:{plant_port}"
-heartbeat_register = {{ unit_id = 1, address = 300 }}
-[status]
-log_interval_s = 5.0
-"#,
-        recycle_pi_50hz = RECYCLE_PI_50HZ,
-        plant = shipped("plants/kvangardsnes2009_recycle.toml"),
-        map = shipped("signals_modbus.toml"),
-        events = dir.join("events.jsonl").display(),
-    );
-    let path = dir.join("antisurge.toml");
-    std::fs::write(&path, cfg).expect("write config");
-    path
-}
-
 #[test]
 fn a_3_s_link_outage_resumes_from_the_measured_valve_position() {
     let tmp = tempfile::tempdir().expect("tmp");
@@ -125,7 +86,16 @@ fn a_3_s_link_outage_resumes_from_the_measured_valve_position() {
     let stop = Arc::new(AtomicBool::new(false));
     let plant_port = free_port();
     let relay_port = relay(plant_port, down.clone(), stop.clone());
-    let cfg = config(dir, plant_port, relay_port);
+    let cfg = write_modbus_e2e_config(
+        dir,
+        &ModbusE2e {
+            client_port: relay_port,
+            plant_port,
+            scenario: "throttle-closure",
+            heartbeat_timeout_ms: 10000.0,
+            client_extra: "backoff_initial_ms = 50\nbackoff_max_ms = 200",
+        },
+    );
     let cfg_s = cfg.display().to_string();
     let out = dir.join("plant");
     let out_s = out.display().to_string();

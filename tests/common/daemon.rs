@@ -150,3 +150,77 @@ pub fn write_atomically(path: &Path, text: &str) {
     std::fs::write(&tmp, text).expect("write tmp");
     std::fs::rename(&tmp, path).expect("rename");
 }
+
+/// The Modbus TCP links of a kvangardsnes2009 recycle-pi e2e config: where the controller
+/// connects (`client_port`, the plant itself or a relay in front of it), where `antisurge
+/// plant` listens, the scenario, the plant's heartbeat timeout and any extra
+/// `[bus.modbus.client]` lines (backoff settings).
+pub struct ModbusE2e<'a> {
+    pub client_port: u16,
+    pub plant_port: u16,
+    pub scenario: &'a str,
+    pub heartbeat_timeout_ms: f64,
+    pub client_extra: &'a str,
+}
+
+/// Write `dir/antisurge.toml`: the 50-Hz recycle-pi controller on kvangardsnes2009 over the
+/// shipped Modbus signal map, the plant node's server on the same file, and return its path.
+pub fn write_modbus_e2e_config(dir: &Path, m: &ModbusE2e) -> PathBuf {
+    let cfg = format!(
+        r#"
+[plant]
+file = "{plant}"
+{recycle_pi_50hz}
+[bus]
+transport = "field"
+signal_map = "{map}"
+[bus.modbus]
+poll_rate_hz = 50.0
+heartbeat_register = {{ unit_id = 1, address = 300 }}
+[bus.modbus.client]
+timeout_ms = 100
+{client_extra}
+transport = {{ kind = "tcp", address = "127.0.0.1:{client_port}" }}
+[event_log]
+path = "{events}"
+[simulation]
+scenario = "{scenario}"
+heartbeat_timeout_ms = {hb:.1}
+[simulation.modbus_server]
+listen = "127.0.0.1:{plant_port}"
+heartbeat_register = {{ unit_id = 1, address = 300 }}
+[status]
+log_interval_s = 5.0
+"#,
+        recycle_pi_50hz = RECYCLE_PI_50HZ,
+        plant = shipped("plants/kvangardsnes2009_recycle.toml"),
+        map = shipped("signals_modbus.toml"),
+        events = dir.join("events.jsonl").display(),
+        client_extra = m.client_extra,
+        client_port = m.client_port,
+        scenario = m.scenario,
+        hb = m.heartbeat_timeout_ms,
+        plant_port = m.plant_port,
+    );
+    let path = dir.join("antisurge.toml");
+    std::fs::write(&path, cfg).expect("write config");
+    path
+}
+
+/// From a `cmd_recycle_valve` trace column with a fail-safe (command 1.0) after t = 1 s:
+/// the time of the first fail-safe row and of the last controlled row before it, s.
+pub fn failsafe_after_last_command(cmd: &[(f64, f64)]) -> (f64, f64) {
+    let t_fs = cmd
+        .iter()
+        .find(|(t, v)| *t > 1.0 && *v >= 0.999)
+        .expect("fail-safe command")
+        .0;
+    let t_last = cmd
+        .iter()
+        .take_while(|(t, _)| *t < t_fs)
+        .filter(|(_, v)| *v < 0.999)
+        .last()
+        .expect("controlled rows")
+        .0;
+    (t_fs, t_last)
+}
