@@ -16,14 +16,13 @@ use antisurge::control::law::REGISTRY;
 use antisurge::control::measurements::OperatorInputs;
 use antisurge::control::model::ControlModel;
 use antisurge::control::{ControllerConfig, LawId};
-use antisurge::daemon::control_node::{ControlNode, ControlUpdate, ControlWiring, Health};
+use antisurge::daemon::control_node::ControlUpdate;
 use antisurge::plant::{PlantInputs, SimPlant};
-use antisurge::runtime::handoff::{monotonic_ns, OutputBoard, SensorBoard, Wakeup};
-use antisurge::runtime::rt_loop::{CycleStats, Tick};
+use antisurge::runtime::handoff::monotonic_ns;
+use antisurge::runtime::rt_loop::Tick;
 use antisurge::signals::{ActuatorId, SensorId};
 use antisurge::sim::case::PlantCase;
 use std::sync::atomic::Ordering;
-use std::sync::Arc;
 
 const CYCLES: u64 = 6000;
 const PERIOD_NS: u64 = 1_000_000;
@@ -98,26 +97,15 @@ fn run(
         flow_setpoint_kg_s: f64::NAN,
         recycle_manual: init.recycle_valve,
     };
-    let sensors = Arc::new(SensorBoard::default());
-    let outputs = Arc::new(OutputBoard::default());
-    let health = Arc::new(Health::default());
-    let (mut updates_tx, updates_rx) = rtrb::RingBuffer::<ControlUpdate>::new(4);
-    let (retired_tx, mut retired_rx) = rtrb::RingBuffer::new(8);
-    let mut node = ControlNode::new(
-        core,
-        op,
-        ControlWiring {
-            sensors: Arc::clone(&sensors),
-            outputs: Arc::clone(&outputs),
-            wake: Arc::new(Wakeup::new().expect("eventfd")),
-            updates: updates_rx,
-            retired: retired_tx,
-            events: None,
-            health: Arc::clone(&health),
-            stats: Arc::new(CycleStats::default()),
-        },
-        PERIOD_NS,
-    );
+    let common::node::BareNode {
+        mut node,
+        sensors,
+        outputs,
+        health,
+        updates: mut updates_tx,
+        retired: mut retired_rx,
+        ..
+    } = common::node::bare_node(core, op, PERIOD_NS);
     let dt = PERIOD_NS as f64 * 1e-9;
     let t0 = monotonic_ns();
     let mut plant_inputs = inputs;

@@ -10,14 +10,13 @@ mod common;
 use antisurge::control::core::{ControlCore, CoreSettings};
 use antisurge::control::measurements::OperatorInputs;
 use antisurge::control::LawId;
-use antisurge::daemon::control_node::{ControlNode, ControlUpdate, ControlWiring, Health};
+use antisurge::daemon::control_node::ControlUpdate;
 use antisurge::plant::{PlantInputs, SimPlant};
-use antisurge::runtime::handoff::{monotonic_ns, OutputBoard, SensorBoard, Wakeup};
-use antisurge::runtime::rt_loop::{CycleStats, Tick};
+use antisurge::runtime::handoff::monotonic_ns;
+use antisurge::runtime::rt_loop::Tick;
 use antisurge::signals::SensorId;
 use common::counting_alloc::{heap_ops, Counting};
 use std::sync::atomic::Ordering;
-use std::sync::Arc;
 
 #[global_allocator]
 static GLOBAL: Counting = Counting;
@@ -53,27 +52,16 @@ fn reloads_allocate_nothing_on_the_control_thread_for_every_law_and_plant() {
                 flow_setpoint_kg_s: f64::NAN,
                 recycle_manual: init.recycle_valve,
             };
-            let sensors = Arc::new(SensorBoard::default());
-            let outputs = Arc::new(OutputBoard::default());
-            let health = Arc::new(Health::default());
-            let (mut updates_tx, updates_rx) = rtrb::RingBuffer::<ControlUpdate>::new(4);
-            let (retired_tx, mut retired_rx) = rtrb::RingBuffer::new(8);
             let period_ns = 1_000_000;
-            let mut node = ControlNode::new(
-                core,
-                op,
-                ControlWiring {
-                    sensors: Arc::clone(&sensors),
-                    outputs: Arc::clone(&outputs),
-                    wake: Arc::new(Wakeup::new().expect("eventfd")),
-                    updates: updates_rx,
-                    retired: retired_tx,
-                    events: None,
-                    health: Arc::clone(&health),
-                    stats: Arc::new(CycleStats::default()),
-                },
-                period_ns,
-            );
+            let common::node::BareNode {
+                mut node,
+                sensors,
+                outputs,
+                health,
+                updates: mut updates_tx,
+                retired: mut retired_rx,
+                ..
+            } = common::node::bare_node(core, op, period_ns);
             // the other law for the switch: the next applicable one
             let other = laws[(laws.iter().position(|l| *l == law).expect("law") + 1) % laws.len()];
             let mut gains = cfg.clone();

@@ -69,3 +69,4 @@ pub fn simulate_with(
 pub mod counting_alloc;
 pub mod daemon;
 pub mod faults;
+pub mod node;

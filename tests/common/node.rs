@@ -1,0 +1,58 @@
+//! A control node wired to fresh hand-off boards, without a bus, a thread or an event log:
+//! the tests drive its cycles by hand (reconfiguration, allocation and bumpless tests).
+
+use antisurge::control::core::{ControlCore, Reconfiguration};
+use antisurge::control::measurements::OperatorInputs;
+use antisurge::daemon::control_node::{ControlNode, ControlUpdate, ControlWiring, Health};
+use antisurge::runtime::handoff::{OutputBoard, SensorBoard, Wakeup};
+use antisurge::runtime::rt_loop::CycleStats;
+use std::sync::Arc;
+
+/// The node and the test's ends of its wiring.
+pub struct BareNode {
+    pub node: ControlNode,
+    /// Where the test publishes sensor values.
+    pub sensors: Arc<SensorBoard>,
+    /// Where the node's commands appear.
+    pub outputs: Arc<OutputBoard>,
+    pub health: Arc<Health>,
+    pub stats: Arc<CycleStats>,
+    /// Reconfigurations sent to the node (applied at its next cycle boundary).
+    pub updates: rtrb::Producer<ControlUpdate>,
+    /// What the node retired, to be dropped off its thread.
+    pub retired: rtrb::Consumer<Reconfiguration>,
+}
+
+/// A node around `core` with a cycle period of `period_ns`.
+pub fn bare_node(core: ControlCore, op: OperatorInputs, period_ns: u64) -> BareNode {
+    let sensors = Arc::new(SensorBoard::default());
+    let outputs = Arc::new(OutputBoard::default());
+    let health = Arc::new(Health::default());
+    let stats = Arc::new(CycleStats::default());
+    let (updates, updates_rx) = rtrb::RingBuffer::<ControlUpdate>::new(4);
+    let (retired_tx, retired) = rtrb::RingBuffer::new(8);
+    let node = ControlNode::new(
+        core,
+        op,
+        ControlWiring {
+            sensors: Arc::clone(&sensors),
+            outputs: Arc::clone(&outputs),
+            wake: Arc::new(Wakeup::new().expect("eventfd")),
+            updates: updates_rx,
+            retired: retired_tx,
+            events: None,
+            health: Arc::clone(&health),
+            stats: Arc::clone(&stats),
+        },
+        period_ns,
+    );
+    BareNode {
+        node,
+        sensors,
+        outputs,
+        health,
+        stats,
+        updates,
+        retired,
+    }
+}
