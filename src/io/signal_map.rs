@@ -175,6 +175,18 @@ impl SignalMap {
             if let Binding::Modbus(r) = b {
                 let key = format!("sensors.{}.modbus", id.name());
                 unit_check(&mut problems, &key, r, Quantity::of_sensor(*id));
+                if r.table.is_bits() {
+                    problems.push(MapProblem {
+                        key: key.clone(),
+                        message: format!(
+                            "{} is a measured value in {}; a {} carries one bit",
+                            id.name(),
+                            id.unit(),
+                            r.table.name()
+                        ),
+                        warning: false,
+                    });
+                }
                 keyed.push((key, *r));
             }
         }
@@ -185,9 +197,11 @@ impl SignalMap {
             if r.table != super::modbus::RegisterTable::Holding {
                 problems.push(MapProblem {
                     key: key.clone(),
-                    message:
-                        "an actuator must be a holding register (input registers are read-only)"
-                            .into(),
+                    message: format!(
+                        "an actuator must be a holding register ({} in {}; input registers and discrete inputs are read-only, a coil carries one bit)",
+                        id.name(),
+                        id.unit()
+                    ),
                     warning: false,
                 });
             }

@@ -419,6 +419,8 @@ pub struct ModbusClient {
     write_words: Vec<u16>,
     /// Per write binding: encoded (true) or NaN (false).
     write_present: Vec<bool>,
+    /// Coil states of one write-multiple-coils run.
+    write_bits: Vec<bool>,
     /// Values of a sensor read before they go into the snapshot.
     read_values: Vec<f64>,
 }
@@ -449,6 +451,7 @@ impl ModbusClient {
             counters: ClientCounters::default(),
             write_words: Vec::new(),
             write_present: Vec::new(),
+            write_bits: Vec::new(),
             read_values: Vec::new(),
         })
     }
@@ -569,6 +572,10 @@ impl ModbusClient {
             let request = match req.table {
                 RegisterTable::Holding => Request::ReadHoldingRegisters(req.address, req.count),
                 RegisterTable::Input => Request::ReadInputRegisters(req.address, req.count),
+                RegisterTable::Coil => Request::ReadCoils(req.address, req.count),
+                RegisterTable::DiscreteInput => {
+                    Request::ReadDiscreteInputs(req.address, req.count)
+                }
             };
             match self.call(req, request).await {
                 Ok(Response::ReadHoldingRegisters(words) | Response::ReadInputRegisters(words))
@@ -579,6 +586,16 @@ impl ModbusClient {
                         let start = (b.address - req.address) as usize;
                         // The plan guarantees the binding lies inside the request.
                         out[i] = b.decode(&words[start..]).unwrap_or(f64::NAN);
+                    }
+                }
+                // tokio-modbus pads bit answers to whole bytes: at least `count` bits
+                Ok(Response::ReadCoils(bits) | Response::ReadDiscreteInputs(bits))
+                    if bits.len() >= req.count as usize =>
+                {
+                    for &i in plan.members(req) {
+                        let b = &plan.bindings()[i];
+                        let bit = bits[(b.address - req.address) as usize];
+                        out[i] = b.decode(&[u16::from(bit)]).unwrap_or(f64::NAN);
                     }
                 }
                 Ok(other) => {
@@ -628,8 +645,8 @@ impl ModbusClient {
     /// Write `values` (SI units, same order as [`WritePlan::bindings`]).
     ///
     /// NaN values are skipped ("not commanded"): the device keeps its last setpoint. The
-    /// remaining bindings of each planned request are sent as write-multiple (0x10) requests
-    /// over their contiguous runs. Every value is encoded before any I/O. An exception in one
+    /// remaining bindings of each planned request are sent as write-multiple (0x10, coils
+    /// 0x0F) requests over their contiguous runs (a run of one: 0x06, coil 0x05). Every value is encoded before any I/O. An exception in one
     /// request does not stop the others (the first exception is returned); a link failure
     /// stops the cycle.
     pub async fn write(
@@ -692,14 +709,24 @@ impl ModbusClient {
                 let lo = base + (run_start - req.address) as usize;
                 let hi = lo + (run_end - u32::from(run_start)) as usize;
                 let count = (hi - lo) as u16;
-                // One register: write single register (0x06), which every device has.
-                let request = if count == 1 {
-                    Request::WriteSingleRegister(run_start, self.write_words[lo])
-                } else {
-                    Request::WriteMultipleRegisters(
+                let coils = req.table == RegisterTable::Coil;
+                if coils {
+                    self.write_bits.clear();
+                    self.write_bits
+                        .extend(self.write_words[lo..hi].iter().map(|&w| w != 0));
+                }
+                // One register (coil): write single register (0x06) / coil (0x05), which
+                // every device has; a run: write multiple registers (0x10) / coils (0x0F).
+                let request = match (coils, count) {
+                    (false, 1) => Request::WriteSingleRegister(run_start, self.write_words[lo]),
+                    (false, _) => Request::WriteMultipleRegisters(
                         run_start,
                         Cow::Borrowed(&self.write_words[lo..hi]),
-                    )
+                    ),
+                    (true, 1) => Request::WriteSingleCoil(run_start, self.write_bits[0]),
+                    (true, _) => {
+                        Request::WriteMultipleCoils(run_start, Cow::Borrowed(&self.write_bits))
+                    }
                 };
                 report.requests += 1;
                 match call(
@@ -713,13 +740,19 @@ impl ModbusClient {
                 .await
                 {
                     Ok(Response::WriteMultipleRegisters(addr, qty))
-                        if addr == run_start && qty == count =>
+                        if !coils && addr == run_start && qty == count =>
                     {
                         report.written += n as u32;
                         self.mark_good();
                     }
-                    Ok(Response::WriteSingleRegister(addr, _))
-                        if addr == run_start && count == 1 =>
+                    Ok(
+                        Response::WriteSingleRegister(addr, _) | Response::WriteSingleCoil(addr, _),
+                    ) if addr == run_start && count == 1 => {
+                        report.written += n as u32;
+                        self.mark_good();
+                    }
+                    Ok(Response::WriteMultipleCoils(addr, qty))
+                        if coils && addr == run_start && qty == count =>
                     {
                         report.written += n as u32;
                         self.mark_good();
@@ -956,6 +989,68 @@ mod tests {
         let mut rtu = RtuConfig::new("/dev/null", 9600);
         rtu.stop_bits = 3;
         assert!(ClientConfig::rtu(rtu).validate().is_err());
+    }
+
+    /// Coils and discrete inputs on the wire: a raw TCP peer records each request PDU and
+    /// answers like a device (function codes 0x0F, 0x05, 0x01, 0x02).
+    #[tokio::test]
+    async fn coil_and_discrete_input_bytes_on_the_wire() {
+        use crate::io::modbus::register::{DataType, RegisterBinding};
+        use tokio::io::{AsyncReadExt, AsyncWriteExt};
+        let listener = tokio::net::TcpListener::bind("127.0.0.1:0").await.unwrap();
+        let addr = listener.local_addr().unwrap();
+        let peer = tokio::spawn(async move {
+            let (mut s, _) = listener.accept().await.unwrap();
+            let mut pdus = Vec::new();
+            for _ in 0..4 {
+                let mut head = [0u8; 7];
+                s.read_exact(&mut head).await.unwrap();
+                let len = u16::from_be_bytes([head[4], head[5]]) as usize;
+                let mut pdu = vec![0u8; len - 1];
+                s.read_exact(&mut pdu).await.unwrap();
+                let reply: Vec<u8> = match pdu[0] {
+                    0x0F | 0x05 => pdu[..5].to_vec(),
+                    // coils 0..3 = 1,0,1; discrete input 8 = 1: one data byte each
+                    0x01 => vec![0x01, 0x01, 0b101],
+                    0x02 => vec![0x02, 0x01, 0b1],
+                    f => panic!("unexpected function {f:#04x}"),
+                };
+                let mut out = head[..4].to_vec();
+                out.extend_from_slice(&((reply.len() + 1) as u16).to_be_bytes());
+                out.push(head[6]);
+                out.extend_from_slice(&reply);
+                s.write_all(&out).await.unwrap();
+                pdus.push((head[6], pdu));
+            }
+            pdus
+        });
+        let mut client = ModbusClient::new(ClientConfig::tcp(addr)).unwrap();
+        let coil = |a| RegisterBinding::new(7, RegisterTable::Coil, a, DataType::Bool);
+        let plan = WritePlan::new(&[coil(0), coil(1), coil(2), coil(5)]).unwrap();
+        let report = client.write(&plan, &[1.0, 0.0, 1.0, 1.0]).await.unwrap();
+        assert_eq!((report.requests, report.written), (2, 4));
+        let di = RegisterBinding::new(7, RegisterTable::DiscreteInput, 8, DataType::Bool);
+        // an inverted (normally closed) contact read from the same input
+        let read = ReadPlan::new(&[coil(2), coil(1), coil(0), di, di.with_scaling(-1.0, 1.0)])
+            .unwrap();
+        assert_eq!(read.requests().len(), 2);
+        let mut out = [f64::NAN; 5];
+        client.read(&read, &mut out).await.unwrap();
+        assert_eq!(out, [1.0, 0.0, 1.0, 1.0, 0.0]);
+        let pdus = peer.await.unwrap();
+        assert!(pdus.iter().all(|(unit, _)| *unit == 7));
+        assert_eq!(
+            pdus[0].1,
+            [0x0F, 0x00, 0x00, 0x00, 0x03, 0x01, 0b101],
+            "coils 0..3 in one write-multiple-coils, LSB first"
+        );
+        assert_eq!(
+            pdus[1].1,
+            [0x05, 0x00, 0x05, 0xFF, 0x00],
+            "a lone coil: write single coil, ON = FF00"
+        );
+        assert_eq!(pdus[2].1, [0x01, 0x00, 0x00, 0x00, 0x03], "read coils 0..3");
+        assert_eq!(pdus[3].1, [0x02, 0x00, 0x08, 0x00, 0x01], "read discrete input 8");
     }
 
     #[test]

@@ -16,6 +16,20 @@ use super::register::{find_overlaps, BindingError, RegisterBinding, RegisterTabl
 pub const MAX_READ_REGISTERS: u16 = 125;
 /// Most registers one write-multiple request (function 0x10) may carry (Modbus spec).
 pub const MAX_WRITE_REGISTERS: u16 = 123;
+/// Most bits one read-coils / read-discrete-inputs request (0x01/0x02) may ask for (spec).
+pub const MAX_READ_BITS: u16 = 2000;
+/// Most coils one write-multiple-coils request (0x0F) may carry (Modbus spec).
+pub const MAX_WRITE_BITS: u16 = 1968;
+
+/// Largest request in `table`: registers for register tables, bits for bit tables.
+pub const fn max_count(table: RegisterTable, read: bool) -> u16 {
+    match (table.is_bits(), read) {
+        (false, true) => MAX_READ_REGISTERS,
+        (false, false) => MAX_WRITE_REGISTERS,
+        (true, true) => MAX_READ_BITS,
+        (true, false) => MAX_WRITE_BITS,
+    }
+}
 
 /// One Modbus request of a plan: a contiguous register range of one unit and table.
 #[derive(Debug, Clone, PartialEq, Eq)]
@@ -45,11 +59,14 @@ pub enum PlanError {
         /// What is wrong with it.
         source: BindingError,
     },
-    /// A write binding points at the input table, which clients cannot write.
-    #[error("binding #{index} is in the input table, which is read-only")]
+    /// A write binding points at the input or discrete-input table, which clients cannot
+    /// write.
+    #[error("binding #{index} is in the {} table, which is read-only", table.name())]
     ReadOnlyTable {
         /// Index of the binding in the list given.
         index: usize,
+        /// The read-only table.
+        table: RegisterTable,
     },
     /// Two write bindings share registers.
     #[error("write bindings #{first} and #{second} overlap")]
@@ -61,16 +78,12 @@ pub enum PlanError {
     },
 }
 
-/// Group bindings (indices sorted by unit, table, address) into requests of at most `max`
-/// registers, merging ranges that touch or overlap.
-fn group(bindings: &[RegisterBinding], max: u16) -> (Vec<usize>, Vec<PlannedRequest>) {
-    group_with(bindings, max, true)
-}
-
-/// As [`group`]; `merge = false` gives every binding its own request.
+/// Group bindings (indices sorted by unit, table, address) into requests of at most
+/// [`max_count`] registers or bits, merging ranges that touch or overlap. `merge = false`
+/// gives every binding its own request.
 fn group_with(
     bindings: &[RegisterBinding],
-    max: u16,
+    read: bool,
     merge: bool,
 ) -> (Vec<usize>, Vec<PlannedRequest>) {
     let mut order: Vec<usize> = (0..bindings.len()).collect();
@@ -90,7 +103,7 @@ fn group_with(
                 && last.unit_id == b.unit_id
                 && last.table == b.table
                 && u32::from(b.address) <= end
-                && new_end - start <= u32::from(max)
+                && new_end - start <= u32::from(max_count(b.table, read))
             {
                 word_offset += (new_end - end) as usize;
                 last.count = (new_end - start) as u16;
@@ -133,7 +146,7 @@ impl ReadPlan {
     /// registers may be decoded twice, e.g. as raw and scaled values).
     pub fn new(bindings: &[RegisterBinding]) -> Result<ReadPlan, PlanError> {
         validate_all(bindings)?;
-        let (order, requests) = group(bindings, MAX_READ_REGISTERS);
+        let (order, requests) = group_with(bindings, true, true);
         Ok(ReadPlan {
             bindings: bindings.to_vec(),
             order,
@@ -168,7 +181,7 @@ impl ReadPlan {
 }
 
 /// Bindings to write each cycle, grouped into write-multiple requests. All bindings must be
-/// holding registers and must not overlap.
+/// holding registers or coils and must not overlap.
 #[derive(Debug, Clone, PartialEq)]
 pub struct WritePlan {
     bindings: Vec<RegisterBinding>,
@@ -192,11 +205,11 @@ impl WritePlan {
 
     fn build(bindings: &[RegisterBinding], merge: bool) -> Result<WritePlan, PlanError> {
         validate_all(bindings)?;
-        if let Some(index) = bindings
-            .iter()
-            .position(|b| b.table != RegisterTable::Holding)
-        {
-            return Err(PlanError::ReadOnlyTable { index });
+        if let Some(index) = bindings.iter().position(|b| !b.table.is_writable()) {
+            return Err(PlanError::ReadOnlyTable {
+                index,
+                table: bindings[index].table,
+            });
         }
         if let Some(o) = find_overlaps(bindings).first() {
             return Err(PlanError::Overlap {
@@ -204,7 +217,7 @@ impl WritePlan {
                 second: o.second,
             });
         }
-        let (order, requests) = group_with(bindings, MAX_WRITE_REGISTERS, merge);
+        let (order, requests) = group_with(bindings, false, merge);
         let total_words = requests.iter().map(|r| r.count as usize).sum();
         Ok(WritePlan {
             bindings: bindings.to_vec(),
@@ -323,7 +336,10 @@ mod tests {
                 rb(1, Holding, 0, DataType::U16),
                 rb(1, Input, 0, DataType::U16)
             ]),
-            Err(PlanError::ReadOnlyTable { index: 1 })
+            Err(PlanError::ReadOnlyTable {
+                index: 1,
+                table: Input
+            })
         );
         assert_eq!(
             WritePlan::new(&[
@@ -339,6 +355,59 @@ mod tests {
             ReadPlan::new(&[rb(1, Holding, 0, DataType::U16).with_scaling(0.0, 0.0)]),
             Err(PlanError::InvalidBinding { index: 0, .. })
         ));
+    }
+
+    #[test]
+    fn contiguous_coils_share_one_request_and_discrete_inputs_are_read_only() {
+        use RegisterTable::{Coil, DiscreteInput};
+        let coils = [
+            rb(1, Coil, 2, DataType::Bool),
+            rb(1, Coil, 0, DataType::Bool),
+            rb(1, Coil, 1, DataType::Bool),
+            rb(1, Coil, 5, DataType::Bool), // gap: own request
+            rb(1, Holding, 0, DataType::U16),
+        ];
+        let w = WritePlan::new(&coils).unwrap();
+        let r: Vec<(RegisterTable, u16, u16)> = w
+            .requests()
+            .iter()
+            .map(|q| (q.table, q.address, q.count))
+            .collect();
+        assert_eq!(r, [(Holding, 0, 1), (Coil, 0, 3), (Coil, 5, 1)]);
+        let read = ReadPlan::new(&[
+            rb(1, DiscreteInput, 0, DataType::Bool),
+            rb(1, DiscreteInput, 1, DataType::Bool),
+            rb(1, Input, 1, DataType::U16),
+        ])
+        .unwrap();
+        let r: Vec<(RegisterTable, u16, u16)> = read
+            .requests()
+            .iter()
+            .map(|q| (q.table, q.address, q.count))
+            .collect();
+        assert_eq!(r, [(Input, 1, 1), (DiscreteInput, 0, 2)]);
+        assert_eq!(
+            WritePlan::new(&[rb(1, DiscreteInput, 0, DataType::Bool)]),
+            Err(PlanError::ReadOnlyTable {
+                index: 0,
+                table: DiscreteInput
+            })
+        );
+        assert!(matches!(
+            WritePlan::new(&[rb(1, Coil, 0, DataType::U16)]),
+            Err(PlanError::InvalidBinding { index: 0, .. })
+        ));
+    }
+
+    #[test]
+    fn bit_requests_respect_the_bit_limits() {
+        // 2100 contiguous coils: reads of 2000 + 100 bits, writes of 1968 + 132 coils
+        let list: Vec<_> = (0..2100)
+            .map(|k| rb(1, RegisterTable::Coil, k, DataType::Bool))
+            .collect();
+        let counts = |r: &[PlannedRequest]| r.iter().map(|q| q.count).collect::<Vec<_>>();
+        assert_eq!(counts(ReadPlan::new(&list).unwrap().requests()), [2000, 100]);
+        assert_eq!(counts(WritePlan::new(&list).unwrap().requests()), [1968, 132]);
     }
 
     #[test]

@@ -14,7 +14,7 @@
 use serde::{Deserialize, Serialize};
 use thiserror::Error;
 
-/// Which register table a binding lives in. Coils and discrete inputs are not supported.
+/// Which table a binding lives in: two 16-bit register tables and two one-bit tables.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, PartialOrd, Ord, Serialize, Deserialize)]
 #[serde(rename_all = "snake_case")]
 pub enum RegisterTable {
@@ -22,6 +22,12 @@ pub enum RegisterTable {
     Holding,
     /// Input registers (read with function 0x04). Read-only from the client's side.
     Input,
+    /// Coils: single bits, read with function 0x01, written with 0x05/0x0F. Read/write.
+    /// Modicon numbers 00001–09999.
+    Coil,
+    /// Discrete inputs: single bits, read with function 0x02. Read-only from the client's
+    /// side. Modicon numbers 10001–19999.
+    DiscreteInput,
 }
 
 impl RegisterTable {
@@ -30,7 +36,20 @@ impl RegisterTable {
         match self {
             RegisterTable::Holding => "holding",
             RegisterTable::Input => "input",
+            RegisterTable::Coil => "coil",
+            RegisterTable::DiscreteInput => "discrete_input",
         }
+    }
+
+    /// Whether the table holds single bits (coils, discrete inputs) rather than 16-bit
+    /// registers. Bit tables carry only [`DataType::Bool`]; register tables never do.
+    pub const fn is_bits(self) -> bool {
+        matches!(self, RegisterTable::Coil | RegisterTable::DiscreteInput)
+    }
+
+    /// Whether a client may write the table (holding registers and coils).
+    pub const fn is_writable(self) -> bool {
+        matches!(self, RegisterTable::Holding | RegisterTable::Coil)
     }
 }
 
@@ -54,15 +73,32 @@ pub enum DataType {
     I64,
     /// IEEE-754 binary64, 4 registers.
     F64,
+    /// One bit (a coil or a discrete input): raw 0 or 1. Only in the bit tables.
+    Bool,
 }
 
 impl DataType {
-    /// Number of 16-bit registers the type occupies.
+    /// Number of 16-bit registers (for [`DataType::Bool`]: bits) the type occupies.
     pub const fn register_count(self) -> u16 {
         match self {
-            DataType::U16 | DataType::I16 => 1,
+            DataType::U16 | DataType::I16 | DataType::Bool => 1,
             DataType::U32 | DataType::I32 | DataType::F32 => 2,
             DataType::U64 | DataType::I64 | DataType::F64 => 4,
+        }
+    }
+
+    /// Lower-case name, as in config files.
+    pub const fn name(self) -> &'static str {
+        match self {
+            DataType::U16 => "u16",
+            DataType::I16 => "i16",
+            DataType::U32 => "u32",
+            DataType::I32 => "i32",
+            DataType::F32 => "f32",
+            DataType::U64 => "u64",
+            DataType::I64 => "i64",
+            DataType::F64 => "f64",
+            DataType::Bool => "bool",
         }
     }
 
@@ -173,7 +209,8 @@ struct RawRegisterBinding {
 }
 
 /// Table and 0-based protocol address of a Modicon register number (`40001` → holding 0,
-/// `30010` → input 9; six-digit numbers `400001` … as well).
+/// `30010` → input 9, `00001` → coil 0, `10001` → discrete input 0; six-digit numbers
+/// `400001` … as well).
 pub fn modicon(register: u32) -> Result<(RegisterTable, u16), String> {
     let (prefix, n) = if register >= 100_000 {
         (register / 100_000, register % 100_000)
@@ -183,20 +220,17 @@ pub fn modicon(register: u32) -> Result<(RegisterTable, u16), String> {
     let table = match prefix {
         4 => RegisterTable::Holding,
         3 => RegisterTable::Input,
-        0 | 1 => {
-            return Err(format!(
-                "register {register} is a coil or discrete input (0xxxx/1xxxx); only 3xxxx input and 4xxxx holding registers carry values"
-            ))
-        }
+        1 => RegisterTable::DiscreteInput,
+        0 => RegisterTable::Coil,
         _ => {
             return Err(format!(
-                "register {register} is not a Modicon number (3xxxx input, 4xxxx holding, 1-based)"
+                "register {register} is not a Modicon number (0xxxx coil, 1xxxx discrete input, 3xxxx input, 4xxxx holding, 1-based)"
             ))
         }
     };
     if n == 0 || n > 65_536 {
         return Err(format!(
-            "register {register}: Modicon numbers are 1-based (40001 is holding address 0)"
+            "register {register}: Modicon numbers are 1-based (40001 is holding address 0, 00001 coil 0)"
         ));
     }
     Ok((table, (n - 1) as u16))
@@ -233,6 +267,20 @@ impl TryFrom<RawRegisterBinding> for RegisterBinding {
                 )
             }
         };
+        if table.is_bits() != (r.data_type == DataType::Bool) {
+            return Err(if table.is_bits() {
+                format!(
+                    "a {} holds one bit: use data_type = \"bool\", not \"{}\"",
+                    table.name(),
+                    r.data_type.name()
+                )
+            } else {
+                format!(
+                    "data_type = \"bool\" is one bit: it lives in a coil (0xxxx, table = \"coil\") or a discrete input (1xxxx, table = \"discrete_input\"), not in the {} registers",
+                    table.name()
+                )
+            });
+        }
         let unit = match r.unit {
             None => None,
             Some(u) => Some(crate::io::units::Unit::static_name(&u).ok_or_else(|| {
@@ -310,6 +358,15 @@ pub enum BindingError {
     /// `offset` is NaN, infinite or beyond ±[`MAX_OFFSET`].
     #[error("offset must be finite and within ±1e12 (SI units), got {0}")]
     BadOffset(f64),
+    /// A one-bit table (coil, discrete input) with a value type, or `bool` in a register
+    /// table.
+    #[error("data type {} does not fit the {} table (bool is for coils and discrete inputs only)", data_type.name(), table.name())]
+    TableType {
+        /// The table.
+        table: RegisterTable,
+        /// The data type.
+        data_type: DataType,
+    },
     /// The binding runs past protocol address 65535.
     #[error("{count} registers starting at {address} run past address 65535")]
     AddressOverflow {
@@ -370,8 +427,14 @@ impl RegisterBinding {
         self.address as u32 + self.register_count() as u32
     }
 
-    /// Check scale, offset and address range.
+    /// Check table and data type, scale, offset and address range.
     pub fn validate(&self) -> Result<(), BindingError> {
+        if self.table.is_bits() != (self.data_type == DataType::Bool) {
+            return Err(BindingError::TableType {
+                table: self.table,
+                data_type: self.data_type,
+            });
+        }
         if !(MIN_SCALE..=MAX_SCALE).contains(&self.scale.abs()) {
             return Err(BindingError::BadScale(self.scale));
         }
@@ -476,6 +539,8 @@ impl RegisterBinding {
                     (raw.to_bits(), false)
                 }
             }
+            // one bit: raw ≥ 0.5 is set; anything outside [0, 1] is clamped
+            DataType::Bool => (u64::from(raw >= 0.5), !(0.0..=1.0).contains(&raw)),
         };
         put_words(bits, n, self.byte_order, self.word_order, out);
         Ok(if clamped {
@@ -505,6 +570,7 @@ impl RegisterBinding {
             DataType::I64 => bits as i64 as f64,
             DataType::F32 => f32::from_bits(bits as u32) as f64,
             DataType::F64 => f64::from_bits(bits),
+            DataType::Bool => f64::from(u8::from(bits & 1 != 0)),
         };
         Ok(raw * self.scale + self.offset)
     }
@@ -847,6 +913,80 @@ mod tests {
         assert!(find_overlaps(&list[..2]).is_empty());
     }
 
+    fn parse(t: &str) -> Result<RegisterBinding, String> {
+        toml::from_str::<RegisterBinding>(t).map_err(|e| e.to_string())
+    }
+
+    #[test]
+    fn modicon_numbers_of_all_four_tables() {
+        use RegisterTable::*;
+        assert_eq!(modicon(1), Ok((Coil, 0)));
+        assert_eq!(modicon(9_999), Ok((Coil, 9_998)));
+        assert_eq!(modicon(10_001), Ok((DiscreteInput, 0)));
+        assert_eq!(modicon(10_017), Ok((DiscreteInput, 16)));
+        assert_eq!(modicon(100_001), Ok((DiscreteInput, 0)));
+        assert_eq!(modicon(30_001), Ok((Input, 0)));
+        assert_eq!(modicon(40_004), Ok((Holding, 3)));
+        assert!(modicon(0).unwrap_err().contains("1-based"));
+        assert!(modicon(10_000).unwrap_err().contains("1-based"));
+        assert!(modicon(20_001).unwrap_err().contains("not a Modicon number"));
+    }
+
+    #[test]
+    fn bits_live_in_bit_tables_and_values_in_registers() {
+        let coil = parse("unit_id = 1\nregister = 17\ndata_type = \"bool\"").unwrap();
+        assert_eq!((coil.table, coil.address), (RegisterTable::Coil, 16));
+        assert!(!coil.address_looks_modicon);
+        let di = parse("unit_id = 1\nregister = 10003\ndata_type = \"bool\"").unwrap();
+        assert_eq!((di.table, di.address), (RegisterTable::DiscreteInput, 2));
+        let di = parse("unit_id = 1\ntable = \"discrete_input\"\naddress = 2\ndata_type = \"bool\"")
+            .unwrap();
+        assert_eq!((di.table, di.address), (RegisterTable::DiscreteInput, 2));
+        // the same Modicon-looking warning logic under the protocol key
+        let looks =
+            parse("unit_id = 1\ntable = \"coil\"\naddress = 10001\ndata_type = \"bool\"").unwrap();
+        assert!(looks.address_looks_modicon);
+        let e = parse("unit_id = 1\nregister = 40001\ndata_type = \"bool\"").unwrap_err();
+        assert!(
+            e.contains("data_type = \"bool\" is one bit") && e.contains("not in the holding registers"),
+            "{e}"
+        );
+        let e = parse("unit_id = 1\nregister = 10001\ndata_type = \"f32\"").unwrap_err();
+        assert!(e.contains("a discrete_input holds one bit"), "{e}");
+        // built in code: validate() refuses the mix
+        assert_eq!(
+            RegisterBinding::new(1, RegisterTable::Coil, 0, DataType::U16).validate(),
+            Err(BindingError::TableType {
+                table: RegisterTable::Coil,
+                data_type: DataType::U16
+            })
+        );
+        assert!(RegisterBinding::new(1, RegisterTable::Input, 0, DataType::Bool)
+            .validate()
+            .is_err());
+    }
+
+    #[test]
+    fn bool_encodes_one_bit() {
+        let c = RegisterBinding::new(1, RegisterTable::Coil, 0, DataType::Bool);
+        assert_eq!(c.register_count(), 1);
+        assert_eq!(enc(&c, 1.0), (vec![1], EncodeOutcome::InRange));
+        assert_eq!(enc(&c, 0.0), (vec![0], EncodeOutcome::InRange));
+        assert_eq!(enc(&c, 0.6), (vec![1], EncodeOutcome::InRange));
+        assert_eq!(enc(&c, 0.4), (vec![0], EncodeOutcome::InRange));
+        assert_eq!(enc(&c, 7.0), (vec![1], EncodeOutcome::Clamped));
+        assert_eq!(enc(&c, -1.0), (vec![0], EncodeOutcome::Clamped));
+        assert_eq!(c.decode(&[1]).unwrap(), 1.0);
+        assert_eq!(c.decode(&[0]).unwrap(), 0.0);
+        // an inverted (normally closed) contact: physical = 1 − raw
+        let nc = c.with_scaling(-1.0, 1.0);
+        assert_eq!(nc.decode(&[0]).unwrap(), 1.0);
+        assert_eq!(enc(&nc, 1.0).0, vec![0]);
+        let mut out = [5u16];
+        assert_eq!(c.encode(f64::NAN, &mut out), Err(EncodeError::NotANumber));
+        assert_eq!(out, [5]);
+    }
+
     #[test]
     fn deserializes_from_toml_with_defaults() {
         let b: RegisterBinding = toml::from_str(
@@ -867,8 +1007,10 @@ mod tests {
         assert_eq!((b.scale, b.offset), (1.0, 0.0));
         let bad = toml::from_str::<RegisterBinding>(
             "unit_id = 1\ntable = \"coil\"\naddress = 0\ndata_type = \"u16\"",
-        );
-        assert!(bad.is_err());
+        )
+        .unwrap_err()
+        .to_string();
+        assert!(bad.contains("a coil holds one bit: use data_type = \"bool\", not \"u16\""), "{bad}");
         let unknown = toml::from_str::<RegisterBinding>(
             "unit_id = 1\ntable = \"input\"\naddress = 0\ndata_type = \"u16\"\nscael = 2.0",
         );

@@ -40,11 +40,13 @@ pub enum ResponseMode {
     Delay(Duration),
 }
 
-/// Registers of one unit id.
+/// Registers of one unit id. Coils and discrete inputs are stored as words 0/1.
 #[derive(Debug, Clone, Default, PartialEq, Eq)]
 struct UnitRegisters {
     holding: BTreeMap<u16, u16>,
     input: BTreeMap<u16, u16>,
+    coil: BTreeMap<u16, u16>,
+    discrete_input: BTreeMap<u16, u16>,
 }
 
 impl UnitRegisters {
@@ -52,14 +54,71 @@ impl UnitRegisters {
         match table {
             RegisterTable::Holding => &self.holding,
             RegisterTable::Input => &self.input,
+            RegisterTable::Coil => &self.coil,
+            RegisterTable::DiscreteInput => &self.discrete_input,
         }
     }
     fn table_mut(&mut self, table: RegisterTable) -> &mut BTreeMap<u16, u16> {
         match table {
             RegisterTable::Holding => &mut self.holding,
             RegisterTable::Input => &mut self.input,
+            RegisterTable::Coil => &mut self.coil,
+            RegisterTable::DiscreteInput => &mut self.discrete_input,
         }
     }
+}
+
+/// Serve the bit-table requests (read coils / discrete inputs, write coils) from `image`.
+/// `None`: not a bit request. `Some(Ok(n))`: answered; `n` coils were written (0 for reads).
+pub(crate) fn handle_bits(
+    image: &mut RegisterImage,
+    unit_id: u8,
+    request: &Request<'_>,
+) -> Option<Result<(Response, u16), ExceptionCode>> {
+    use super::plan::{MAX_READ_BITS, MAX_WRITE_BITS};
+    let addr_err = |_| ExceptionCode::IllegalDataAddress;
+    Some(match request {
+        Request::ReadCoils(addr, cnt) | Request::ReadDiscreteInputs(addr, cnt) => {
+            let coils = matches!(request, Request::ReadCoils(..));
+            let table = if coils {
+                RegisterTable::Coil
+            } else {
+                RegisterTable::DiscreteInput
+            };
+            if *cnt == 0 || *cnt > MAX_READ_BITS {
+                return Some(Err(ExceptionCode::IllegalDataValue));
+            }
+            let mut words = vec![0u16; usize::from(*cnt)];
+            image
+                .read_words(unit_id, table, *addr, &mut words)
+                .map_err(addr_err)
+                .map(|()| {
+                    let bits: Vec<bool> = words.iter().map(|&w| w != 0).collect();
+                    let response = if coils {
+                        Response::ReadCoils(bits)
+                    } else {
+                        Response::ReadDiscreteInputs(bits)
+                    };
+                    (response, 0)
+                })
+        }
+        Request::WriteSingleCoil(addr, on) => image
+            .write_words(unit_id, RegisterTable::Coil, *addr, &[u16::from(*on)])
+            .map_err(addr_err)
+            .map(|()| (Response::WriteSingleCoil(*addr, *on), 1)),
+        Request::WriteMultipleCoils(addr, bits) => {
+            if bits.is_empty() || bits.len() > usize::from(MAX_WRITE_BITS) {
+                return Some(Err(ExceptionCode::IllegalDataValue));
+            }
+            let words: Vec<u16> = bits.iter().map(|&b| u16::from(b)).collect();
+            let n = words.len() as u16;
+            image
+                .write_words(unit_id, RegisterTable::Coil, *addr, &words)
+                .map_err(addr_err)
+                .map(|()| (Response::WriteMultipleCoils(*addr, n), n))
+        }
+        _ => return None,
+    })
 }
 
 /// An image access that does not fit the mapped registers.
@@ -271,9 +330,10 @@ impl RegisterImage {
                 let mut words = vec![0u16; *cnt as usize];
                 self.read_words(unit_id, table, *addr, &mut words)
                     .map_err(addr_err)?;
-                Ok(Some(match table {
-                    RegisterTable::Holding => Response::ReadHoldingRegisters(words),
-                    RegisterTable::Input => Response::ReadInputRegisters(words),
+                Ok(Some(if table == RegisterTable::Holding {
+                    Response::ReadHoldingRegisters(words)
+                } else {
+                    Response::ReadInputRegisters(words)
                 }))
             }
             Request::WriteSingleRegister(addr, word) => {
@@ -327,7 +387,16 @@ impl RegisterImage {
                     .map_err(addr_err)?;
                 Ok(Some(Response::ReadWriteMultipleRegisters(out)))
             }
-            _ => Err(ExceptionCode::IllegalFunction),
+            _ => match handle_bits(self, unit_id, request) {
+                Some(r) => {
+                    let (response, written) = r?;
+                    if written > 0 {
+                        self.client_writes += 1;
+                    }
+                    Ok(Some(response))
+                }
+                None => Err(ExceptionCode::IllegalFunction),
+            },
         }
     }
 }
@@ -584,7 +653,8 @@ mod tests {
         );
         assert_eq!(
             h(&mut img, 1, Request::ReadCoils(0, 1), false),
-            Err(ExceptionCode::IllegalFunction)
+            Err(ExceptionCode::IllegalDataAddress),
+            "no coil mapped"
         );
         // Unknown unit: gateway exception over TCP, silence on a serial bus.
         assert_eq!(
@@ -596,5 +666,48 @@ mod tests {
             Ok(None)
         );
         assert_eq!(img.client_writes(), 3);
+    }
+
+    #[test]
+    fn coils_and_discrete_inputs_are_served() {
+        let mut img = image();
+        img.map(1, RegisterTable::Coil, 0, 3);
+        img.map(1, RegisterTable::DiscreteInput, 4, 2);
+        let di = RegisterBinding::new(1, RegisterTable::DiscreteInput, 5, DataType::Bool);
+        assert_eq!(img.set_value(&di, 1.0), Ok(EncodeOutcome::InRange));
+        let mut h = |r: Request<'_>| img.handle(1, &r, false);
+        assert_eq!(
+            h(Request::WriteMultipleCoils(0, Cow::Borrowed(&[true, false, true]))),
+            Ok(Some(Response::WriteMultipleCoils(0, 3)))
+        );
+        assert_eq!(
+            h(Request::WriteSingleCoil(1, true)),
+            Ok(Some(Response::WriteSingleCoil(1, true)))
+        );
+        assert_eq!(
+            h(Request::ReadCoils(0, 3)),
+            Ok(Some(Response::ReadCoils(vec![true, true, true])))
+        );
+        assert_eq!(
+            h(Request::ReadDiscreteInputs(4, 2)),
+            Ok(Some(Response::ReadDiscreteInputs(vec![false, true])))
+        );
+        // a coil the device does not have: exception 2, nothing written
+        assert_eq!(
+            h(Request::WriteMultipleCoils(2, Cow::Borrowed(&[false, false]))),
+            Err(ExceptionCode::IllegalDataAddress)
+        );
+        assert_eq!(
+            h(Request::ReadCoils(0, 2001)),
+            Err(ExceptionCode::IllegalDataValue)
+        );
+        // discrete inputs cannot be written (there is no function for it)
+        assert_eq!(
+            h(Request::ReadDiscreteInputs(3, 1)),
+            Err(ExceptionCode::IllegalDataAddress)
+        );
+        let c = RegisterBinding::new(1, RegisterTable::Coil, 2, DataType::Bool);
+        assert_eq!(img.value(&c), Ok(1.0));
+        assert_eq!(img.client_writes(), 2);
     }
 }

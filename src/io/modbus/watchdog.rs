@@ -8,7 +8,7 @@
 //! | key      | written value                                                            |
 //! |----------|--------------------------------------------------------------------------|
 //! | `alive`  | counter, +1 with every output set, wraps after `alive_max` (default: the largest value of its data type) to 0 |
-//! | `toggle` | 0, 1, 0, 1 … with every output set                                       |
+//! | `toggle` | 0, 1, 0, 1 … with every output set; a holding register or a **coil** (`data_type = "bool"`, Modicon 0xxxx, written with 0x05) |
 //! | `mode`   | controller mode: 0 init, 1 manual, 2 auto, 3 fail_safe, 4 shutdown      |
 //! | `law`    | active law id (as in the DBC's ActiveLaw table)                          |
 //! | `faults` | fault word of [`crate::faults`] (0 = healthy)                            |
@@ -20,6 +20,13 @@
 //! [watchdog.modbus]
 //! alive = { unit_id = 1, register = 40004, data_type = "u16" }
 //! timeout_ms = 300
+//! ```
+//!
+//! A device whose watchdog watches a coil (a PLC's "controller alive" bit):
+//!
+//! ```toml
+//! [watchdog.modbus]
+//! toggle = { unit_id = 1, register = 1, data_type = "bool" }   # coil 00001
 //! ```
 
 use serde::{Deserialize, Serialize};
@@ -111,8 +118,8 @@ impl ModbusWatchdog {
         }
     }
 
-    /// Problems as `(key, message)`: no alive/toggle, a part outside the holding table, a
-    /// bad `timeout_ms`, an `alive_max` of 0.
+    /// Problems as `(key, message)`: no alive/toggle, a part outside the holding table (the
+    /// toggle: holding or coil), a bad `timeout_ms`, an `alive_max` of 0.
     pub fn problems(&self) -> Vec<(String, String)> {
         let mut out = Vec::new();
         if self.alive.is_none() && self.toggle.is_none() {
@@ -123,10 +130,17 @@ impl ModbusWatchdog {
             ));
         }
         for (p, b) in self.parts() {
-            if b.table != RegisterTable::Holding {
+            if p == WatchdogPart::Toggle && b.table == RegisterTable::Coil {
+                // one bit that flips: a coil is the natural home of a toggle
+            } else if b.table != RegisterTable::Holding {
                 out.push((
                     format!("watchdog.modbus.{}", p.key()),
-                    "must be a holding register (4xxxx): the controller writes it".to_string(),
+                    if p == WatchdogPart::Toggle {
+                        "must be a holding register (4xxxx) or a coil (0xxxx): the controller writes it"
+                    } else {
+                        "must be a holding register (4xxxx): the controller writes it"
+                    }
+                    .to_string(),
                 ));
             }
             if let Err(e) = b.validate() {
@@ -217,6 +231,37 @@ mod tests {
         assert_eq!(seen, [1.0, 2.0, 3.0, 0.0, 1.0]);
         w.values(&wd, 2, 1, 0, false, &mut out);
         assert_eq!(out[0], 1.0, "withheld: the counter stands still");
+    }
+
+    #[test]
+    fn a_toggle_may_live_on_a_coil_a_counter_may_not() {
+        let wd: ModbusWatchdog =
+            toml::from_str("toggle = { unit_id = 1, register = 1, data_type = \"bool\" }\n")
+                .unwrap();
+        let t = wd.toggle.unwrap();
+        assert_eq!((t.table, t.address), (RegisterTable::Coil, 0));
+        assert!(wd.problems().is_empty(), "{:?}", wd.problems());
+        let mut w = WatchdogWriter::default();
+        let mut out = [0.0];
+        let mut words = Vec::new();
+        for _ in 0..4 {
+            w.values(&wd, 2, 1, 0, true, &mut out);
+            let mut word = [9u16];
+            let _ = t.encode(out[0], &mut word).unwrap();
+            words.push(word[0]);
+        }
+        assert_eq!(words, [1, 0, 1, 0], "the coil flips with every output set");
+        let bad: ModbusWatchdog = toml::from_str(
+            "alive = { unit_id = 1, register = 2, data_type = \"bool\" }\nmode = { unit_id = 1, register = 3, data_type = \"bool\" }\n",
+        )
+        .unwrap();
+        let p = bad.problems();
+        for key in ["watchdog.modbus.alive", "watchdog.modbus.mode"] {
+            assert!(
+                p.iter().any(|(k, m)| k == key && m.contains("holding register (4xxxx):")),
+                "{key}: {p:?}"
+            );
+        }
     }
 
     #[test]

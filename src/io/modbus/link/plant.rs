@@ -26,9 +26,11 @@ use super::{
     check_map, counters, HeartbeatRegister, HeartbeatWords, LinkError, ModbusServerConfig,
     HEARTBEAT_REGISTERS,
 };
-use crate::io::modbus::plan::{MAX_READ_REGISTERS, MAX_WRITE_REGISTERS};
+use crate::io::modbus::plan::{max_count, MAX_WRITE_REGISTERS};
 use crate::io::modbus::register::{RegisterBinding, RegisterTable};
-use crate::io::modbus::server::{lock_image, RegisterImage, ResponseMode, SharedImage};
+use crate::io::modbus::server::{
+    handle_bits, lock_image, RegisterImage, ResponseMode, SharedImage,
+};
 use crate::io::signal_map::SignalMap;
 use crate::runtime::handoff::{
     monotonic_ns, CommandBoard, HeartbeatBoard, HeartbeatSeen, SnapshotBoard,
@@ -161,14 +163,17 @@ impl Shared {
         }
         let unmapped = |_| ExceptionCode::IllegalDataAddress;
         match request {
-            Request::ReadHoldingRegisters(addr, cnt) | Request::ReadInputRegisters(addr, cnt) => {
-                let holding = matches!(request, Request::ReadHoldingRegisters(..));
-                let table = if holding {
-                    RegisterTable::Holding
-                } else {
-                    RegisterTable::Input
+            Request::ReadHoldingRegisters(addr, cnt)
+            | Request::ReadInputRegisters(addr, cnt)
+            | Request::ReadCoils(addr, cnt)
+            | Request::ReadDiscreteInputs(addr, cnt) => {
+                let table = match request {
+                    Request::ReadHoldingRegisters(..) => RegisterTable::Holding,
+                    Request::ReadInputRegisters(..) => RegisterTable::Input,
+                    Request::ReadCoils(..) => RegisterTable::Coil,
+                    _ => RegisterTable::DiscreteInput,
                 };
-                if *cnt == 0 || *cnt > MAX_READ_REGISTERS {
+                if *cnt == 0 || *cnt > max_count(table, true) {
                     return Err(ExceptionCode::IllegalDataValue);
                 }
                 self.refresh(image, state);
@@ -191,17 +196,33 @@ impl Shared {
                     });
                 }
                 self.counters.reads.fetch_add(1, Ordering::Relaxed);
-                Ok(if holding {
-                    Response::ReadHoldingRegisters(words)
-                } else {
-                    Response::ReadInputRegisters(words)
+                let bits = || words.iter().map(|&w| w != 0).collect();
+                Ok(match table {
+                    RegisterTable::Holding => Response::ReadHoldingRegisters(words),
+                    RegisterTable::Input => Response::ReadInputRegisters(words),
+                    RegisterTable::Coil => Response::ReadCoils(bits()),
+                    RegisterTable::DiscreteInput => Response::ReadDiscreteInputs(bits()),
                 })
+            }
+            Request::WriteSingleCoil(..) | Request::WriteMultipleCoils(..) => {
+                match handle_bits(image, unit_id, request) {
+                    Some(Ok((response, n))) => {
+                        let addr = match request {
+                            Request::WriteSingleCoil(a, _) | Request::WriteMultipleCoils(a, _) => *a,
+                            _ => 0,
+                        };
+                        self.after_write(image, state, unit_id, RegisterTable::Coil, addr, n, t_ns);
+                        Ok(response)
+                    }
+                    Some(Err(e)) => Err(e),
+                    None => Err(ExceptionCode::IllegalFunction),
+                }
             }
             Request::WriteSingleRegister(addr, word) => {
                 image
                     .write_words(unit_id, RegisterTable::Holding, *addr, &[*word])
                     .map_err(unmapped)?;
-                self.after_write(image, state, unit_id, *addr, 1, t_ns);
+                self.after_write(image, state, unit_id, RegisterTable::Holding, *addr, 1, t_ns);
                 Ok(Response::WriteSingleRegister(*addr, *word))
             }
             Request::WriteMultipleRegisters(addr, words) => {
@@ -212,19 +233,22 @@ impl Shared {
                     .write_words(unit_id, RegisterTable::Holding, *addr, words)
                     .map_err(unmapped)?;
                 let n = words.len() as u16;
-                self.after_write(image, state, unit_id, *addr, n, t_ns);
+                self.after_write(image, state, unit_id, RegisterTable::Holding, *addr, n, t_ns);
                 Ok(Response::WriteMultipleRegisters(*addr, n))
             }
             _ => Err(ExceptionCode::IllegalFunction),
         }
     }
 
-    /// Publish the setpoints a write touched, and the heartbeat.
+    /// Publish the setpoints a write (of `table`: holding registers or coils) touched, and
+    /// the heartbeat.
+    #[allow(clippy::too_many_arguments)]
     fn after_write(
         &self,
         image: &RegisterImage,
         state: &mut PlantState,
         unit_id: u8,
+        table: RegisterTable,
         addr: u16,
         n: u16,
         t_ns: u64,
@@ -233,7 +257,7 @@ impl Shared {
         c.writes.fetch_add(1, Ordering::Relaxed);
         state.writes = state.writes.wrapping_add(1);
         for (id, b) in &self.actuators {
-            if binding_in(b, unit_id, RegisterTable::Holding, addr, n) {
+            if binding_in(b, unit_id, table, addr, n) {
                 if let Ok(v) = image.value(b) {
                     self.commands.publish(*id, v, t_ns);
                     c.commands.fetch_add(1, Ordering::Relaxed);
@@ -242,7 +266,7 @@ impl Shared {
         }
         let seen = match &self.heartbeat_register {
             Some(hb) => {
-                if !hb.touched_by(unit_id, addr, n) {
+                if table != RegisterTable::Holding || !hb.touched_by(unit_id, addr, n) {
                     return;
                 }
                 let mut words = [0u16; HEARTBEAT_REGISTERS as usize];
@@ -262,7 +286,8 @@ impl Shared {
                 }
             }
             None if self.watchdog.is_some() => {
-                let Some(seen) = self.watchdog_seen(image, state, unit_id, addr, n, t_ns) else {
+                let Some(seen) = self.watchdog_seen(image, state, unit_id, table, addr, n, t_ns)
+                else {
                     return;
                 };
                 seen
@@ -283,18 +308,20 @@ impl Shared {
 impl Shared {
     /// The device watchdog: a write that *changes* the watched register (alive counter or
     /// toggle) is a sign of life; a write of the same value, or of other registers, is not.
+    #[allow(clippy::too_many_arguments)]
     fn watchdog_seen(
         &self,
         image: &RegisterImage,
         state: &mut PlantState,
         unit_id: u8,
+        table: RegisterTable,
         addr: u16,
         n: u16,
         t_ns: u64,
     ) -> Option<HeartbeatSeen> {
         let wd = self.watchdog.as_ref()?;
         let watched = wd.alive.or(wd.toggle)?;
-        if !binding_in(&watched, unit_id, RegisterTable::Holding, addr, n) {
+        if !binding_in(&watched, unit_id, table, addr, n) {
             return None;
         }
         let v = image.value(&watched).ok()?;
