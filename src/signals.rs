@@ -29,11 +29,15 @@ pub enum SensorId {
     /// Torque the drive reports delivering (actual torque), N·m. After a fail-safe, when the
     /// drive ran on its own speed governor, the controller takes over from it without a bump.
     DriveTorque,
+    /// Emergency-shutdown / drive-trip contact (typically a Modbus discrete input): 1 while
+    /// the machine is being shut down, else 0. While it is set the control core opens the
+    /// recycle valve fully at once (seed 002 §2.2.2: the response to ESD events).
+    EsdInput,
 }
 
 impl SensorId {
     /// Every sensor, in a fixed order (used for arrays indexed by sensor).
-    pub const ALL: [SensorId; 9] = [
+    pub const ALL: [SensorId; 10] = [
         SensorId::PSuction,
         SensorId::PDischarge,
         SensorId::ShaftSpeed,
@@ -43,6 +47,7 @@ impl SensorId {
         SensorId::ThrottlePosition,
         SensorId::ThrustPosition,
         SensorId::DriveTorque,
+        SensorId::EsdInput,
     ];
     /// Number of sensors.
     pub const COUNT: usize = Self::ALL.len();
@@ -64,6 +69,7 @@ impl SensorId {
             SensorId::ThrottlePosition => "throttle_position",
             SensorId::ThrustPosition => "thrust_position",
             SensorId::DriveTorque => "drive_torque",
+            SensorId::EsdInput => "esd_input",
         }
     }
 
@@ -76,7 +82,14 @@ impl SensorId {
             SensorId::RecycleValvePosition | SensorId::ThrottlePosition => "fraction",
             SensorId::ThrustPosition => "m",
             SensorId::DriveTorque => "N·m",
+            SensorId::EsdInput => "1 = active",
         }
+    }
+
+    /// Whether the sensor is an on/off contact (one bit: a coil or discrete input may carry
+    /// it) rather than a measured value.
+    pub const fn is_contact(self) -> bool {
+        matches!(self, SensorId::EsdInput)
     }
 
     /// Parse the snake_case name.

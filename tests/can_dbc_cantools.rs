@@ -317,6 +317,7 @@ fn value_sets(db: &CanDatabase) -> Vec<Vec<(SignalTarget, f64)>> {
         SignalTarget::Sensor(SensorId::ThrottlePosition) => 0.7,
         SignalTarget::Sensor(SensorId::ThrustPosition) => -1.0e-3,
         SignalTarget::Sensor(SensorId::DriveTorque) => 1_234.5,
+        SignalTarget::Sensor(SensorId::EsdInput) => 1.0, // not in skid.dbc
         SignalTarget::Actuator(ActuatorId::DriveTorque) => -30_000.0,
         SignalTarget::Actuator(ActuatorId::RecycleValve) => 0.0001,
         SignalTarget::Actuator(ActuatorId::Throttle) => 1.0,

@@ -174,6 +174,9 @@ pub struct CycleOutput {
     /// NaN when the law does not drive the torque or no law ran. Actuator peaks of a run are
     /// measured on this, not on the total (which includes the load torque the speed loop holds).
     pub law_torque_nm: f64,
+    /// The emergency-shutdown / drive-trip input ([`SensorId::EsdInput`]) is set and usable:
+    /// the recycle valve is commanded fully open this cycle, whatever the mode and law.
+    pub esd_active: bool,
 }
 
 /// Filtered derivative: low-pass then difference.
@@ -627,6 +630,7 @@ impl ControlCore {
             } else {
                 f64::NAN
             },
+            esd_active: false,
         }
     }
 
@@ -673,7 +677,32 @@ impl ControlCore {
     }
 
     /// Run one cycle at time `t_s`.
+    ///
+    /// An emergency-shutdown / drive-trip input ([`SensorId::EsdInput`], supervised like any
+    /// input: it counts only while fresh and in range) overrides every mode and law: the
+    /// recycle valve is commanded fully open at once, with no rate limit (seed 002 §2.2.2,
+    /// the response to ESD events). While it is set the law is held in reset, so when it
+    /// clears the law starts bumplessly from the open valve; in manual the station's output
+    /// stays open until the operator moves it.
     pub fn cycle(&mut self, t_s: f64, raw: &RawSensors, op: &OperatorInputs) -> CycleOutput {
+        let mut out = self.cycle_laws(t_s, raw, op);
+        let esd = out.validity.ok(SensorId::EsdInput)
+            && raw.values.get(SensorId::EsdInput) >= 0.5
+            && self.model.has_recycle_valve();
+        if esd {
+            out.commands.set(ActuatorId::RecycleValve, 1.0);
+            self.last.set(ActuatorId::RecycleValve, 1.0);
+            self.law_started = false;
+            if self.mode == Mode::Manual {
+                self.manual_recycle = 1.0;
+            }
+            out.esd_active = true;
+        }
+        out
+    }
+
+    /// One cycle without the ESD override (see [`cycle`](Self::cycle)).
+    fn cycle_laws(&mut self, t_s: f64, raw: &RawSensors, op: &OperatorInputs) -> CycleOutput {
         let mut validity = self.settings.supervisor.check(raw);
         // cross-check: a Δp repeating itself while the pressures move is frozen
         let usable = |id: SensorId| {
@@ -915,6 +944,7 @@ impl ControlCore {
             surge,
             law_event,
             law_torque_nm: law_torque,
+            esd_active: false,
         }
     }
 }
@@ -1012,6 +1042,99 @@ mod tests {
         let mut owned = core_for(&desc, 0.0);
         let out = owned.cycle(0.0, &raw, &op);
         assert_eq!(out.mode, Mode::FailSafe);
+    }
+
+    /// A core whose ESD input is bound (supervised 0..1, 50 ms like the other inputs).
+    fn with_esd(mut core: ControlCore) -> ControlCore {
+        let mut s = *core.settings();
+        s.supervisor.limits[SensorId::EsdInput.index()] = Some(InputLimits {
+            min: 0.0,
+            max: 1.0,
+            timeout_s: 0.05,
+        });
+        core.set_settings(s);
+        core
+    }
+
+    #[test]
+    fn the_esd_input_opens_the_valve_at_once_and_the_law_resumes_from_open() {
+        let (core, mut raw, op) = started(0.0);
+        let mut core = with_esd(core);
+        let mut t = 0.0;
+        let mut cycle = |core: &mut ControlCore, raw: &RawSensors| {
+            t += 1e-3;
+            core.cycle(t, raw, &op)
+        };
+        raw.values.set(SensorId::EsdInput, 0.0);
+        let mut u0 = f64::NAN;
+        for _ in 0..50 {
+            let out = cycle(&mut core, &raw);
+            assert_eq!(out.mode, Mode::Auto);
+            assert!(!out.esd_active);
+            u0 = out.commands.get(ActuatorId::RecycleValve);
+        }
+        assert!(u0 < 0.5, "the law holds the valve at {u0}");
+        // set: fully open in the same cycle (no rate limit), held while set
+        raw.values.set(SensorId::EsdInput, 1.0);
+        for k in 0..20 {
+            let out = cycle(&mut core, &raw);
+            assert!(out.esd_active, "cycle {k}");
+            assert_eq!(out.commands.get(ActuatorId::RecycleValve), 1.0, "cycle {k}");
+            assert_eq!(out.mode, Mode::Auto, "protection, not a fault");
+        }
+        // a stale contact is not believed (same freshness rule as every input)
+        raw.age_s[SensorId::EsdInput.index()] = 0.2;
+        let out = cycle(&mut core, &raw);
+        assert!(!out.esd_active);
+        assert_eq!(out.validity.fault[SensorId::EsdInput.index()], InputFault::Stale);
+        raw.age_s[SensorId::EsdInput.index()] = 0.0;
+        // cleared: the law starts from the open valve and closes at its own rate
+        raw.values.set(SensorId::EsdInput, 0.0);
+        let out = cycle(&mut core, &raw);
+        assert!(!out.esd_active);
+        let u = out.commands.get(ActuatorId::RecycleValve);
+        assert!(u > 0.9 && u <= 1.0, "bumpless from open, got {u} (law held {u0})");
+    }
+
+    #[test]
+    fn the_esd_input_acts_in_init_and_manual_and_an_unbound_one_is_ignored() {
+        let desc = kvangardsnes();
+        let mut core = with_esd(core_for(&desc, 1.0));
+        let op = op(&core);
+        let mut raw = RawSensors::missing();
+        raw.values.set(SensorId::EsdInput, 1.0);
+        raw.age_s[SensorId::EsdInput.index()] = 0.0;
+        let out = core.cycle(0.0, &raw, &op);
+        assert_eq!(out.mode, Mode::Init);
+        assert!(out.esd_active);
+        assert_eq!(out.commands.get(ActuatorId::RecycleValve), 1.0);
+        assert!(out.commands.get(ActuatorId::DriveTorque).is_nan());
+
+        // manual: the station output is open when the contact clears
+        let (core, mut raw, op) = started(0.0);
+        let mut core = with_esd(core);
+        core.request_auto(false);
+        raw.values.set(SensorId::EsdInput, 0.0);
+        let mut t = 0.0;
+        for _ in 0..10 {
+            t += 1e-3;
+            assert_eq!(core.cycle(t, &raw, &op).mode, Mode::Manual);
+        }
+        raw.values.set(SensorId::EsdInput, 1.0);
+        t += 1e-3;
+        assert_eq!(core.cycle(t, &raw, &op).commands.get(ActuatorId::RecycleValve), 1.0);
+        raw.values.set(SensorId::EsdInput, 0.0);
+        t += 1e-3;
+        let out = core.cycle(t, &raw, &op);
+        assert!(!out.esd_active);
+        assert_eq!(out.commands.get(ActuatorId::RecycleValve), 1.0);
+
+        // not bound (no limits): a 1 on the input changes nothing
+        let (mut core, mut raw, op) = started(0.0);
+        raw.values.set(SensorId::EsdInput, 1.0);
+        let out = core.cycle(1e-3, &raw, &op);
+        assert!(!out.esd_active);
+        assert!(out.commands.get(ActuatorId::RecycleValve) < 0.5);
     }
 
     #[test]

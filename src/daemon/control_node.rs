@@ -99,6 +99,8 @@ pub struct ControlNode {
     cause: Option<Cause>,
     /// Sensors that ever delivered a value (a fault lamp is lit for those and the needed ones).
     seen: u32,
+    /// The ESD / drive-trip input held the recycle valve open in the previous cycle.
+    esd_active: bool,
     blackbox: Option<crate::blackbox::BlackBoxTx>,
 }
 
@@ -178,6 +180,7 @@ impl ControlNode {
             commands: None,
             cause: None,
             seen: 0,
+            esd_active: false,
             blackbox: None,
         }
     }
@@ -491,6 +494,19 @@ impl ControlNode {
                 min_flow_kg_s: out.measurements.m_kg_s,
                 flow_reversal: matches!(out.surge, Detection::ReversalStarted),
             });
+        }
+        if out.esd_active != self.esd_active {
+            self.esd_active = out.esd_active;
+            if out.esd_active {
+                // the hard-wired ESD / drive-trip contact opened the valve at full speed
+                let mut cause = Cause::of(CauseKind::EsdInput);
+                cause.input = Some(SensorId::EsdInput);
+                cause.value = Some(raw.values.get(SensorId::EsdInput));
+                self.push(RecycleTrip {
+                    reason: TripReason::External,
+                    cause: Some(cause),
+                });
+            }
         }
         match out.law_event {
             Some(LawEvent::RecycleTrip { .. }) => {

@@ -31,6 +31,9 @@ pub enum CauseKind {
     SurgeMargin,
     /// The controller is stopping.
     Shutdown,
+    /// The emergency-shutdown / drive-trip input is set (`input` = esd_input, `value` = 1):
+    /// the recycle valve opens fully at once.
+    EsdInput,
 }
 
 impl CauseKind {
@@ -43,6 +46,7 @@ impl CauseKind {
             CauseKind::Operator => 4,
             CauseKind::SurgeMargin => 5,
             CauseKind::Shutdown => 6,
+            CauseKind::EsdInput => 7,
         }
     }
 
@@ -55,6 +59,7 @@ impl CauseKind {
             4 => CauseKind::Operator,
             5 => CauseKind::SurgeMargin,
             6 => CauseKind::Shutdown,
+            7 => CauseKind::EsdInput,
             _ => return None,
         })
     }
@@ -209,6 +214,9 @@ impl Cause {
                 num(self.min)
             ),
             CauseKind::Shutdown => "controller stopping".to_string(),
+            CauseKind::EsdInput => format!(
+                "emergency shutdown / drive trip: {name} set, recycle valve fully open"
+            ),
         }
     }
 }

@@ -104,5 +104,6 @@ fn kind_name(c: &Cause) -> &'static str {
         Operator => "operator",
         SurgeMargin => "surge_margin",
         Shutdown => "shutdown",
+        EsdInput => "esd_input",
     }
 }

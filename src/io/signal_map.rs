@@ -175,7 +175,7 @@ impl SignalMap {
             if let Binding::Modbus(r) = b {
                 let key = format!("sensors.{}.modbus", id.name());
                 unit_check(&mut problems, &key, r, Quantity::of_sensor(*id));
-                if r.table.is_bits() {
+                if r.table.is_bits() && !id.is_contact() {
                     problems.push(MapProblem {
                         key: key.clone(),
                         message: format!(

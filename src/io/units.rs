@@ -41,6 +41,7 @@ impl Quantity {
             SensorId::RecycleValvePosition | SensorId::ThrottlePosition => Quantity::Fraction,
             SensorId::ThrustPosition => Quantity::Length,
             SensorId::DriveTorque => Quantity::Torque,
+            SensorId::EsdInput => Quantity::Dimensionless,
         }
     }
 

@@ -525,7 +525,9 @@ impl<'a> PlantRun<'a> {
     pub fn sense(&mut self, t_s: f64) -> (ScenarioState, RawSensors) {
         let st = self.timeline.state_at(t_s);
         self.health.drive_tripped = st.drive_tripped;
-        let clean = self.plant.sensors();
+        let mut clean = self.plant.sensors();
+        // the drive-trip / ESD contact of the skid: closed while the drive is tripped
+        clean.set(SensorId::EsdInput, f64::from(u8::from(st.drive_tripped)));
         let raw = field_readings(
             t_s,
             &clean,

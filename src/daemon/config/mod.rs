@@ -226,6 +226,17 @@ fn load_layers(main: &Path, layers: Vec<Layer>) -> Result<Loaded, Vec<Problem>> 
     // input limits: plant-derived defaults, overridden per sensor
     let mut core = CoreSettings::defaults_for(&model);
     machine::apply_transmitter_ranges(&machine, &mut core);
+    // a contact the signal map binds (ESD / drive trip) is supervised like any input:
+    // 0 or 1, fresh within the default timeout (polled: the poll-period rule below)
+    for id in SensorId::ALL.into_iter().filter(|id| id.is_contact()) {
+        if signal_map.sensors.contains_key(&id) {
+            core.supervisor.limits[id.index()].get_or_insert(InputLimits {
+                min: 0.0,
+                max: 1.0,
+                timeout_s: 0.05,
+            });
+        }
+    }
     config.bus.follow_poll_period(&signal_map, &mut core);
     for (id, s) in &config.inputs {
         core.supervisor.limits[id.index()] = Some(InputLimits {

@@ -28,6 +28,7 @@ fn sensor_tol(s: SensorId) -> f64 {
         SensorId::RecycleValvePosition | SensorId::ThrottlePosition => 1e-4,
         SensorId::ThrustPosition => 1e-8,
         SensorId::DriveTorque => 0.5,
+        SensorId::EsdInput => 1.0, // not in skid.dbc
     };
     step * 0.5 + 1e-12
 }
@@ -151,7 +152,7 @@ fn controller_rx_publishes_sensors_within_resolution() {
             RxOutcome::Published
         );
     }
-    for s in SensorId::ALL {
+    for s in SensorId::ALL.into_iter().filter(|s| !s.is_contact()) {
         let (v, t) = ctl.sensors.get(s);
         assert!(
             (v - snap.get(s)).abs() <= sensor_tol(s),
@@ -211,7 +212,7 @@ fn malformed_and_unknown_frames_are_counted_not_published() {
             "{id} {d:02X?}"
         );
     }
-    for s in SensorId::ALL {
+    for s in SensorId::ALL.into_iter().filter(|s| !s.is_contact()) {
         assert_eq!(
             ctl.sensors.get(s).1,
             0,
@@ -664,7 +665,7 @@ fn every_decoded_value_is_published_and_never_infinite() {
             assert!(ctl.sensors.get(SensorId::PSuction).0.is_nan());
         }
     }
-    for s in SensorId::ALL {
+    for s in SensorId::ALL.into_iter().filter(|s| !s.is_contact()) {
         let v = ctl.sensors.get(s).0;
         assert!(v.is_finite() || v.is_nan(), "{}: {v}", s.name());
     }
