@@ -1,7 +1,9 @@
 //! `antisurge run` against `antisurge plant` emulating a foreign Modbus device
 //! (tests/fixtures/foreign_skid/modbus_map.toml: Modicon numbering, engineering units, CDAB
 //! floats, valve in % × 0.01, one watchdog counter register at holding 3 in a table that
-//! ends at 5). Each test runs the throttle-closure scenario in real time (≈ 15 s).
+//! ends at 5). Each test runs the throttle-closure scenario in real time (≈ 15 s). The same
+//! skid with a PLC that speaks in bits (modbus_map_coils.toml: a watchdog toggle coil and an
+//! ESD discrete input) runs the throttle closure and the emergency shutdown.
 
 mod common;
 
@@ -21,7 +23,7 @@ fn fixture(name: &str) -> String {
         .to_string()
 }
 
-fn config(dir: &Path, name: &str, port: u16, map: &str) -> PathBuf {
+fn config(dir: &Path, name: &str, port: u16, map: &str, scenario: &str) -> PathBuf {
     let cfg = format!(
         r#"
 [plant]
@@ -39,7 +41,7 @@ transport = {{ kind = "tcp", address = "127.0.0.1:{port}" }}
 path = "{events}"
 fsync = "always"
 [simulation]
-scenario = "throttle-closure"
+scenario = "{scenario}"
 [simulation.modbus_server]
 listen = "127.0.0.1:{port}"
 [status]
@@ -56,9 +58,19 @@ log_interval_s = 5.0
 
 /// `antisurge plant` on the foreign map, then `antisurge run` with `ctl_map`.
 fn start(dir: &Path, ctl_map: &str) -> (Child, Child, PathBuf, u16) {
+    start_with(dir, "modbus_map.toml", ctl_map, "throttle-closure")
+}
+
+/// `antisurge plant` on `plant_map`, then `antisurge run` with `ctl_map`, both on `scenario`.
+fn start_with(
+    dir: &Path,
+    plant_map: &str,
+    ctl_map: &str,
+    scenario: &str,
+) -> (Child, Child, PathBuf, u16) {
     let port = free_port();
-    let plant_cfg = config(dir, "plant", port, &fixture("modbus_map.toml"));
-    let ctl_cfg = config(dir, "controller", port, &fixture(ctl_map));
+    let plant_cfg = config(dir, "plant", port, &fixture(plant_map), scenario);
+    let ctl_cfg = config(dir, "controller", port, &fixture(ctl_map), scenario);
     let out = dir.join("plant-out");
     let plant = spawn(
         dir,
@@ -277,4 +289,72 @@ fn a_second_master_closing_the_valve_is_a_feedback_mismatch() {
         .and_then(|t| t.trim_end_matches(" s").parse().ok())
         .expect("duration in the cause");
     assert!((0.5..0.6).contains(&lasted), "{cause}");
+}
+
+/// The PLC's watchdog watches a coil: the controller toggles coil 00001 (function 0x05) with
+/// every output set, so the device stays out of its fail-safe through the closure; after
+/// kill -9 the coil stops flipping and the device fails the valve open within 300 ms.
+#[test]
+fn a_watchdog_toggle_coil_keeps_the_device_alive_until_kill_9() {
+    let tmp = tempfile::tempdir().expect("tmp");
+    let dir = tmp.path();
+    let map = "modbus_map_coils.toml";
+    let (mut plant, mut ctl, out, _) = start_with(dir, map, map, "throttle-closure");
+    // past the closure (5–7 s): the device watchdog saw the coil flip all along
+    std::thread::sleep(Duration::from_millis(8000));
+    signal(&ctl, libc::SIGKILL);
+    let _ = wait(&mut ctl, Duration::from_secs(5), "killed controller", dir);
+    let st = wait(&mut plant, Duration::from_secs(60), "plant", dir);
+    assert!(st.success(), "plant failed:\n{}", logs(dir));
+    let s = summary(&out);
+    let ctx = format!("{s:#}\n{}", logs(dir));
+    assert_eq!(s["field_failsafe_entries"], 1, "only the kill: {ctx}");
+    assert_eq!(s["surge_cycles"], 0, "{ctx}");
+    let cmd = column(&out, "cmd_recycle_valve");
+    let (t_fs, t_last) = failsafe_after_last_command(&cmd);
+    assert!(t_last > 7.5, "commands stopped at {t_last:.3} s, before the kill: {ctx}");
+    assert!(
+        t_fs - t_last <= 0.3 + 0.02 + 0.01,
+        "fail-safe {:.3} s after the last command: {ctx}",
+        t_fs - t_last
+    );
+}
+
+/// The skid's ESD / drive-trip contact is a discrete input (10001): when the drive trips
+/// (emergency-shutdown scenario, t = 5 s) the plant closes it, the controller reads it with
+/// function 0x02 and opens the recycle valve fully at once; the event log says why.
+#[test]
+fn an_esd_discrete_input_opens_the_valve_at_once_and_the_event_says_why() {
+    let tmp = tempfile::tempdir().expect("tmp");
+    let dir = tmp.path();
+    let map = "modbus_map_coils.toml";
+    let (mut plant, mut ctl, out, _) = start_with(dir, map, map, "emergency-shutdown");
+    let st = wait(&mut plant, Duration::from_secs(60), "plant", dir);
+    assert!(st.success(), "plant failed:\n{}", logs(dir));
+    signal(&ctl, libc::SIGTERM);
+    let _ = wait(&mut ctl, Duration::from_secs(10), "controller", dir);
+    let s = summary(&out);
+    let ev = events(dir);
+    let ctx = format!("{s:#}\n{ev:#?}\n{}", logs(dir));
+    let trip = ev
+        .iter()
+        .find(|e| e["event"] == "recycle_trip" && e["reason"] == "external")
+        .unwrap_or_else(|| panic!("no external recycle trip: {ctx}"));
+    assert_eq!(trip["cause"]["kind"], "esd_input", "{ctx}");
+    assert_eq!(trip["cause"]["input"], "esd_input", "{ctx}");
+    assert_eq!(trip["cause"]["value"], 1.0, "{ctx}");
+    // before the trip the valve is the law's; from the contact on it is commanded 100 %
+    let cmd = column(&out, "cmd_recycle_valve");
+    assert!(
+        cmd.iter().filter(|(t, _)| *t > 1.0 && *t < 4.9).all(|(_, u)| *u < 0.9),
+        "{ctx}"
+    );
+    let open = cmd
+        .iter()
+        .find(|(t, u)| *t >= 5.0 && *u >= 0.999)
+        .unwrap_or_else(|| panic!("valve never commanded open after the trip: {ctx}"))
+        .0;
+    // one 50-Hz poll + one control cycle + one 50-Hz write + trace rows
+    assert!(open - 5.0 <= 0.1, "valve commanded open {:.3} s after the trip: {ctx}", open - 5.0);
+    assert_eq!(s["field_failsafe_entries"], 0, "{ctx}");
 }
