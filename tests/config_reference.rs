@@ -85,6 +85,11 @@ fn populated() -> DaemonConfig {
                     law: Some("ActiveLaw".into()),
                     faults: Some("Faults".into()),
                 }),
+                frame_ids: [(
+                    "CTRL_ActuatorCmd1".to_string(),
+                    antisurge::io::can::dbc::FrameIdOverride::Id(0x18FF_1234),
+                )]
+                .into(),
             }),
             modbus: Some(ModbusLinkConfig {
                 client: ClientConfig {

@@ -312,7 +312,10 @@ fn a_watchdog_toggle_coil_keeps_the_device_alive_until_kill_9() {
     assert_eq!(s["surge_cycles"], 0, "{ctx}");
     let cmd = column(&out, "cmd_recycle_valve");
     let (t_fs, t_last) = failsafe_after_last_command(&cmd);
-    assert!(t_last > 7.5, "commands stopped at {t_last:.3} s, before the kill: {ctx}");
+    assert!(
+        t_last > 7.5,
+        "commands stopped at {t_last:.3} s, before the kill: {ctx}"
+    );
     assert!(
         t_fs - t_last <= 0.3 + 0.02 + 0.01,
         "fail-safe {:.3} s after the last command: {ctx}",
@@ -346,7 +349,9 @@ fn an_esd_discrete_input_opens_the_valve_at_once_and_the_event_says_why() {
     // before the trip the valve is the law's; from the contact on it is commanded 100 %
     let cmd = column(&out, "cmd_recycle_valve");
     assert!(
-        cmd.iter().filter(|(t, _)| *t > 1.0 && *t < 4.9).all(|(_, u)| *u < 0.9),
+        cmd.iter()
+            .filter(|(t, _)| *t > 1.0 && *t < 4.9)
+            .all(|(_, u)| *u < 0.9),
         "{ctx}"
     );
     let open = cmd
@@ -355,6 +360,10 @@ fn an_esd_discrete_input_opens_the_valve_at_once_and_the_event_says_why() {
         .unwrap_or_else(|| panic!("valve never commanded open after the trip: {ctx}"))
         .0;
     // one 50-Hz poll + one control cycle + one 50-Hz write + trace rows
-    assert!(open - 5.0 <= 0.1, "valve commanded open {:.3} s after the trip: {ctx}", open - 5.0);
+    assert!(
+        open - 5.0 <= 0.1,
+        "valve commanded open {:.3} s after the trip: {ctx}",
+        open - 5.0
+    );
     assert_eq!(s["field_failsafe_entries"], 0, "{ctx}");
 }

@@ -1086,14 +1086,20 @@ mod tests {
         raw.age_s[SensorId::EsdInput.index()] = 0.2;
         let out = cycle(&mut core, &raw);
         assert!(!out.esd_active);
-        assert_eq!(out.validity.fault[SensorId::EsdInput.index()], InputFault::Stale);
+        assert_eq!(
+            out.validity.fault[SensorId::EsdInput.index()],
+            InputFault::Stale
+        );
         raw.age_s[SensorId::EsdInput.index()] = 0.0;
         // cleared: the law starts from the open valve and closes at its own rate
         raw.values.set(SensorId::EsdInput, 0.0);
         let out = cycle(&mut core, &raw);
         assert!(!out.esd_active);
         let u = out.commands.get(ActuatorId::RecycleValve);
-        assert!(u > 0.9 && u <= 1.0, "bumpless from open, got {u} (law held {u0})");
+        assert!(
+            u > 0.9 && u <= 1.0,
+            "bumpless from open, got {u} (law held {u0})"
+        );
     }
 
     #[test]
@@ -1122,7 +1128,12 @@ mod tests {
         }
         raw.values.set(SensorId::EsdInput, 1.0);
         t += 1e-3;
-        assert_eq!(core.cycle(t, &raw, &op).commands.get(ActuatorId::RecycleValve), 1.0);
+        assert_eq!(
+            core.cycle(t, &raw, &op)
+                .commands
+                .get(ActuatorId::RecycleValve),
+            1.0
+        );
         raw.values.set(SensorId::EsdInput, 0.0);
         t += 1e-3;
         let out = core.cycle(t, &raw, &op);

@@ -214,9 +214,9 @@ impl Cause {
                 num(self.min)
             ),
             CauseKind::Shutdown => "controller stopping".to_string(),
-            CauseKind::EsdInput => format!(
-                "emergency shutdown / drive trip: {name} set, recycle valve fully open"
-            ),
+            CauseKind::EsdInput => {
+                format!("emergency shutdown / drive trip: {name} set, recycle valve fully open")
+            }
         }
     }
 }

@@ -135,6 +135,11 @@ fn check_dbc(l: &Loaded, can: &CanBusConfig) -> Option<FileError> {
                 None => locate(&l.layers, "bus.can.dbc", message),
             })
         }
+        Err(CanBusError::FrameId(e)) => Some(locate(
+            &l.layers,
+            &format!("bus.can.frame_ids.{}", e.message),
+            format!("{e} (DBC {})", dbc.display()),
+        )),
         // e.g. not_available = "none" with an unbound signal in a sent message
         Err(CanBusError::Config { key, message }) => Some(locate(
             &l.layers,
@@ -153,7 +158,7 @@ fn check_dbc(l: &Loaded, can: &CanBusConfig) -> Option<FileError> {
 /// above `bus.can.max_load_pct`.
 fn check_bus_load(l: &Loaded, can: &CanBusConfig) -> Option<FileError> {
     let bitrate = can.bitrate_bps?;
-    let db = crate::io::can::CanDatabase::from_file(resolve(&l.main_path, &can.dbc)).ok()?;
+    let db = can.database(&resolve(&l.main_path, &can.dbc)).ok()?;
     let load = crate::io::can::busload::BusLoad::of(&db, bitrate);
     (load.percent() > f64::from(can.max_load_pct)).then(|| {
         FileError {

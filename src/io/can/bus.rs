@@ -49,7 +49,7 @@ use tokio::sync::watch;
 use tokio::time::MissedTickBehavior;
 
 use super::codec::{BindingError, CanCodec, SignalBinding, SignalValues};
-use super::dbc::{CanDatabase, DbcError, FrameId};
+use super::dbc::{CanDatabase, DbcError, FrameId, FrameIdError, FrameIdOverride};
 use super::heartbeat::{HeartbeatCodec, HeartbeatConfig, HeartbeatNames};
 use crate::runtime::handoff::{
     monotonic_ns, CommandBoard, HeartbeatBoard, OutputBoard, SensorBoard, SnapshotBoard, Wakeup,
@@ -134,6 +134,11 @@ pub struct CanBusConfig {
     /// signals in the DBC (default: `config/skid.dbc`'s `CTRL_Heartbeat`).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub heartbeat: Option<HeartbeatConfig>,
+    /// `[bus.can.frame_ids]`: per DBC message, the CAN id to use instead of the DBC's
+    /// (`CTRL_ActuatorCmd1 = 0x18FF1234`: 29-bit because above 0x7FF; or
+    /// `{ id = 0x100, extended = true }`). Both ends, the bus load and the codec use it.
+    #[serde(default, skip_serializing_if = "std::collections::BTreeMap::is_empty")]
+    pub frame_ids: std::collections::BTreeMap<String, FrameIdOverride>,
 }
 
 fn default_max_load_pct() -> u32 {
@@ -160,7 +165,16 @@ impl CanBusConfig {
             max_load_pct: default_max_load_pct(),
             not_available: NotAvailable::J1939,
             heartbeat: None,
+            frame_ids: Default::default(),
         }
+    }
+
+    /// The DBC at `dbc` (already resolved against the config file) with the
+    /// `[bus.can.frame_ids]` overrides applied: the one way every bus user gets its ids.
+    pub fn database(&self, dbc: &Path) -> Result<CanDatabase, CanBusError> {
+        let mut db = CanDatabase::from_file(dbc)?;
+        db.override_frame_ids(self.frame_ids.iter().map(|(k, v)| (k.as_str(), *v)))?;
+        Ok(db)
     }
 
     /// The heartbeat names: `[bus.can.heartbeat]`, or `config/skid.dbc`'s.
@@ -236,6 +250,10 @@ pub enum CanBusError {
     /// The DBC file cannot be loaded.
     #[error(transparent)]
     Dbc(#[from] DbcError),
+    /// A `[bus.can.frame_ids]` entry names no message, does not fit its id kind, or clashes
+    /// with another message's id.
+    #[error(transparent)]
+    FrameId(#[from] FrameIdError),
     /// The signal bindings or the heartbeat do not fit the DBC.
     #[error(transparent)]
     Binding(#[from] BindingError),
@@ -294,11 +312,8 @@ impl BusCodec {
         dbc: &Path,
         bindings: &[SignalBinding],
     ) -> Result<BusCodec, CanBusError> {
-        let codec = BusCodec::with_heartbeat(
-            &CanDatabase::from_file(dbc)?,
-            bindings,
-            &cfg.heartbeat_names(),
-        )?;
+        let codec =
+            BusCodec::with_heartbeat(&cfg.database(dbc)?, bindings, &cfg.heartbeat_names())?;
         // both ends' senders, checked once here so that check-config sees it
         let all: Vec<_> = codec.frames.actuator_messages().collect();
         FrameEncoder::with_not_available(

@@ -776,6 +776,106 @@ impl CanDatabase {
     pub fn message_by_id(&self, id: FrameId) -> Option<&MessageDef> {
         self.messages.iter().find(|m| m.id == id)
     }
+
+    /// Give messages other identifiers than the DBC's (`[bus.can.frame_ids]`): a device
+    /// configured to another id, or a 29-bit id for a message the DBC lists with 11 bits.
+    /// Every later user of the database (codec, RX lookup, TX frames, bus load) sees the new
+    /// ids. On error nothing changes.
+    pub fn override_frame_ids<'a>(
+        &mut self,
+        overrides: impl IntoIterator<Item = (&'a str, FrameIdOverride)>,
+    ) -> Result<(), FrameIdError> {
+        let mut ids: Vec<FrameId> = self.messages.iter().map(|m| m.id).collect();
+        for (name, o) in overrides {
+            let Some(k) = self.messages.iter().position(|m| m.name == name) else {
+                let known: Vec<&str> = self.messages.iter().map(|m| m.name.as_str()).collect();
+                return Err(FrameIdError {
+                    message: name.to_string(),
+                    reason: format!(
+                        "no message of that name in the DBC (messages: {})",
+                        known.join(", ")
+                    ),
+                });
+            };
+            ids[k] = o.frame_id().map_err(|reason| FrameIdError {
+                message: name.to_string(),
+                reason,
+            })?;
+        }
+        for (k, id) in ids.iter().enumerate() {
+            if let Some(j) = ids[..k].iter().position(|x| x == id) {
+                // name the message whose id was overridden (the later one if both)
+                let (named, other) = if ids[k] != self.messages[k].id {
+                    (k, j)
+                } else {
+                    (j, k)
+                };
+                return Err(FrameIdError {
+                    message: self.messages[named].name.clone(),
+                    reason: format!(
+                        "CAN id {id} is also the id of message {}",
+                        self.messages[other].name
+                    ),
+                });
+            }
+        }
+        for (m, id) in self.messages.iter_mut().zip(ids) {
+            m.id = id;
+        }
+        Ok(())
+    }
+}
+
+/// One entry of `[bus.can.frame_ids]`: `Name = 0x18FF1234` (29-bit when above 0x7FF, else
+/// 11-bit) or `Name = { id = 0x123, extended = true }` (a 29-bit id below 0x800).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
+#[serde(untagged)]
+pub enum FrameIdOverride {
+    /// The id; extended when it does not fit 11 bits.
+    Id(u32),
+    /// The id and its kind.
+    Explicit {
+        /// The id.
+        id: u32,
+        /// 29-bit (true) or 11-bit (false) identifier; inferred from the value when absent.
+        #[serde(default, skip_serializing_if = "Option::is_none")]
+        extended: Option<bool>,
+    },
+}
+
+impl FrameIdOverride {
+    /// The identifier, or why it cannot be one.
+    pub fn frame_id(self) -> Result<FrameId, String> {
+        let (id, extended) = match self {
+            FrameIdOverride::Id(id) => (id, None),
+            FrameIdOverride::Explicit { id, extended } => (id, extended),
+        };
+        let fid = match extended.unwrap_or(id > 0x7FF) {
+            true => FrameId::Extended(id),
+            false => FrameId::Standard(u16::try_from(id).unwrap_or(u16::MAX)),
+        };
+        if fid.is_valid() && fid.raw() == id {
+            Ok(fid)
+        } else if fid.is_extended() {
+            Err(format!(
+                "{id:#X} does not fit a 29-bit (extended) id (at most 0x1FFFFFFF)"
+            ))
+        } else {
+            Err(format!(
+                "{id:#X} does not fit an 11-bit (standard) id (at most 0x7FF): drop `extended = false` or give a smaller id"
+            ))
+        }
+    }
+}
+
+/// A `[bus.can.frame_ids]` entry that cannot be used.
+#[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
+#[error("frame id of message {message}: {reason}")]
+pub struct FrameIdError {
+    /// The message named by the entry (config key `bus.can.frame_ids.<message>`).
+    pub message: String,
+    /// What is wrong.
+    pub reason: String,
 }
 
 #[cfg(test)]
@@ -787,6 +887,67 @@ mod tests {
     }
 
     const HEADER: &str = "VERSION \"\"\n\nNS_ :\n\nBS_:\n\nBU_: A B\n\n";
+
+    #[test]
+    fn frame_id_overrides_are_checked_and_all_or_nothing() {
+        use FrameIdOverride::{Explicit, Id};
+        let fresh = || CanDatabase::from_file(skid_path()).expect("skid");
+        let id = |db: &CanDatabase, m: &str| db.message(m).map(|m| m.id());
+        // inferred kind: above 0x7FF extended, else standard; explicit kind either way
+        assert_eq!(Id(0x7FF).frame_id(), Ok(FrameId::Standard(0x7FF)));
+        assert_eq!(Id(0x800).frame_id(), Ok(FrameId::Extended(0x800)));
+        let ext = Explicit {
+            id: 0x10,
+            extended: Some(true),
+        };
+        assert_eq!(ext.frame_id(), Ok(FrameId::Extended(0x10)));
+        let too_big = Explicit {
+            id: 0x800,
+            extended: Some(false),
+        };
+        assert!(too_big.frame_id().unwrap_err().contains("11-bit"));
+        assert!(Id(0x2000_0000).frame_id().unwrap_err().contains("29-bit"));
+
+        let mut db = fresh();
+        db.override_frame_ids([("CTRL_Heartbeat", Id(0x18FF_0080))])
+            .expect("override");
+        assert_eq!(
+            id(&db, "CTRL_Heartbeat"),
+            Some(FrameId::Extended(0x18FF_0080))
+        );
+        assert_eq!(
+            db.message_by_id(FrameId::Standard(0x80)).map(|m| m.name()),
+            None
+        );
+
+        // errors name the message; nothing changes
+        let mut db = fresh();
+        let e = db
+            .override_frame_ids([("CTRL_Heartbeat", Id(0x555)), ("Nope", Id(1))])
+            .unwrap_err();
+        assert_eq!(e.message, "Nope");
+        assert!(e.reason.contains("CTRL_ActuatorCmd1"), "{e}");
+        assert_eq!(id(&db, "CTRL_Heartbeat"), Some(FrameId::Standard(0x80)));
+        let e = db
+            .override_frame_ids([("PLANT_Drive", Id(0x100))])
+            .unwrap_err();
+        assert_eq!(
+            e.to_string(),
+            "frame id of message PLANT_Drive: CAN id 0x100 is also the id of message PLANT_Pressures"
+        );
+        // swapping two ids is fine
+        db.override_frame_ids([("PLANT_Drive", Id(0x100)), ("PLANT_Pressures", Id(0x103))])
+            .expect("swap");
+        assert_eq!(id(&db, "PLANT_Drive"), Some(FrameId::Standard(0x100)));
+        // TOML forms
+        let t: std::collections::BTreeMap<String, FrameIdOverride> = toml::from_str(
+            "A = 0x18FF1234\nB = { id = 0x100, extended = true }\nC = { id = 0x100 }\n",
+        )
+        .expect("toml");
+        assert_eq!(t["A"], Id(0x18FF_1234));
+        assert_eq!(t["B"].frame_id(), Ok(FrameId::Extended(0x100)));
+        assert_eq!(t["C"].frame_id(), Ok(FrameId::Standard(0x100)));
+    }
 
     fn parse(body: &str) -> Result<CanDatabase, DbcError> {
         CanDatabase::parse(&format!("{HEADER}{body}"), "test.dbc")

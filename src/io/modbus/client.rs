@@ -573,9 +573,7 @@ impl ModbusClient {
                 RegisterTable::Holding => Request::ReadHoldingRegisters(req.address, req.count),
                 RegisterTable::Input => Request::ReadInputRegisters(req.address, req.count),
                 RegisterTable::Coil => Request::ReadCoils(req.address, req.count),
-                RegisterTable::DiscreteInput => {
-                    Request::ReadDiscreteInputs(req.address, req.count)
-                }
+                RegisterTable::DiscreteInput => Request::ReadDiscreteInputs(req.address, req.count),
             };
             match self.call(req, request).await {
                 Ok(Response::ReadHoldingRegisters(words) | Response::ReadInputRegisters(words))
@@ -1031,8 +1029,8 @@ mod tests {
         assert_eq!((report.requests, report.written), (2, 4));
         let di = RegisterBinding::new(7, RegisterTable::DiscreteInput, 8, DataType::Bool);
         // an inverted (normally closed) contact read from the same input
-        let read = ReadPlan::new(&[coil(2), coil(1), coil(0), di, di.with_scaling(-1.0, 1.0)])
-            .unwrap();
+        let read =
+            ReadPlan::new(&[coil(2), coil(1), coil(0), di, di.with_scaling(-1.0, 1.0)]).unwrap();
         assert_eq!(read.requests().len(), 2);
         let mut out = [f64::NAN; 5];
         client.read(&read, &mut out).await.unwrap();
@@ -1050,7 +1048,11 @@ mod tests {
             "a lone coil: write single coil, ON = FF00"
         );
         assert_eq!(pdus[2].1, [0x01, 0x00, 0x00, 0x00, 0x03], "read coils 0..3");
-        assert_eq!(pdus[3].1, [0x02, 0x00, 0x08, 0x00, 0x01], "read discrete input 8");
+        assert_eq!(
+            pdus[3].1,
+            [0x02, 0x00, 0x08, 0x00, 0x01],
+            "read discrete input 8"
+        );
     }
 
     #[test]

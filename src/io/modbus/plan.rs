@@ -406,8 +406,14 @@ mod tests {
             .map(|k| rb(1, RegisterTable::Coil, k, DataType::Bool))
             .collect();
         let counts = |r: &[PlannedRequest]| r.iter().map(|q| q.count).collect::<Vec<_>>();
-        assert_eq!(counts(ReadPlan::new(&list).unwrap().requests()), [2000, 100]);
-        assert_eq!(counts(WritePlan::new(&list).unwrap().requests()), [1968, 132]);
+        assert_eq!(
+            counts(ReadPlan::new(&list).unwrap().requests()),
+            [2000, 100]
+        );
+        assert_eq!(
+            counts(WritePlan::new(&list).unwrap().requests()),
+            [1968, 132]
+        );
     }
 
     #[test]

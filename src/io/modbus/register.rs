@@ -929,7 +929,9 @@ mod tests {
         assert_eq!(modicon(40_004), Ok((Holding, 3)));
         assert!(modicon(0).unwrap_err().contains("1-based"));
         assert!(modicon(10_000).unwrap_err().contains("1-based"));
-        assert!(modicon(20_001).unwrap_err().contains("not a Modicon number"));
+        assert!(modicon(20_001)
+            .unwrap_err()
+            .contains("not a Modicon number"));
     }
 
     #[test]
@@ -939,8 +941,9 @@ mod tests {
         assert!(!coil.address_looks_modicon);
         let di = parse("unit_id = 1\nregister = 10003\ndata_type = \"bool\"").unwrap();
         assert_eq!((di.table, di.address), (RegisterTable::DiscreteInput, 2));
-        let di = parse("unit_id = 1\ntable = \"discrete_input\"\naddress = 2\ndata_type = \"bool\"")
-            .unwrap();
+        let di =
+            parse("unit_id = 1\ntable = \"discrete_input\"\naddress = 2\ndata_type = \"bool\"")
+                .unwrap();
         assert_eq!((di.table, di.address), (RegisterTable::DiscreteInput, 2));
         // the same Modicon-looking warning logic under the protocol key
         let looks =
@@ -948,7 +951,8 @@ mod tests {
         assert!(looks.address_looks_modicon);
         let e = parse("unit_id = 1\nregister = 40001\ndata_type = \"bool\"").unwrap_err();
         assert!(
-            e.contains("data_type = \"bool\" is one bit") && e.contains("not in the holding registers"),
+            e.contains("data_type = \"bool\" is one bit")
+                && e.contains("not in the holding registers"),
             "{e}"
         );
         let e = parse("unit_id = 1\nregister = 10001\ndata_type = \"f32\"").unwrap_err();
@@ -961,9 +965,11 @@ mod tests {
                 data_type: DataType::U16
             })
         );
-        assert!(RegisterBinding::new(1, RegisterTable::Input, 0, DataType::Bool)
-            .validate()
-            .is_err());
+        assert!(
+            RegisterBinding::new(1, RegisterTable::Input, 0, DataType::Bool)
+                .validate()
+                .is_err()
+        );
     }
 
     #[test]
@@ -1010,7 +1016,10 @@ mod tests {
         )
         .unwrap_err()
         .to_string();
-        assert!(bad.contains("a coil holds one bit: use data_type = \"bool\", not \"u16\""), "{bad}");
+        assert!(
+            bad.contains("a coil holds one bit: use data_type = \"bool\", not \"u16\""),
+            "{bad}"
+        );
         let unknown = toml::from_str::<RegisterBinding>(
             "unit_id = 1\ntable = \"input\"\naddress = 0\ndata_type = \"u16\"\nscael = 2.0",
         );

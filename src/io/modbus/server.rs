@@ -677,7 +677,10 @@ mod tests {
         assert_eq!(img.set_value(&di, 1.0), Ok(EncodeOutcome::InRange));
         let mut h = |r: Request<'_>| img.handle(1, &r, false);
         assert_eq!(
-            h(Request::WriteMultipleCoils(0, Cow::Borrowed(&[true, false, true]))),
+            h(Request::WriteMultipleCoils(
+                0,
+                Cow::Borrowed(&[true, false, true])
+            )),
             Ok(Some(Response::WriteMultipleCoils(0, 3)))
         );
         assert_eq!(
@@ -694,7 +697,10 @@ mod tests {
         );
         // a coil the device does not have: exception 2, nothing written
         assert_eq!(
-            h(Request::WriteMultipleCoils(2, Cow::Borrowed(&[false, false]))),
+            h(Request::WriteMultipleCoils(
+                2,
+                Cow::Borrowed(&[false, false])
+            )),
             Err(ExceptionCode::IllegalDataAddress)
         );
         assert_eq!(

@@ -258,7 +258,8 @@ mod tests {
         let p = bad.problems();
         for key in ["watchdog.modbus.alive", "watchdog.modbus.mode"] {
             assert!(
-                p.iter().any(|(k, m)| k == key && m.contains("holding register (4xxxx):")),
+                p.iter()
+                    .any(|(k, m)| k == key && m.contains("holding register (4xxxx):")),
                 "{key}: {p:?}"
             );
         }

@@ -952,3 +952,78 @@ fn codec_errors_are_reported() {
         Err(CanBusError::Binding(_))
     ));
 }
+
+/// `[bus.can.frame_ids]`: the overridden messages go out under their new ids (29-bit here,
+/// the CRC byte computed over the new id), the other end accepts them under the new ids only,
+/// and the bus load counts the longer 29-bit frames.
+#[test]
+fn frame_id_override_changes_ids_on_both_ends_and_the_bus_load() {
+    use crate::io::can::busload::BusLoad;
+    use crate::io::can::dbc::FrameIdOverride;
+    let path = Path::new(env!("CARGO_MANIFEST_DIR")).join("config/skid.dbc");
+    let mut cfg = CanBusConfig::new("vcan0", &path);
+    let plain = cfg.database(&path).expect("dbc");
+    cfg.frame_ids
+        .insert("CTRL_ActuatorCmd1".into(), FrameIdOverride::Id(0x18FF_1234));
+    cfg.frame_ids.insert(
+        "PLANT_Pressures".into(),
+        FrameIdOverride::Explicit {
+            id: 0x100,
+            extended: Some(true),
+        },
+    );
+    let db = cfg.database(&path).expect("overridden");
+    assert_eq!(
+        db.message("CTRL_ActuatorCmd1").map(|m| m.id()),
+        Some(FrameId::Extended(0x18FF_1234))
+    );
+    assert_eq!(
+        db.message("PLANT_Pressures").map(|m| m.id()),
+        Some(FrameId::Extended(0x100))
+    );
+    let new = Arc::new(BusCodec::load_for(&cfg, &path, &skid_bindings()).expect("codec"));
+    let old = codec();
+
+    // controller → plant: CTRL_ActuatorCmd1 (actuator message 0)
+    let frame = |c: &Arc<BusCodec>| {
+        let mut e = FrameEncoder::new(&c.frames, &messages(c, false), false, refresh()).unwrap();
+        parts(&e.encode(0, &commands(), 0).expect("frame"))
+    };
+    let (old_id, old_data) = frame(&old);
+    let (new_id, new_data) = frame(&new);
+    assert_eq!(old_id, FrameId::Standard(0xA0));
+    assert_eq!(new_id, FrameId::Extended(0x18FF_1234));
+    assert_eq!(old_data[..7], new_data[..7], "same signals");
+    assert_eq!(
+        new_data[7],
+        frame_crc(new_id, &new_data, 7),
+        "CRC over the new id"
+    );
+    assert_ne!(old_data[7], new_data[7]);
+    let mut p = plant(&new);
+    assert_eq!(p.rx.handle_data(new_id, &new_data, 1), RxOutcome::Published);
+    assert_eq!(
+        p.rx.handle_data(old_id, &old_data, 2),
+        RxOutcome::Rejected(RxReject::UnknownId),
+        "the DBC's id is no longer this message"
+    );
+
+    // plant → controller: PLANT_Pressures (sensor message 0), 29-bit id 0x100
+    let mut e = FrameEncoder::new(&new.frames, &messages(&new, true), false, refresh()).unwrap();
+    let (id, data) = parts(&sensor_frames(&mut e, &snapshot())[0]);
+    assert_eq!(id, FrameId::Extended(0x100));
+    let mut ctl = controller(&new);
+    assert_eq!(ctl.rx.handle_data(id, &data, 1), RxOutcome::Published);
+    assert!(
+        (ctl.sensors.get(SensorId::PSuction).0 - snapshot().get(SensorId::PSuction)).abs() <= 1.0
+    );
+    assert_eq!(
+        ctl.rx.handle_data(FrameId::Standard(0x100), &data, 2),
+        RxOutcome::Rejected(RxReject::UnknownId)
+    );
+
+    // bus load: two 1-kHz messages now 160 instead of 135 bits per frame
+    let before = BusLoad::of(&plain, 1_000_000).bits_per_s;
+    let after = BusLoad::of(&db, 1_000_000).bits_per_s;
+    assert_eq!(after - before, 2.0 * 25.0 * 1000.0);
+}

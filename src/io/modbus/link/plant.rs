@@ -208,7 +208,9 @@ impl Shared {
                 match handle_bits(image, unit_id, request) {
                     Some(Ok((response, n))) => {
                         let addr = match request {
-                            Request::WriteSingleCoil(a, _) | Request::WriteMultipleCoils(a, _) => *a,
+                            Request::WriteSingleCoil(a, _) | Request::WriteMultipleCoils(a, _) => {
+                                *a
+                            }
                             _ => 0,
                         };
                         self.after_write(image, state, unit_id, RegisterTable::Coil, addr, n, t_ns);
@@ -222,7 +224,15 @@ impl Shared {
                 image
                     .write_words(unit_id, RegisterTable::Holding, *addr, &[*word])
                     .map_err(unmapped)?;
-                self.after_write(image, state, unit_id, RegisterTable::Holding, *addr, 1, t_ns);
+                self.after_write(
+                    image,
+                    state,
+                    unit_id,
+                    RegisterTable::Holding,
+                    *addr,
+                    1,
+                    t_ns,
+                );
                 Ok(Response::WriteSingleRegister(*addr, *word))
             }
             Request::WriteMultipleRegisters(addr, words) => {
@@ -233,7 +243,15 @@ impl Shared {
                     .write_words(unit_id, RegisterTable::Holding, *addr, words)
                     .map_err(unmapped)?;
                 let n = words.len() as u16;
-                self.after_write(image, state, unit_id, RegisterTable::Holding, *addr, n, t_ns);
+                self.after_write(
+                    image,
+                    state,
+                    unit_id,
+                    RegisterTable::Holding,
+                    *addr,
+                    n,
+                    t_ns,
+                );
                 Ok(Response::WriteMultipleRegisters(*addr, n))
             }
             _ => Err(ExceptionCode::IllegalFunction),
