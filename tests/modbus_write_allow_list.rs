@@ -105,3 +105,84 @@ async fn a_client_not_allowed_cannot_write_actuators_or_the_heartbeat() {
     let _ = tx.send(());
     task.await.expect("join").expect("server ran cleanly");
 }
+
+/// One request PDU (unit 1) from `from`; the answer's PDU.
+async fn request(from: [u8; 4], to: SocketAddr, pdu: &[u8]) -> Vec<u8> {
+    let socket = TcpSocket::new_v4().expect("socket");
+    socket
+        .bind(SocketAddr::from((from, 0)))
+        .expect("bind the client address");
+    let mut s = socket.connect(to).await.expect("connect");
+    let mut frame = vec![0, 9, 0, 0, 0, (pdu.len() + 1) as u8, 1];
+    frame.extend_from_slice(pdu);
+    s.write_all(&frame).await.expect("write");
+    let mut buf = vec![0u8; 64];
+    let n = tokio::time::timeout(Duration::from_secs(2), s.read(&mut buf))
+        .await
+        .expect("an answer within 2 s")
+        .expect("read");
+    buf[7..n].to_vec()
+}
+
+/// Coils are writes too: a device watchdog watching a toggle coil cannot be fed by a client
+/// outside `allow_writes_from` (write single coil 0x05 and write multiple coils 0x0F refused
+/// with exception 1); the controller's flip of the coil is a heartbeat.
+#[tokio::test]
+async fn a_client_not_allowed_cannot_flip_the_watchdog_coil() {
+    let (map, _): (SignalMap, String) = antisurge::config::toml_file::load(Path::new(
+        "tests/fixtures/foreign_skid/modbus_map_coils.toml",
+    ))
+    .expect("signal map");
+    let cfg = ModbusServerConfig {
+        listen: "127.0.0.1:0".parse().unwrap(),
+        ..ModbusServerConfig::default()
+    };
+    let heartbeat: Arc<HeartbeatBoard> = Arc::default();
+    let server = PlantServer::bind(
+        &cfg,
+        &map,
+        Arc::default(),
+        Arc::default(),
+        Arc::clone(&heartbeat),
+    )
+    .await
+    .expect("bind");
+    let addr = server.local_addr();
+    let counters = server.counters();
+    let (tx, rx) = tokio::sync::oneshot::channel::<()>();
+    let task = tokio::spawn(server.run(async move {
+        let _ = rx.await;
+    }));
+
+    // coil 00001 = address 0: ON is FF00
+    let single = [0x05, 0, 0, 0xFF, 0x00];
+    let multiple = [0x0F, 0, 0, 0, 1, 1, 0x01];
+    assert_eq!(request([127, 0, 0, 2], addr, &single).await, [0x85, 0x01]);
+    assert_eq!(request([127, 0, 0, 2], addr, &multiple).await, [0x8F, 0x01]);
+    assert!(
+        heartbeat.latest().is_none(),
+        "a refused coil write fed the watchdog"
+    );
+    assert_eq!(counters.snapshot().refused_writes, 2);
+    // reading the coil back is allowed: still off
+    assert_eq!(
+        request([127, 0, 0, 2], addr, &[0x01, 0, 0, 0, 1]).await,
+        [0x01, 0x01, 0x00]
+    );
+
+    // the controller (loopback) flips it: applied, and a sign of life
+    assert_eq!(request([127, 0, 0, 1], addr, &single).await, single);
+    assert!(heartbeat.latest().is_some(), "the coil flip is a heartbeat");
+    assert_eq!(
+        request([127, 0, 0, 1], addr, &[0x01, 0, 0, 0, 1]).await,
+        [0x01, 0x01, 0x01]
+    );
+    // a coil the device does not have: exception 2
+    assert_eq!(
+        request([127, 0, 0, 1], addr, &[0x05, 0, 7, 0xFF, 0x00]).await,
+        [0x85, 0x02]
+    );
+
+    let _ = tx.send(());
+    task.await.expect("join").expect("server ran cleanly");
+}
