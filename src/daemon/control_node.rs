@@ -262,8 +262,11 @@ impl ControlNode {
         if self.live.is_none() {
             return;
         }
+        // an input the supervisor does not use is no lamp (as in the fault word), e.g. the
+        // simulated plant's ESD contact when the controller has none bound
+        let sup = &self.core.settings().supervisor;
         for id in SensorId::ALL {
-            if raw.values.get(id).is_finite() {
+            if raw.values.get(id).is_finite() && sup.limits[id.index()].is_some() {
                 self.seen |= 1 << id.index();
             }
         }
