@@ -15,6 +15,7 @@ use crate::runtime::handoff::{
     CommandBoard, HeartbeatBoard, OutputBoard, SensorBoard, SnapshotBoard, Wakeup,
 };
 use crate::signals::{ActuatorCommands, ActuatorId, SensorId};
+use crate::sim::summary::DeviceWatchdogTrip;
 use crate::sim::{ControllerView, PlantRun, SimResult};
 use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
 use std::sync::Arc;
@@ -60,6 +61,31 @@ pub struct PlantStatus {
     pub failsafe_entry_age_us: AtomicU64,
     /// The scenario has ended.
     pub finished: AtomicBool,
+    /// First fail-safe entry: plant time, s (f64 bits; valid once `failsafe_entries` ≥ 1).
+    first_trip_t_bits: AtomicU64,
+    /// First fail-safe entry: plant time of the last heartbeat change before it, s (f64 bits).
+    first_trip_last_beat_t_bits: AtomicU64,
+    /// First fail-safe entry: Unix time of that last heartbeat change, s (f64 bits).
+    first_trip_last_beat_unix_bits: AtomicU64,
+    /// First fail-safe entry: heartbeat age, µs.
+    first_trip_age_us: AtomicU64,
+}
+
+impl PlantStatus {
+    /// The device watchdog's first trip (None while the field devices never failed safe):
+    /// when, and after which last heartbeat change, for the summary and the journal.
+    pub fn device_watchdog(&self) -> Option<DeviceWatchdogTrip> {
+        if self.failsafe_entries.load(Ordering::Acquire) == 0 {
+            return None;
+        }
+        let f = |a: &AtomicU64| f64::from_bits(a.load(Ordering::Relaxed));
+        Some(DeviceWatchdogTrip {
+            failsafe_t_s: f(&self.first_trip_t_bits),
+            last_beat_t_s: f(&self.first_trip_last_beat_t_bits),
+            last_beat_unix_s: f(&self.first_trip_last_beat_unix_bits),
+            age_s: self.first_trip_age_us.load(Ordering::Relaxed) as f64 * 1e-6,
+        })
+    }
 }
 
 /// The plant node.
@@ -75,6 +101,10 @@ pub struct PlantNode<'a> {
     k: usize,
     hold_after_end: bool,
     status: Arc<PlantStatus>,
+    /// Arrival time of the last heartbeat change the device watchdog saw (monotonic ns).
+    last_hb_ns: u64,
+    /// Plant time of the step that first saw it, s.
+    last_beat_t_s: f64,
 }
 
 impl<'a> PlantNode<'a> {
@@ -107,6 +137,8 @@ impl<'a> PlantNode<'a> {
             k: 0,
             hold_after_end,
             status,
+            last_hb_ns: 0,
+            last_beat_t_s: 0.0,
         }
     }
 
@@ -179,6 +211,11 @@ impl<'a> PlantNode<'a> {
         let t = self.k.min(n) as f64 * dt;
         let (st, raw) = self.run.sense(t);
         self.publish(now_ns, &raw);
+        if hb_ns != self.last_hb_ns {
+            // the device watchdog saw the heartbeat change in this step
+            self.last_hb_ns = hb_ns;
+            self.last_beat_t_s = t;
+        }
 
         let omega = self.run.plant().truth().omega_rad_s;
         let was_failsafe = self.status.field_failsafe.load(Ordering::Relaxed);
@@ -205,9 +242,23 @@ impl<'a> PlantNode<'a> {
             }
         } else {
             if !was_failsafe {
-                self.status.field_failsafe.store(true, Ordering::Relaxed);
-                self.status.failsafe_entries.fetch_add(1, Ordering::Relaxed);
                 let age_us = now_ns.saturating_sub(hb_ns) / 1000;
+                if self.status.failsafe_entries.load(Ordering::Relaxed) == 0 {
+                    let s = &self.status;
+                    // the beat's wall-clock time, so a test can set it against its kill
+                    let unix_s = std::time::SystemTime::now()
+                        .duration_since(std::time::UNIX_EPOCH)
+                        .map_or(0.0, |d| d.as_secs_f64())
+                        - age_us as f64 * 1e-6;
+                    s.first_trip_t_bits.store(t.to_bits(), Ordering::Relaxed);
+                    s.first_trip_last_beat_t_bits
+                        .store(self.last_beat_t_s.to_bits(), Ordering::Relaxed);
+                    s.first_trip_last_beat_unix_bits
+                        .store(unix_s.to_bits(), Ordering::Relaxed);
+                    s.first_trip_age_us.store(age_us, Ordering::Relaxed);
+                }
+                self.status.field_failsafe.store(true, Ordering::Relaxed);
+                self.status.failsafe_entries.fetch_add(1, Ordering::Release);
                 self.status
                     .failsafe_entry_age_us
                     .store(age_us, Ordering::Relaxed);

@@ -137,7 +137,8 @@ pub fn run(opts: &PlantOptions) -> Result<()> {
                     let fs = status.field_failsafe.load(Ordering::Relaxed);
                     if fs != last_fs {
                         if fs {
-                            tracing::warn!(target: "plant", "controller heartbeat lost: field devices in their own fail-safe (recycle valve open, drive on its governor, thrust centred)");
+                            let age_s = status.failsafe_entry_age_us.load(Ordering::Relaxed) as f64 * 1e-6;
+                            tracing::warn!(target: "plant", "controller heartbeat lost: device watchdog saw no heartbeat change for {age_s:.3} s (timeout {hb_ms:.0} ms), field devices in their own fail-safe (recycle valve open, drive on its governor, thrust centred)");
                         } else {
                             tracing::info!(target: "plant", "controller heartbeat back: setpoints applied again");
                         }
@@ -157,6 +158,7 @@ pub fn run(opts: &PlantOptions) -> Result<()> {
     rt.block_on(async { while tasks.join_next().await.is_some() {} });
     let mut result = result;
     result.summary.field_failsafe_entries = Some(status.failsafe_entries.load(Ordering::Relaxed));
+    result.summary.device_watchdog = status.device_watchdog();
     crate::sim::output::write_data(&out_dir, &result, &desc_map).map_err(|e| anyhow!("{e}"))?;
     let s = &result.summary;
     println!(

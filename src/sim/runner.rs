@@ -756,6 +756,7 @@ impl<'a> PlantRun<'a> {
             wall_time_s: wall_s,
             realtime_factor: duration / wall_s.max(1e-9),
             field_failsafe_entries: None,
+            device_watchdog: None,
         };
         SimResult {
             trace: trace.clone(),

@@ -185,6 +185,24 @@ pub struct Summary {
     /// controller's heartbeat stopped.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub field_failsafe_entries: Option<u64>,
+    /// Plant node only: the device watchdog at the first field fail-safe entry (when and
+    /// after which last heartbeat change), so a test can bound the watchdog's timing.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub device_watchdog: Option<DeviceWatchdogTrip>,
+}
+
+/// When the plant's device watchdog first failed the field devices safe, and when it last
+/// saw the controller's heartbeat change before that.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize)]
+pub struct DeviceWatchdogTrip {
+    /// Plant time of the first fail-safe step, s.
+    pub failsafe_t_s: f64,
+    /// Plant time of the step that first saw the last heartbeat change, s.
+    pub last_beat_t_s: f64,
+    /// Wall-clock (Unix) time at which that last heartbeat change arrived, s.
+    pub last_beat_unix_s: f64,
+    /// Heartbeat age when the watchdog tripped (monotonic clock), s.
+    pub age_s: f64,
 }
 
 /// What a run's record says about its health, for [`verdict`].

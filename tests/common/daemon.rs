@@ -207,20 +207,81 @@ log_interval_s = 5.0
     path
 }
 
-/// From a `cmd_recycle_valve` trace column with a fail-safe (command 1.0) after t = 1 s:
-/// the time of the first fail-safe row and of the last controlled row before it, s.
-pub fn failsafe_after_last_command(cmd: &[(f64, f64)]) -> (f64, f64) {
-    let t_fs = cmd
+/// Wall-clock (Unix) time now, s: taken just before a kill, to set against the plant's
+/// record of the last heartbeat change.
+pub fn unix_now_s() -> f64 {
+    std::time::SystemTime::now()
+        .duration_since(std::time::UNIX_EPOCH)
+        .expect("clock after 1970")
+        .as_secs_f64()
+}
+
+/// The plant's record of its device watchdog's first trip (`summary.json`,
+/// `device_watchdog`): (t_fail_safe, t_last_beat) in plant time, s, and the last beat's
+/// Unix time, s. Checks that the trace's first fail-safe row (`cmd_recycle_valve` = 1.0
+/// after t = 1 s) is that step, and returns the trace step, s, as the fourth value.
+pub fn device_watchdog_trip(out: &Path) -> (f64, f64, f64, f64) {
+    let s = summary(out);
+    let w = &s["device_watchdog"];
+    let f = |k: &str| {
+        w[k].as_f64()
+            .unwrap_or_else(|| panic!("device_watchdog.{k} in {s:#}"))
+    };
+    let (t_fs, t_beat, beat_unix) = (f("failsafe_t_s"), f("last_beat_t_s"), f("last_beat_unix_s"));
+    let cmd = column(out, "cmd_recycle_valve");
+    let dt = cmd[1].0 - cmd[0].0;
+    let row = cmd
         .iter()
         .find(|(t, v)| *t > 1.0 && *v >= 0.999)
-        .expect("fail-safe command")
+        .expect("a fail-safe row in the trace")
         .0;
-    let t_last = cmd
-        .iter()
-        .take_while(|(t, _)| *t < t_fs)
-        .filter(|(_, v)| *v < 0.999)
-        .last()
-        .expect("controlled rows")
-        .0;
-    (t_fs, t_last)
+    assert!(
+        (row - t_fs).abs() < 0.5 * dt,
+        "trace fail-safe row at {row:.3} s, the plant's record says {t_fs:.3} s"
+    );
+    (t_fs, t_beat, beat_unix, dt)
+}
+
+/// Assert the device watchdog's timing from the plant's record (see
+/// [`device_watchdog_trip`]): it failed the valve safe `timeout_s` after the last heartbeat
+/// change it saw, to within one plant step below (the beat arrives somewhere in the step
+/// that sees it) and two steps above (the device checks once a step, 5 ms, plus one step
+/// of scheduling slack on a loaded machine); and that last beat came at most one heartbeat
+/// period (`beat_period_s`, + 5 ms for the bus) before the kill at `kill_unix_s`, i.e. the
+/// controller beat until it died. Returns t_fs − t_last_beat, s.
+pub fn assert_device_watchdog_timing(
+    out: &Path,
+    timeout_s: f64,
+    beat_period_s: f64,
+    kill_unix_s: f64,
+    ctx: &str,
+) -> f64 {
+    let (t_fs, t_beat, beat_unix, dt) = device_watchdog_trip(out);
+    let gap = t_fs - t_beat;
+    eprintln!(
+        "device watchdog: fail-safe at plant time {t_fs:.3} s, last beat {t_beat:.3} s: {:.1} ms after it (timeout {:.0} ms, step {:.1} ms); last beat {:.1} ms before the kill",
+        gap * 1e3,
+        timeout_s * 1e3,
+        dt * 1e3,
+        (kill_unix_s - beat_unix) * 1e3
+    );
+    assert!(
+        gap >= timeout_s - dt - 1e-6 && gap <= timeout_s + 2.0 * dt + 1e-6,
+        "fail-safe {:.1} ms after the last heartbeat change, timeout {:.0} ms (step {:.1} ms): {ctx}",
+        gap * 1e3,
+        timeout_s * 1e3,
+        dt * 1e3
+    );
+    assert!(
+        beat_unix >= kill_unix_s - beat_period_s - 0.005,
+        "the last heartbeat change came {:.1} ms before the kill (period {:.0} ms): the controller stopped beating before it died: {ctx}",
+        (kill_unix_s - beat_unix) * 1e3,
+        beat_period_s * 1e3
+    );
+    assert!(
+        beat_unix <= kill_unix_s + 0.05,
+        "a heartbeat change {:.1} ms after the kill: {ctx}",
+        (beat_unix - kill_unix_s) * 1e3
+    );
+    gap
 }
