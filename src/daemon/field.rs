@@ -44,6 +44,19 @@ fn can_codec(l: &Loaded) -> Result<(crate::io::can::bus::CanBusConfig, BusCodec)
     Ok((can, codec))
 }
 
+/// What starts the controller's cycles (`[bus.can] cycle_trigger`, resolved against the DBC
+/// and the signal map): `None` when the cycle keeps its fixed deadline (not the field
+/// transport, no CAN binding, `"deadline"`, or no cycle input on CAN).
+pub fn controller_trigger_plan(l: &Loaded) -> Result<Option<crate::io::can::bus::TriggerPlan>> {
+    if l.config.bus.transport != super::config::Transport::Field || !l.signal_map.uses_can() {
+        return Ok(None);
+    }
+    let (can, codec) = can_codec(l)?;
+    codec
+        .trigger_plan(&can.cycle_trigger)
+        .context("bus.can.cycle_trigger")
+}
+
 /// The event sink of a [`FieldLinkReporter`]: the daemon's event log.
 fn event_sink(events: EventSender) -> EventSink {
     Arc::new(move |e: Event| {
@@ -217,6 +230,7 @@ pub fn spawn_controller_links(
     sensors: Arc<SensorBoard>,
     outputs: Arc<OutputBoard>,
     wake: Arc<Wakeup>,
+    trigger: Option<Arc<crate::runtime::trigger::CycleTrigger>>,
     shutdown: watch::Receiver<bool>,
     events: EventSender,
 ) -> Result<LinkCounters> {
@@ -249,6 +263,7 @@ pub fn spawn_controller_links(
             sensors: Arc::clone(&sensors),
             outputs: Arc::clone(&outputs),
             wake: Arc::clone(&wake),
+            trigger,
         };
         tracing::info!(target: "can", "controller on {} ({})", can.interface, can.dbc.display());
         tasks.spawn(async move {

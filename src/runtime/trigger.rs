@@ -22,8 +22,12 @@
 //!   deadline, and while the inputs stay away it keeps the fixed grid of `P` (today's
 //!   behaviour). The input freshness checks of the core then decide fail-safe exactly as
 //!   before: this module only decides *when* a cycle runs, never what it does;
-//! - to follow a sender whose clock runs slightly fast, the rate may exceed the configured one
-//!   by at most [`DRIFT_ALLOWANCE`] (1/1000 of the period per cycle).
+//! - the credit comes back: the rate may exceed the configured one by at most
+//!   [`DRIFT_ALLOWANCE`] (1/32 of the period per cycle, ≈ 3 %). A sender at exactly the
+//!   configured rate leaves no slack otherwise, so a credit spent once (a burst of sets after
+//!   the sender stalled) would hold every later cycle behind its inputs for good; with it the
+//!   loop is back on the arrivals within 32 cycles, and it also follows a sender whose clock
+//!   runs fast. A sustained flood runs the loop at most ≈ 3 % above `rate_hz`.
 //!
 //! The laws see the measured time between cycles as `dt` (the core derives it from the tick's
 //! wake time; it lies between `P/2` and `P + P/4` unless a cycle overran), and a cycle that
@@ -40,9 +44,9 @@ pub const MIN_SPACING: (u64, u64) = (1, 2);
 /// How long after `P` the fallback deadline waits for a fire, as a fraction of the period
 /// (1/4).
 pub const LATE_TOLERANCE: (u64, u64) = (1, 4);
-/// How far the rate may exceed the configured one to follow a fast sender clock, fraction of
-/// the period per cycle (1/1000).
-pub const DRIFT_ALLOWANCE: (u64, u64) = (1, 1000);
+/// How far the rate may exceed the configured one (to win back the credit and follow a fast
+/// sender clock), fraction of the period per cycle (1/32).
+pub const DRIFT_ALLOWANCE: (u64, u64) = (1, 32);
 
 fn frac(period_ns: u64, (num, den): (u64, u64)) -> u64 {
     period_ns * num / den
@@ -326,16 +330,25 @@ mod tests {
         let stop = AtomicBool::new(false);
         let phases = Arc::new([AtomicU64::new(0), AtomicU64::new(0), AtomicU64::new(0)]);
         let done = Arc::new(AtomicBool::new(false));
+        let stamps = Arc::new(std::sync::Mutex::new(Vec::with_capacity(200)));
         let (t, ph, d) = (Arc::clone(&trigger), Arc::clone(&phases), Arc::clone(&done));
+        let st = Arc::clone(&stamps);
         let sender = std::thread::spawn(move || {
             // phase 1: 150 regular sets, two frames each, 0.7 P after our loop's phase
             let mut at = monotonic_ns() + P / 3;
             ph[0].store(at, Ordering::Relaxed);
+            // (like the plant node's loop, a set whose slot passed while the sender was held up
+            // by the loaded machine is skipped, not sent in a burst)
             for _ in 0..150 {
                 sleep_until(at);
                 t.note(0b01, monotonic_ns());
-                t.note(0b10, monotonic_ns());
+                let complete = monotonic_ns();
+                t.note(0b10, complete);
+                st.lock().expect("stamps").push(complete);
                 at += P;
+                while at < monotonic_ns() {
+                    at += P;
+                }
             }
             // phase 2: silence for 40 periods
             ph[1].store(at, Ordering::Relaxed);
@@ -378,8 +391,8 @@ mod tests {
         };
 
         // 1. regular inputs: after the first few sets (the phase moves onto the inputs once)
-        //    every cycle runs on its inputs, on the sender's schedule: one cycle per set, each
-        //    scheduled at the arrival of the set (p1 + k·P plus the sender's wake-up)
+        //    every cycle runs on its inputs: one cycle per set, scheduled at the arrival of the
+        //    set (not held back to a slot of its own)
         let regular = within(p1 + 5 * P, p2);
         assert!(regular.len() >= 140, "{} cycles in phase 1", regular.len());
         let on_input = regular.iter().filter(|s| s.by_input).count();
@@ -388,16 +401,15 @@ mod tests {
             "{on_input} of {} cycles ran on their inputs",
             regular.len()
         );
-        // scheduled within a fifth of a period after the set was sent (sender's lateness on a
-        // loaded machine), never before
-        let mut late = 0;
-        for s in regular.iter().filter(|s| s.by_input) {
-            let offset = (s.tick.deadline_ns - p1) % P;
-            if offset > P / 5 {
-                late += 1;
-            }
-        }
-        assert!(late * 10 <= on_input, "{late} of {on_input} cycles off the sender's phase");
+        let stamps = stamps.lock().expect("stamps");
+        let at_arrival = regular
+            .iter()
+            .filter(|s| s.by_input && stamps.contains(&s.tick.deadline_ns))
+            .count();
+        assert!(
+            at_arrival * 10 >= on_input * 8,
+            "{at_arrival} of {on_input} cycles scheduled at the arrival of their inputs"
+        );
 
         // 2. silence: after a period and a quarter the deadline takes over, then the fixed grid
         let quiet = within(p2, p3);
@@ -420,7 +432,7 @@ mod tests {
         );
 
         // 3. a flood: never two cycles closer than P/2, and no faster than the configured rate
-        //    (one cycle of credit, and the 1/1000 drift allowance)
+        //    (one cycle of credit, and the 1/32 drift allowance)
         let flood = within(p3, p3 + 60 * P);
         assert!(flood.len() >= 40, "{} cycles in the flood", flood.len());
         for w in flood.windows(2) {
@@ -428,7 +440,7 @@ mod tests {
             assert!(step >= P / 2, "two cycles {step} ns apart");
         }
         let span = flood.last().expect("flood").tick.deadline_ns - flood[0].tick.deadline_ns;
-        let allowed = span as f64 / (P as f64 * 0.999) + 2.0;
+        let allowed = span as f64 / (P as f64 * (1.0 - 1.0 / 32.0)) + 2.0;
         assert!(
             (flood.len() as f64) <= allowed + 1.0,
             "{} cycles in {span} ns: faster than the rate",

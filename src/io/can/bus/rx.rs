@@ -11,6 +11,7 @@ use crate::io::can::codec::{AliveCheckers, SignalTarget};
 use crate::io::can::dbc::FrameId;
 use crate::io::can::e2e::{AliveChecker, AliveStatus, FrameError};
 use crate::runtime::handoff::{CommandBoard, HeartbeatBoard, HeartbeatSeen, SensorBoard};
+use crate::runtime::trigger::CycleTrigger;
 
 /// What an error frame says about the CAN controller.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
@@ -107,6 +108,8 @@ pub struct RxHandler {
     checkers: AliveCheckers,
     sink: Sink,
     counters: Arc<CanCounters>,
+    /// Controller: the cycle trigger and, per message index, its bit (0: not a trigger).
+    trigger: Option<(Arc<CycleTrigger>, Vec<u32>)>,
 }
 
 impl RxHandler {
@@ -128,7 +131,16 @@ impl RxHandler {
             sink: Sink::Sensors(sensors),
             codec,
             counters,
+            trigger: None,
         }
+    }
+
+    /// Controller: arm `trigger` with `plan` and note each of its messages once its values
+    /// are published (so the control thread woken by the last one reads them all).
+    pub fn with_trigger(mut self, trigger: Arc<CycleTrigger>, plan: &super::TriggerPlan) -> Self {
+        trigger.arm(plan.required);
+        self.trigger = Some((trigger, plan.bits.clone()));
+        self
     }
 
     /// Plant side: actuator frames go to `commands`, the heartbeat to `heartbeat`.
@@ -154,6 +166,7 @@ impl RxHandler {
             },
             codec,
             counters,
+            trigger: None,
         }
     }
 
@@ -255,6 +268,12 @@ impl RxHandler {
                 for (target, v) in frame.values() {
                     if let SignalTarget::Sensor(s) = target {
                         board.publish(*s, *v, t_ns);
+                    }
+                }
+                if let Some((trigger, bits)) = &self.trigger {
+                    match bits.get(frame.message().get()) {
+                        Some(&bit) if bit != 0 => trigger.note(bit, t_ns),
+                        _ => {}
                     }
                 }
             }
