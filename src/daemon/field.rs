@@ -223,17 +223,21 @@ impl LinkCounters {
     }
 }
 
-/// Start the controller's bus tasks.
+/// Start the controller's bus tasks on `boards` (the cycle trigger, if any, goes to the CAN
+/// task).
 pub fn spawn_controller_links(
     l: &Loaded,
     tasks: &mut JoinSet<()>,
-    sensors: Arc<SensorBoard>,
-    outputs: Arc<OutputBoard>,
-    wake: Arc<Wakeup>,
-    trigger: Option<Arc<crate::runtime::trigger::CycleTrigger>>,
+    boards: ControllerBoards,
     shutdown: watch::Receiver<bool>,
     events: EventSender,
 ) -> Result<LinkCounters> {
+    let ControllerBoards {
+        sensors,
+        outputs,
+        wake,
+        trigger,
+    } = boards;
     let mut counters = LinkCounters::default();
     let map = &l.signal_map;
     let sup = FeedbackSupervisor::new(&map.feedback);

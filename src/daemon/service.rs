@@ -540,10 +540,12 @@ async fn serve(loaded: Loaded, opts: RunOptions) -> Result<()> {
             link_counters = super::field::spawn_controller_links(
                 &loaded,
                 &mut tasks,
-                Arc::clone(&sensors),
-                Arc::clone(&outputs),
-                Arc::clone(&wake),
-                trigger.clone(),
+                crate::io::can::bus::ControllerBoards {
+                    sensors: Arc::clone(&sensors),
+                    outputs: Arc::clone(&outputs),
+                    wake: Arc::clone(&wake),
+                    trigger: trigger.clone(),
+                },
                 shutdown_rx.clone(),
                 events.clone(),
             )?;
