@@ -90,6 +90,7 @@ fn populated() -> DaemonConfig {
                     antisurge::io::can::dbc::FrameIdOverride::Id(0x18FF_1234),
                 )]
                 .into(),
+                cycle_trigger: antisurge::io::can::bus::CycleTriggerSpec::Inputs,
             }),
             modbus: Some(ModbusLinkConfig {
                 client: ClientConfig {

@@ -28,6 +28,7 @@
 //! board updates and counter increments, [`FrameEncoder`] and [`HeartbeatTx`] turn board
 //! contents into frames. None of them allocates per frame.
 
+mod cycle_trigger;
 mod link;
 mod rx;
 mod tx;
@@ -54,7 +55,9 @@ use super::heartbeat::{HeartbeatCodec, HeartbeatConfig, HeartbeatNames};
 use crate::runtime::handoff::{
     monotonic_ns, CommandBoard, HeartbeatBoard, OutputBoard, SensorBoard, SnapshotBoard, Wakeup,
 };
+use crate::runtime::trigger::CycleTrigger;
 
+pub use cycle_trigger::{CycleTriggerSpec, TriggerPlan, MAX_TRIGGER_MESSAGES};
 pub use link::CanLink;
 pub use rx::{classify_error_frame, BusCondition, RxHandler, RxOutcome, RxReject};
 pub use tx::{FrameEncoder, HeartbeatTx};
@@ -139,6 +142,11 @@ pub struct CanBusConfig {
     /// `{ id = 0x100, extended = true }`). Both ends, the bus load and the codec use it.
     #[serde(default, skip_serializing_if = "std::collections::BTreeMap::is_empty")]
     pub frame_ids: std::collections::BTreeMap<String, FrameIdOverride>,
+    /// Controller: what starts a control cycle: `"inputs"` (default: the messages carrying
+    /// the pressures and the speed), `"deadline"` (the fixed period only), or DBC message
+    /// names. The deadline stays the fallback ([`crate::runtime::trigger`]).
+    #[serde(default)]
+    pub cycle_trigger: CycleTriggerSpec,
 }
 
 fn default_max_load_pct() -> u32 {
@@ -166,6 +174,7 @@ impl CanBusConfig {
             not_available: NotAvailable::J1939,
             heartbeat: None,
             frame_ids: Default::default(),
+            cycle_trigger: CycleTriggerSpec::Inputs,
         }
     }
 
@@ -331,6 +340,7 @@ impl BusCodec {
             cfg.heartbeat_period(),
             cfg.not_available,
         )?;
+        codec.trigger_plan(&cfg.cycle_trigger)?;
         Ok(codec)
     }
 }
@@ -627,6 +637,9 @@ pub struct ControllerBoards {
     pub outputs: Arc<OutputBoard>,
     /// Signalled by the control thread after each publish.
     pub wake: Arc<Wakeup>,
+    /// Fired when the cycle's trigger messages arrived (`bus.can.cycle_trigger`); `None`:
+    /// the control thread runs on its deadline only.
+    pub trigger: Option<Arc<CycleTrigger>>,
 }
 
 /// Boards of the plant node.
@@ -659,12 +672,22 @@ pub async fn run_controller(
     let codec = Arc::new(codec);
     let refresh = cfg.heartbeat_period();
     let actuators: Vec<_> = codec.frames.actuator_messages().collect();
+    let mut rx = RxHandler::controller(
+        Arc::clone(&codec),
+        Arc::clone(&boards.sensors),
+        Arc::clone(&handles.counters),
+    );
+    if let Some(trigger) = &boards.trigger {
+        match codec.trigger_plan(&cfg.cycle_trigger)? {
+            Some(plan) => {
+                tracing::info!(target: "can", "control cycle starts on {} (deadline as fallback)", plan.describe());
+                rx = rx.with_trigger(Arc::clone(trigger), &plan);
+            }
+            None => trigger.arm(0),
+        }
+    }
     let mut role = ControllerRole {
-        rx: RxHandler::controller(
-            Arc::clone(&codec),
-            Arc::clone(&boards.sensors),
-            Arc::clone(&handles.counters),
-        ),
+        rx,
         tx: FrameEncoder::with_not_available(
             &codec.frames,
             &actuators,
