@@ -10,7 +10,9 @@
 # `cargo install cargo-fuzz`. Environment: FUZZ_JOBS (default 1), FUZZ_TARGETS (a subset),
 # FUZZ_SANITIZER (default none: the code under test is safe Rust, and without ASan a target
 # runs about twice as many executions; `address` for the unsafe paths), FUZZ_RUNS (stop each
-# target after this many executions instead of SECONDS; SECONDS is then only a cap).
+# target after this many executions instead of SECONDS; SECONDS is then only a cap),
+# FUZZ_SKIP_BUILD=1 (run the targets already built, e.g. for a second campaign in parallel: the
+# build script rebuilds the crate after every commit).
 #
 # Input length (-max_len) suits each format: a DBC or TOML file of 16 KiB holds every construct
 # of the grammar (the largest shipped file, config/skid.dbc, is 11.6 KiB; config/antisurge.toml
@@ -69,8 +71,12 @@ seed() {
     esac
 }
 
-echo "== building fuzz targets (cargo +nightly fuzz build)"
-(cd fuzz && cargo +nightly fuzz build -s "$san") >&2
+if [ -z "${FUZZ_SKIP_BUILD:-}" ]; then
+    echo "== building fuzz targets (cargo +nightly fuzz build)" >&2
+    (cd fuzz && cargo +nightly fuzz build -s "$san") >&2
+fi
+# what `cargo fuzz run` runs after its build: the binaries of the host triple
+bin=$root/fuzz/target/$(rustc +nightly -vV | sed -n 's/^host: //p')/release
 printf '%-24s %14s %8s %s\n' target executions seconds result
 status=0
 for t in $targets; do
@@ -81,8 +87,9 @@ for t in $targets; do
     if [ "${FUZZ_JOBS:-1}" -gt 1 ]; then par=(-jobs="$FUZZ_JOBS" -workers="$FUZZ_JOBS"); fi
     if [ -n "${FUZZ_RUNS:-}" ]; then par+=(-runs="$FUZZ_RUNS"); fi
     start=$(date +%s)
-    (cd fuzz && cargo +nightly fuzz run -s "$san" "$t" -- -max_total_time="$secs" \
-        -max_len="$(max_len "$t")" -rss_limit_mb=2048 -print_final_stats=1 "${par[@]}") \
+    mkdir -p "fuzz/artifacts/$t"
+    (cd fuzz && "$bin/$t" -artifact_prefix="artifacts/$t/" -max_total_time="$secs" \
+        -max_len="$(max_len "$t")" -rss_limit_mb=2048 -print_final_stats=1 "${par[@]}" "corpus/$t") \
         >"$log" 2>&1 || { result="CRASH (see fuzz/artifacts/$t)"; status=1; tail -n 40 "$log" >&2; }
     execs=$({ grep -h 'stat::number_of_executed_units' "$log" fuzz/fuzz-*.log 2>/dev/null || true; } |
         awk '{s += $2} END {print s + 0}')
