@@ -1,8 +1,8 @@
 #!/usr/bin/env bash
 # Build every fuzz target and run each for SECONDS (default 60), one after the other.
-# Prints a table: target, executions, seconds, result. Exits non-zero if any target
-# crashed; the crashing input is in fuzz/artifacts/<target>/ (turn it into a regression test
-# in tests/fuzz_regressions.rs).
+# Prints a table: target, executions, seconds, result. Exits 1 if any target crashed (or hit
+# libFuzzer's timeout or memory limit), 0 otherwise; the crashing input is in
+# fuzz/artifacts/<target>/ (turn it into a regression test in tests/fuzz_regressions.rs).
 #
 # Seed corpora are made from the repository's own files (config/, tests/good_configs,
 # tests/bad_configs, DBCs, a written event log) into fuzz/corpus/<target>/ (git-ignored).
@@ -12,7 +12,8 @@
 # runs about twice as many executions; `address` for the unsafe paths), FUZZ_RUNS (stop each
 # target after this many executions instead of SECONDS; SECONDS is then only a cap),
 # FUZZ_SKIP_BUILD=1 (run the targets already built, e.g. for a second campaign in parallel: the
-# build script rebuilds the crate after every commit).
+# build script rebuilds the crate after every commit), FUZZ_BIN_DIR (where the built targets
+# are; default fuzz/target/<host>/release, where `cargo fuzz build` puts them).
 #
 # Input length (-max_len) suits each format: a DBC or TOML file of 16 KiB holds every construct
 # of the grammar (the largest shipped file, config/skid.dbc, is 11.6 KiB; config/antisurge.toml
@@ -76,7 +77,7 @@ if [ -z "${FUZZ_SKIP_BUILD:-}" ]; then
     (cd fuzz && cargo +nightly fuzz build -s "$san") >&2
 fi
 # what `cargo fuzz run` runs after its build: the binaries of the host triple
-bin=$root/fuzz/target/$(rustc +nightly -vV | sed -n 's/^host: //p')/release
+bin=${FUZZ_BIN_DIR:-$root/fuzz/target/$(rustc +nightly -vV | sed -n 's/^host: //p')/release}
 printf '%-24s %14s %8s %s\n' target executions seconds result
 status=0
 for t in $targets; do
@@ -90,7 +91,12 @@ for t in $targets; do
     mkdir -p "fuzz/artifacts/$t"
     (cd fuzz && "$bin/$t" -artifact_prefix="artifacts/$t/" -max_total_time="$secs" \
         -max_len="$(max_len "$t")" -rss_limit_mb=2048 -print_final_stats=1 "${par[@]}" "corpus/$t") \
-        >"$log" 2>&1 || { result="CRASH (see fuzz/artifacts/$t)"; status=1; tail -n 40 "$log" >&2; }
+        >"$log" 2>&1 || {
+        rc=$?
+        result="FAILED: exit $rc (crash, leak, timeout or out-of-memory; input in fuzz/artifacts/$t)"
+        status=1
+        tail -n 40 "$log" >&2
+    }
     execs=$({ grep -h 'stat::number_of_executed_units' "$log" fuzz/fuzz-*.log 2>/dev/null || true; } |
         awk '{s += $2} END {print s + 0}')
     took=$(($(date +%s) - start))
