@@ -94,6 +94,8 @@ for t in $targets; do
         >"$log" 2>&1 || {
         rc=$?
         result="FAILED: exit $rc (crash, leak, timeout or out-of-memory; input in fuzz/artifacts/$t)"
+        # libFuzzer's -interrupted_exitcode: stopped by SIGINT, not a finding (still not a pass)
+        [ "$rc" -ne 72 ] || result="INTERRUPTED (SIGINT): no finding, the run was cut short"
         status=1
         tail -n 40 "$log" >&2
     }
