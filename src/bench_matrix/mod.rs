@@ -181,6 +181,24 @@ pub struct CaseResult {
     /// In the "Δp frozen" case, how long after the Δp froze the cross-check first found it,
     /// s (NaN: not found, or another case).
     pub dp_frozen_found_after_s: f64,
+    /// Oracle: the recycle energy an ideal controller would spend along this run's true
+    /// trajectory holding the compressor exactly on the control line from the instant the
+    /// process needs it, J (see [`oracle_recycle_kg_s`]).
+    pub oracle_energy_j: f64,
+}
+
+/// The recycle flow an ideal controller needs at one instant of the plant's true state, kg/s:
+/// the compressor must pass at least the control-line flow `q_cl` (map units, at the present
+/// pressure ratio), and what the process does not take through the throttle must come back
+/// through the recycle valve: max(0, w_cl − w_throttle), w_cl = q_cl × (w_c / q_c) (the same
+/// suction density; `kg_per_map_unit` = w_c/q_c, the last valid one while q_c ≈ 0).
+pub fn oracle_recycle_kg_s(q_cl_map: f64, kg_per_map_unit: f64, throttle_flow_kg_s: f64) -> f64 {
+    let need = q_cl_map * kg_per_map_unit - throttle_flow_kg_s.max(0.0);
+    if need.is_finite() {
+        need.max(0.0)
+    } else {
+        0.0
+    }
 }
 
 /// The controller configuration of a case: the plant's observer and detector settings, and
@@ -215,6 +233,18 @@ pub fn run_case(
     law: LawId,
     margin_pct: f64,
 ) -> Result<CaseResult, SimError> {
+    run_case_traced(desc, scenario, case, law, margin_pct).map(|(r, _)| r)
+}
+
+/// Run one case and keep the simulator's trace too (for pictures and for finding out why a
+/// case surges).
+pub fn run_case_traced(
+    desc: &PlantCase,
+    scenario: &Scenario,
+    case: &Case,
+    law: LawId,
+    margin_pct: f64,
+) -> Result<(CaseResult, crate::sim::SimResult), SimError> {
     let mut pr = PlantRun::new(desc, scenario)?;
     let model = crate::sim::control_model(desc);
     let settings = CoreSettings::defaults_for(&model);
@@ -279,7 +309,10 @@ pub fn run_case(
         resume_step: 0.0,
         dp_frozen_found: 0,
         dp_frozen_found_after_s: f64::NAN,
+        oracle_energy_j: 0.0,
     };
+    let gas = &desc.file.gas;
+    let mut kg_per_map_unit = f64::NAN;
     let mut was_frozen = false;
     let mut held_raw: Option<RawSensors> = None;
     let mut frozen_dp = f64::NAN;
@@ -393,6 +426,22 @@ pub fn run_case(
         if truth.recycle_flow_kg_s > 0.0 {
             res.recycle_kg += truth.recycle_flow_kg_s * dt;
         }
+        // the oracle: an ideal controller on exactly this control line
+        if truth.flow_map.abs() > 1e-9 && truth.m_kg_s.is_finite() {
+            let k_m = truth.m_kg_s / truth.flow_map;
+            if k_m > 0.0 && k_m.is_finite() {
+                kg_per_map_unit = k_m;
+            }
+        }
+        let ratio = truth.pressure_ratio();
+        let q_cl = (1.0 + 0.01 * margin_pct) * model.surge_line.flow_at_ratio(ratio);
+        let w_oracle = oracle_recycle_kg_s(q_cl, kg_per_map_unit, truth.throttle_flow_kg_s);
+        if w_oracle > 0.0 {
+            let head = gas.polytropic_head_j_kg(truth.t_suction_k, ratio);
+            if head.is_finite() {
+                res.oracle_energy_j += w_oracle * head * dt;
+            }
+        }
         let pos = truth.recycle_valve_position;
         if pos.is_finite() && last_pos.is_finite() {
             res.valve_travel += (pos - last_pos).abs();
@@ -408,11 +457,12 @@ pub fn run_case(
         }
         pr.advance(&st, &delivered, dt);
     }
-    let s = pr.finish(law.name()).summary;
+    let sim = pr.finish(law.name());
+    let s = &sim.summary;
     res.surge_cycles = s.surge_cycles;
     res.flow_reversals = s.flow_reversals;
     res.recycle_energy_j = s.recycle_energy_j;
-    Ok(res)
+    Ok((res, sim))
 }
 
 /// Run the whole matrix on the recycle plants among `plants`, on up to `threads` threads.

@@ -753,8 +753,18 @@ impl SurgeLaw for RecyclePi {
             // §2.2.2 [11]: the faster the approach, the larger the open-loop step): a slow
             // drift gets `trip_step`, a throttle slam that would cross the whole trip margin
             // within the lead time gets a multiple of it (a soft PI cannot catch that alone)
+            // Below the trip line (the level criterion) at least `trip_step`; a rate trip
+            // still right of the line gets a step in proportion to the predicted penetration
+            // (a slow drift that would just touch the trip line needs little, and a full
+            // `trip_step` there recycled 3 % of a matrix's energy for nothing)
+            let level = margin < trip_margin - allowance;
             let depth = if trip_margin > 0.0 {
-                ((trip_margin - predicted) / trip_margin).max(1.0)
+                let d = (trip_margin - predicted) / trip_margin;
+                if level {
+                    d.max(1.0)
+                } else {
+                    d.max(0.0)
+                }
             } else {
                 1.0
             };
