@@ -735,9 +735,19 @@ impl SurgeLaw for RecyclePi {
         self.margin_prev = [margin, p1];
         // (capped: in deep surge the margin swings hard, which is no reason not to trip)
         let allowance = (self.cfg.trip_noise_factor * self.margin_noise).min(0.5 * trip_margin);
-        let predicted = margin + self.cfg.trip_lead_time_s * d_margin.min(0.0);
+        // the level the trip judges: the raw margin when it has moved away from its filtered
+        // value by more than `trip_noise_factor` × its noise (a real, fast move: no filter
+        // lag; the gate is not capped like the allowance), else the
+        // filtered one (noise alone: a single noisy sample must not size the step)
+        let gate = (self.cfg.trip_noise_factor * self.margin_noise).max(1e-6);
+        let margin_t = if (margin - self.margin_f1).abs() > gate {
+            margin
+        } else {
+            self.margin_f1
+        };
+        let predicted = margin_t + self.cfg.trip_lead_time_s * d_margin.min(0.0);
         let trip_cond = margin.is_finite()
-            && (margin < trip_margin - allowance
+            && (margin_t < trip_margin - allowance
                 || (self.approach_armed(z) && predicted < trip_margin - allowance));
         self.trip_agree = if trip_cond {
             self.trip_agree.saturating_add(1)
@@ -757,7 +767,7 @@ impl SurgeLaw for RecyclePi {
             // still right of the line gets a step in proportion to the predicted penetration
             // (a slow drift that would just touch the trip line needs little, and a full
             // `trip_step` there recycled 3 % of a matrix's energy for nothing)
-            let level = margin < trip_margin - allowance;
+            let level = margin_t < trip_margin - allowance;
             let depth = if trip_margin > 0.0 {
                 let d = (trip_margin - predicted) / trip_margin;
                 if level {
