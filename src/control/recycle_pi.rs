@@ -148,7 +148,7 @@ pub struct RecyclePiConfig {
     pub ki_per_s: f64,
     /// Closing-rate adaptation: the allowed closing rate grows by `closing_rate_per_s` for
     /// every this many percent of control-line flow the operating point lies right of the
-    /// control line (far from the line the valve closes fast, near it slowly), at most 5× the
+    /// control line (far from the line the valve closes fast, near it slowly), at most 10× the
     /// base rate; 0 disables. Default 10 %.
     pub closing_rate_distance_pct: f64,
     /// ESD detection: a shaft deceleration beyond this percentage of the nominal speed per
@@ -611,16 +611,24 @@ impl RecyclePi {
     /// Allowed closing rate, fraction/s: the base rate, plus one base rate per
     /// `closing_rate_distance_pct` of control-line flow right of the line.
     fn closing_rate(&self, q: f64, ratio: f64) -> f64 {
-        let base = self.cfg.closing_rate_per_s;
+        self.cfg.closing_rate_per_s * self.distance_factor(q, ratio)
+    }
+
+    /// How far right of the control line the operating point lies, as the factor
+    /// 1 + distance/`closing_rate_distance_pct` (1 at or left of the line, at most 10): the
+    /// closing rate grows with it (a valve left open far from the line after a trip or a
+    /// fail-safe resume closes quickly; near the line slowly). (Growing the integral gain
+    /// with it too closed the valve into surge after a frozen Δp at a 5 % margin.)
+    fn distance_factor(&self, q: f64, ratio: f64) -> f64 {
         if self.cfg.closing_rate_distance_pct <= 0.0 {
-            return base;
+            return 1.0;
         }
         let c = self.scl.flow_at_ratio(ratio);
         let right = if c > 0.0 { (q - c) / c } else { 0.0 };
         if right.is_finite() && right > 0.0 {
-            base * (1.0 + right / (0.01 * self.cfg.closing_rate_distance_pct)).min(5.0)
+            (1.0 + right / (0.01 * self.cfg.closing_rate_distance_pct)).min(10.0)
         } else {
-            base
+            1.0
         }
     }
 
