@@ -129,7 +129,12 @@ fn the_variant_plant_with_the_stroke_the_check_names_holds_the_esd() {
         .expect("ESD case");
     // at 10 %: the variant file has exactly the stroke the check names, and holds the ESD
     let v10 = bench_matrix::esd_stroke(&p, &sc, 10.0).unwrap().unwrap();
-    let stroke = variant.file.recycle_system.unwrap().recycle_valve.stroke_time_s;
+    let stroke = variant
+        .file
+        .recycle_system
+        .unwrap()
+        .recycle_valve
+        .stroke_time_s;
     assert_eq!(v10.holding_stroke_s, Some(stroke), "{v10:?}");
     let r = bench_matrix::run_case(&variant, &sc, case, LawId::RecyclePi, 10.0).unwrap();
     assert_eq!(r.surge_cycles, 0, "{r:?}");

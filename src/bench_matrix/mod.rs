@@ -866,7 +866,8 @@ pub fn esd_variants_markdown(config_dir: &Path) -> Result<String, SimError> {
             s,
             "- variant {} (`plants/variants/{}`, recycle valve stroke {} s): {}.",
             p.name(),
-            f.file_name().map_or(String::new(), |n| n.to_string_lossy().into_owned()),
+            f.file_name()
+                .map_or(String::new(), |n| n.to_string_lossy().into_owned()),
             rs.recycle_valve.stroke_time_s,
             parts.join(", ")
         );

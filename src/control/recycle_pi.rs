@@ -323,6 +323,8 @@ pub struct RecyclePi {
     esd_rising_s: f64,
     /// Opening held by the trip.
     trip_level: f64,
+    /// Whether the held trip was a level trip (past the trip line).
+    level_tripped: bool,
     /// Trips so far.
     trips: u32,
     /// Safety-on shifts so far.
@@ -449,6 +451,7 @@ impl RecyclePi {
             esd: false,
             esd_rising_s: 0.0,
             trip_level: 0.0,
+            level_tripped: false,
             trips: 0,
             shifts: 0,
             shift_pending: false,
@@ -528,6 +531,7 @@ impl RecyclePi {
         self.margin_f2_last = old.margin_f2_last;
         self.trip_left_s = old.trip_left_s;
         self.trip_level = old.trip_level;
+        self.level_tripped = old.level_tripped;
         self.shift_pending = old.shift_pending;
         self.started = true;
         true
@@ -765,7 +769,11 @@ impl SurgeLaw for RecyclePi {
         let trip_now = trip_cond && self.trip_agree >= self.cfg.trip_confirm_samples.max(1);
         self.trip_left_s -= dt;
         let mut event = None;
-        if trip_now && self.trip_left_s <= 0.0 && self.cfg.trip_step > 0.0 {
+        // a level trip (past the trip line) escalates a held, smaller rate trip: the rate
+        // trip's proportional step must not block the full step when the point gets there
+        let level_now = margin_t < trip_margin - allowance;
+        let escalate = level_now && !self.level_tripped && self.trip_left_s > 0.0;
+        if trip_now && (self.trip_left_s <= 0.0 || escalate) && self.cfg.trip_step > 0.0 {
             let (_, hi) = self.limits();
             // the step grows with the predicted penetration past the trip line (seed 002
             // §2.2.2 [11]: the faster the approach, the larger the open-loop step): a slow
@@ -786,7 +794,15 @@ impl SurgeLaw for RecyclePi {
             } else {
                 1.0
             };
-            self.trip_level = (self.u_last + self.cfg.trip_step * depth).min(hi);
+            self.trip_level =
+                (self.u_last + self.cfg.trip_step * depth)
+                    .min(hi)
+                    .max(if self.trip_left_s > 0.0 {
+                        self.trip_level
+                    } else {
+                        0.0
+                    });
+            self.level_tripped = level;
             self.trip_left_s = self.cfg.trip_hold_s.max(dt);
             self.trips = self.trips.saturating_add(1);
             event = Some(LawEvent::RecycleTrip {
