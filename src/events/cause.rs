@@ -163,7 +163,10 @@ impl Cause {
         match self.fault? {
             FallbackReason::Stale | FallbackReason::BusOff => Some("sensor_timeout"),
             FallbackReason::AliveCounter => Some("sensor_alive_error"),
-            FallbackReason::Nan | FallbackReason::OutOfRange | FallbackReason::Frozen => {
+            FallbackReason::Nan
+            | FallbackReason::OutOfRange
+            | FallbackReason::Frozen
+            | FallbackReason::Drift => {
                 Some("sensor_implausible")
             }
         }
@@ -194,6 +197,10 @@ impl Cause {
             Some(FallbackReason::Frozen) => {
                 "frozen: no change while the pressures moved (cross-check)".to_string()
             }
+            Some(FallbackReason::Drift) => {
+                "drifting or biased: disagrees with the observer's and the speed-line flow (cross-check)"
+                    .to_string()
+            }
             None => "healthy".to_string(),
         };
         match self.kind {
@@ -222,6 +229,7 @@ pub fn fallback_reason(fault: InputFault) -> Option<FallbackReason> {
         InputFault::OutOfRange => Some(FallbackReason::OutOfRange),
         InputFault::Stale => Some(FallbackReason::Stale),
         InputFault::Frozen => Some(FallbackReason::Frozen),
+        InputFault::Drift => Some(FallbackReason::Drift),
     }
 }
 
