@@ -409,6 +409,7 @@ async fn scenario() {
                 sensors: Arc::clone(&sensors),
                 outputs: Arc::clone(&outputs),
                 wake: Arc::clone(&ctl_wake),
+                trigger: None,
             },
             handles,
         )),

@@ -85,6 +85,7 @@ fn populated() -> DaemonConfig {
                     law: Some("ActiveLaw".into()),
                     faults: Some("Faults".into()),
                 }),
+                cycle_trigger: antisurge::io::can::bus::CycleTriggerSpec::Inputs,
             }),
             modbus: Some(ModbusLinkConfig {
                 client: ClientConfig {

@@ -74,3 +74,44 @@ fn control_cycle_does_not_allocate_for_any_law() {
     }
     assert!(checked >= 10, "plant × law pairs checked: {checked}");
 }
+
+#[test]
+fn the_cycle_trigger_and_the_triggered_loop_do_not_allocate() {
+    use antisurge::runtime::handoff::monotonic_ns;
+    use antisurge::runtime::rt_loop::CycleStats;
+    use antisurge::runtime::trigger::{run_triggered, CycleTrigger};
+    use std::sync::atomic::{AtomicBool, Ordering};
+    use std::sync::Arc;
+
+    // the bus task's side: noting trigger messages and firing
+    let trigger = Arc::new(CycleTrigger::new());
+    trigger.arm(0b11);
+    let before = allocations();
+    for k in 0..1000u64 {
+        trigger.note(0b01, k);
+        trigger.note(0b10, k);
+    }
+    assert_eq!(allocations(), before, "note/fire allocated");
+    assert_eq!(trigger.count(), 1000);
+
+    // the control thread's side: waiting on the futex, fires and deadlines, 2-ms period
+    let stats = CycleStats::default();
+    let stop = AtomicBool::new(false);
+    let f = Arc::clone(&trigger);
+    let sender = std::thread::spawn(move || {
+        for _ in 0..50 {
+            std::thread::sleep(std::time::Duration::from_millis(2));
+            f.note(0b11, monotonic_ns());
+        }
+    });
+    let before = allocations();
+    let n = run_triggered(2_000_000, &trigger, &stop, &stats, |t| t.cycle < 79);
+    let allocated = allocations() - before;
+    sender.join().expect("sender");
+    assert_eq!(n, 80);
+    assert_eq!(allocated, 0, "the triggered loop allocated");
+    let r = stats.report();
+    assert!(r.cycles_by_input > 0 && r.cycles_by_deadline > 0, "{r:?}");
+    assert_eq!(r.cycles_by_input + r.cycles_by_deadline, 80);
+    assert!(!stop.load(Ordering::Relaxed));
+}

@@ -40,9 +40,13 @@ show_proc() {
 wait_bounded() {
     local pid=$1 limit_s=$2 what=$3 log=${4:-}
     local mark=${TMPDIR:-/tmp}/antisurge-hil-timeout.$$.$pid
-    rm -f "$mark"
+    # $done says "PID was reaped": the dog trusts it rather than `kill -0` (a dog that outlives its
+    # wait, e.g. when SIGTERM is ignored in this shell, must not report a process that has exited).
+    local done=$mark.reaped
+    rm -f "$mark" "$done"
     (
         sleep "$limit_s"
+        [[ ! -e $done ]] || exit 0
         kill -0 "$pid" 2>/dev/null || exit 0
         {
             echo "FAIL: $what still running after ${limit_s} s; killed. What it was doing:"
@@ -54,7 +58,8 @@ wait_bounded() {
     ) &
     local dog=$! rc=0
     wait "$pid" || rc=$?
-    kill "$dog" 2>/dev/null || true
+    touch "$done"
+    kill -KILL "$dog" 2>/dev/null || true
     wait "$dog" 2>/dev/null || true
     if [[ -f $mark ]]; then
         rm -f "$mark"

@@ -44,6 +44,19 @@ fn can_codec(l: &Loaded) -> Result<(crate::io::can::bus::CanBusConfig, BusCodec)
     Ok((can, codec))
 }
 
+/// What starts the controller's cycles (`[bus.can] cycle_trigger`, resolved against the DBC
+/// and the signal map): `None` when the cycle keeps its fixed deadline (not the field
+/// transport, no CAN binding, `"deadline"`, or no cycle input on CAN).
+pub fn controller_trigger_plan(l: &Loaded) -> Result<Option<crate::io::can::bus::TriggerPlan>> {
+    if l.config.bus.transport != super::config::Transport::Field || !l.signal_map.uses_can() {
+        return Ok(None);
+    }
+    let (can, codec) = can_codec(l)?;
+    codec
+        .trigger_plan(&can.cycle_trigger)
+        .context("bus.can.cycle_trigger")
+}
+
 /// The event sink of a [`FieldLinkReporter`]: the daemon's event log.
 fn event_sink(events: EventSender) -> EventSink {
     Arc::new(move |e: Event| {
@@ -210,16 +223,21 @@ impl LinkCounters {
     }
 }
 
-/// Start the controller's bus tasks.
+/// Start the controller's bus tasks on `boards` (the cycle trigger, if any, goes to the CAN
+/// task).
 pub fn spawn_controller_links(
     l: &Loaded,
     tasks: &mut JoinSet<()>,
-    sensors: Arc<SensorBoard>,
-    outputs: Arc<OutputBoard>,
-    wake: Arc<Wakeup>,
+    boards: ControllerBoards,
     shutdown: watch::Receiver<bool>,
     events: EventSender,
 ) -> Result<LinkCounters> {
+    let ControllerBoards {
+        sensors,
+        outputs,
+        wake,
+        trigger,
+    } = boards;
     let mut counters = LinkCounters::default();
     let map = &l.signal_map;
     let sup = FeedbackSupervisor::new(&map.feedback);
@@ -249,6 +267,7 @@ pub fn spawn_controller_links(
             sensors: Arc::clone(&sensors),
             outputs: Arc::clone(&outputs),
             wake: Arc::clone(&wake),
+            trigger,
         };
         tracing::info!(target: "can", "controller on {} ({})", can.interface, can.dbc.display());
         tasks.spawn(async move {

@@ -19,6 +19,7 @@ use crate::events::event::Event;
 use crate::events::{EventLog, EventSender};
 use crate::runtime::handoff::{monotonic_ns, OutputBoard, SensorBoard, Wakeup};
 use crate::runtime::rt_loop::{run_periodic, setup_current_thread, CycleStats, RtSettings};
+use crate::runtime::trigger::{run_triggered, CycleTrigger};
 use crate::scenario::Scenario;
 use anyhow::{anyhow, Context, Result};
 use std::path::{Path, PathBuf};
@@ -100,12 +101,15 @@ pub fn format_problems(problems: &[config::Problem]) -> String {
 }
 
 /// Spawn the control thread. Returns its join handle; it stops (after publishing the safe
-/// state) when `stop` is set.
+/// state) when `stop` is set. With a `trigger` the cycles start on the arrival of their inputs
+/// (the bus task fires it), the deadline as fallback ([`crate::runtime::trigger`]); without,
+/// on the fixed deadline.
 fn spawn_control(
     mut node: ControlNode,
     rt: RtSettings,
     stop: Arc<AtomicBool>,
     stats: Arc<CycleStats>,
+    trigger: Option<Arc<CycleTrigger>>,
 ) -> Result<std::thread::JoinHandle<()>> {
     std::thread::Builder::new()
         .name("antisurge-ctl".into())
@@ -113,11 +117,15 @@ fn spawn_control(
             let granted = setup_current_thread(&rt);
             tracing::info!(target: "rt", "control thread at {} Hz: {granted}", rt.rate_hz);
             let mut last = 0;
-            run_periodic(rt.period_ns(), &stop, &stats, |tick| {
+            let body = |tick: crate::runtime::rt_loop::Tick| {
                 node.cycle(tick);
                 last = tick.cycle;
                 true
-            });
+            };
+            match &trigger {
+                Some(t) => run_triggered(rt.period_ns(), t, &stop, &stats, body),
+                None => run_periodic(rt.period_ns(), &stop, &stats, body),
+            };
             let safe = node.shutdown(last + 1);
             tracing::info!(target: "rt", "control thread stopped; safe state commanded: {safe:?}");
         })
@@ -427,7 +435,18 @@ async fn serve(loaded: Loaded, opts: RunOptions) -> Result<()> {
         tracing::error!(target: "events", "event log DEGRADED: {e}; the controller runs without it, events are counted as lost, and the log is retried every {} s", crate::events::writer::REOPEN_RETRY.as_secs());
     }
     let events = log.sender();
-    let _ = events.send(Event::started(&loaded.main_path, loaded.law));
+    // what starts a cycle: the arrival of its CAN inputs, or the fixed deadline
+    let trigger_plan = super::field::controller_trigger_plan(&loaded)?;
+    let cycle_trigger = trigger_plan
+        .as_ref()
+        .map_or_else(|| "deadline".to_string(), |p| p.describe());
+    let trigger = trigger_plan.map(|_| Arc::new(CycleTrigger::new()));
+    tracing::info!(target: "rt", "control cycle trigger: {cycle_trigger}");
+    let _ = events.send(Event::started_with_trigger(
+        &loaded.main_path,
+        loaded.law,
+        cycle_trigger.clone(),
+    ));
 
     let sensors = Arc::new(SensorBoard::default());
     let outputs = Arc::new(OutputBoard::default());
@@ -487,7 +506,13 @@ async fn serve(loaded: Loaded, opts: RunOptions) -> Result<()> {
     )
     .context("cannot start the black-box recorder")?;
     let node = node.with_black_box(bb_tx);
-    let control = spawn_control(node, cfg.cycle, Arc::clone(&stop), Arc::clone(&stats))?;
+    let control = spawn_control(
+        node,
+        cfg.cycle,
+        Arc::clone(&stop),
+        Arc::clone(&stats),
+        trigger.clone(),
+    )?;
     // systemd READY/WATCHDOG from the control loop's health only, on their own thread
     let wd_stop = Arc::new(AtomicBool::new(false));
     let watchdog = super::notify::spawn_watchdog(Arc::clone(&health), Arc::clone(&wd_stop))
@@ -515,9 +540,12 @@ async fn serve(loaded: Loaded, opts: RunOptions) -> Result<()> {
             link_counters = super::field::spawn_controller_links(
                 &loaded,
                 &mut tasks,
-                Arc::clone(&sensors),
-                Arc::clone(&outputs),
-                Arc::clone(&wake),
+                crate::io::can::bus::ControllerBoards {
+                    sensors: Arc::clone(&sensors),
+                    outputs: Arc::clone(&outputs),
+                    wake: Arc::clone(&wake),
+                    trigger: trigger.clone(),
+                },
                 shutdown_rx.clone(),
                 events.clone(),
             )?;
@@ -625,8 +653,8 @@ async fn serve(loaded: Loaded, opts: RunOptions) -> Result<()> {
                     last_status = std::time::Instant::now();
                     let r = stats.report();
                     let live = live_board.latest().map(|s| crate::live::report::status_line(&s)).unwrap_or_else(|| health.mode().name().into());
-                    tracing::info!(target: "status", "{live} · {} cycles · jitter p99 {:.0} µs · compute p99 {:.1} µs · overruns {}{}",
-                        r.cycles, r.wake_jitter.p99_us, r.compute.p99_us, r.overruns,
+                    tracing::info!(target: "status", "{live} · {} cycles ({} on inputs, {} on deadline) · jitter p99 {:.0} µs · compute p99 {:.1} µs · overruns {}{}",
+                        r.cycles, r.cycles_by_input, r.cycles_by_deadline, r.wake_jitter.p99_us, r.compute.p99_us, r.overruns,
                         if log.writable() { "" } else { " · event log DEGRADED (not writable, retrying)" });
                 }
                 if let Some(p) = &plant {
@@ -661,6 +689,9 @@ async fn serve(loaded: Loaded, opts: RunOptions) -> Result<()> {
     if let Some(path) = &current.config.status.stats_file {
         let json = serde_json::json!({
             "cycles": report.cycles,
+            "cycle_trigger": cycle_trigger,
+            "cycles_by_input": report.cycles_by_input,
+            "cycles_by_deadline": report.cycles_by_deadline,
             "overruns": report.overruns,
             "wake_jitter_us": report.wake_jitter,
             "compute_us": report.compute,

@@ -252,6 +252,11 @@ pub enum Event {
         config_path: String,
         /// Control law selected at start.
         law: Law,
+        /// What starts a control cycle: `deadline` (the fixed period) or `inputs: <messages>`
+        /// (the arrival of these CAN messages, deadline as fallback). Absent in logs written
+        /// before issue 9.
+        #[serde(default, skip_serializing_if = "Option::is_none")]
+        cycle_trigger: Option<String>,
     },
     /// The daemon stopped (written on a clean stop only; a crash leaves no `stopped`).
     Stopped {
@@ -339,6 +344,25 @@ impl Event {
             version: env!("CARGO_PKG_VERSION").to_string(),
             config_path: config_path.to_string_lossy().into_owned(),
             law,
+            cycle_trigger: None,
+        }
+    }
+
+    /// [`Event::started`] that also says what starts a control cycle.
+    pub fn started_with_trigger(config_path: &Path, law: Law, cycle_trigger: String) -> Event {
+        match Event::started(config_path, law) {
+            Event::Started {
+                version,
+                config_path,
+                law,
+                ..
+            } => Event::Started {
+                version,
+                config_path,
+                law,
+                cycle_trigger: Some(cycle_trigger),
+            },
+            other => other,
         }
     }
 
@@ -403,10 +427,14 @@ impl Event {
             Event::Started {
                 version,
                 config_path,
+                cycle_trigger,
                 ..
             } => {
                 clip(version);
                 clip(config_path);
+                if let Some(t) = cycle_trigger {
+                    clip(t);
+                }
             }
             Event::Stopped { reason } => clip(reason),
             Event::ConfigApplied { file, diff } => {
@@ -530,6 +558,7 @@ pub(crate) mod tests {
                     version: "0.1.0".into(),
                     config_path: "/etc/antisurge/antisurge.toml".into(),
                     law: Law::RecyclePi,
+                    cycle_trigger: None,
                 },
                 r#"{"ts":"2024-05-01T12:34:56.123456Z","seq":42,"event":"started","version":"0.1.0","config_path":"/etc/antisurge/antisurge.toml","law":"recycle-pi"}"#,
             ),

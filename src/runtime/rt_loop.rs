@@ -194,7 +194,8 @@ fn prefault_stack() {
     std::hint::black_box(&mut buf);
 }
 
-fn sleep_until(deadline_ns: u64) {
+/// Sleep until `deadline_ns` (absolute, CLOCK_MONOTONIC), across signals.
+pub(crate) fn sleep_until(deadline_ns: u64) {
     let ts = libc::timespec {
         tv_sec: (deadline_ns / 1_000_000_000) as libc::time_t,
         tv_nsec: (deadline_ns % 1_000_000_000) as libc::c_long,
@@ -338,6 +339,10 @@ pub struct CycleStats {
     pub overruns: AtomicU64,
     /// Deadlines skipped because of overruns.
     pub skipped: AtomicU64,
+    /// Cycles started by the arrival of their inputs ([`super::trigger`]).
+    pub by_input: AtomicU64,
+    /// Cycles started by the fixed deadline (no trigger, or the inputs were late or absent).
+    pub by_deadline: AtomicU64,
 }
 
 /// Summary of the statistics.
@@ -349,6 +354,10 @@ pub struct CycleReport {
     pub overruns: u64,
     /// Skipped deadlines.
     pub skipped: u64,
+    /// Cycles started by the arrival of their inputs.
+    pub cycles_by_input: u64,
+    /// Cycles started by the fixed deadline.
+    pub cycles_by_deadline: u64,
     /// Wake-up jitter.
     pub wake_jitter: LatencySummary,
     /// Compute time.
@@ -364,6 +373,8 @@ impl CycleStats {
             cycles: self.cycles.load(Ordering::Relaxed),
             overruns: self.overruns.load(Ordering::Relaxed),
             skipped: self.skipped.load(Ordering::Relaxed),
+            cycles_by_input: self.by_input.load(Ordering::Relaxed),
+            cycles_by_deadline: self.by_deadline.load(Ordering::Relaxed),
             wake_jitter: self.wake_jitter.summary(),
             compute: self.compute.summary(),
             input_age: self.input_age.summary(),
@@ -376,7 +387,8 @@ impl CycleStats {
 pub struct Tick {
     /// Cycle number from 0.
     pub cycle: u64,
-    /// The deadline this cycle was scheduled for, monotonic ns.
+    /// The time this cycle was scheduled for, monotonic ns: its deadline, or, in a loop driven
+    /// by its inputs ([`super::trigger::run_triggered`]), the arrival of the inputs.
     pub deadline_ns: u64,
     /// When the thread actually woke, monotonic ns.
     pub wake_ns: u64,
@@ -405,6 +417,7 @@ pub fn run_periodic(
         let done = super::handoff::monotonic_ns();
         stats.compute.record(done.saturating_sub(wake));
         stats.cycles.fetch_add(1, Ordering::Relaxed);
+        stats.by_deadline.fetch_add(1, Ordering::Relaxed);
         cycle += 1;
         deadline += period_ns;
         if done > deadline {

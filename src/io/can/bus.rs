@@ -28,6 +28,7 @@
 //! board updates and counter increments, [`FrameEncoder`] and [`HeartbeatTx`] turn board
 //! contents into frames. None of them allocates per frame.
 
+mod cycle_trigger;
 mod link;
 mod rx;
 mod tx;
@@ -54,7 +55,9 @@ use super::heartbeat::{HeartbeatCodec, HeartbeatConfig, HeartbeatNames};
 use crate::runtime::handoff::{
     monotonic_ns, CommandBoard, HeartbeatBoard, OutputBoard, SensorBoard, SnapshotBoard, Wakeup,
 };
+use crate::runtime::trigger::CycleTrigger;
 
+pub use cycle_trigger::{CycleTriggerSpec, TriggerPlan, MAX_TRIGGER_MESSAGES};
 pub use link::CanLink;
 pub use rx::{classify_error_frame, BusCondition, RxHandler, RxOutcome, RxReject};
 pub use tx::{FrameEncoder, HeartbeatTx};
@@ -134,6 +137,11 @@ pub struct CanBusConfig {
     /// signals in the DBC (default: `config/skid.dbc`'s `CTRL_Heartbeat`).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub heartbeat: Option<HeartbeatConfig>,
+    /// Controller: what starts a control cycle: `"inputs"` (default: the messages carrying
+    /// the pressures and the speed), `"deadline"` (the fixed period only), or DBC message
+    /// names. The deadline stays the fallback ([`crate::runtime::trigger`]).
+    #[serde(default)]
+    pub cycle_trigger: CycleTriggerSpec,
 }
 
 fn default_max_load_pct() -> u32 {
@@ -160,6 +168,7 @@ impl CanBusConfig {
             max_load_pct: default_max_load_pct(),
             not_available: NotAvailable::J1939,
             heartbeat: None,
+            cycle_trigger: CycleTriggerSpec::Inputs,
         }
     }
 
@@ -316,6 +325,7 @@ impl BusCodec {
             cfg.heartbeat_period(),
             cfg.not_available,
         )?;
+        codec.trigger_plan(&cfg.cycle_trigger)?;
         Ok(codec)
     }
 }
@@ -612,6 +622,9 @@ pub struct ControllerBoards {
     pub outputs: Arc<OutputBoard>,
     /// Signalled by the control thread after each publish.
     pub wake: Arc<Wakeup>,
+    /// Fired when the cycle's trigger messages arrived (`bus.can.cycle_trigger`); `None`:
+    /// the control thread runs on its deadline only.
+    pub trigger: Option<Arc<CycleTrigger>>,
 }
 
 /// Boards of the plant node.
@@ -644,12 +657,22 @@ pub async fn run_controller(
     let codec = Arc::new(codec);
     let refresh = cfg.heartbeat_period();
     let actuators: Vec<_> = codec.frames.actuator_messages().collect();
+    let mut rx = RxHandler::controller(
+        Arc::clone(&codec),
+        Arc::clone(&boards.sensors),
+        Arc::clone(&handles.counters),
+    );
+    if let Some(trigger) = &boards.trigger {
+        match codec.trigger_plan(&cfg.cycle_trigger)? {
+            Some(plan) => {
+                tracing::info!(target: "can", "control cycle starts on {} (deadline as fallback)", plan.describe());
+                rx = rx.with_trigger(Arc::clone(trigger), &plan);
+            }
+            None => trigger.arm(0),
+        }
+    }
     let mut role = ControllerRole {
-        rx: RxHandler::controller(
-            Arc::clone(&codec),
-            Arc::clone(&boards.sensors),
-            Arc::clone(&handles.counters),
-        ),
+        rx,
         tx: FrameEncoder::with_not_available(
             &codec.frames,
             &actuators,

@@ -11,6 +11,7 @@ use crate::io::can::codec::{AliveCheckers, SignalTarget};
 use crate::io::can::dbc::FrameId;
 use crate::io::can::e2e::{AliveChecker, AliveStatus, FrameError};
 use crate::runtime::handoff::{CommandBoard, HeartbeatBoard, HeartbeatSeen, SensorBoard};
+use crate::runtime::trigger::CycleTrigger;
 
 /// What an error frame says about the CAN controller.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
@@ -107,6 +108,62 @@ pub struct RxHandler {
     checkers: AliveCheckers,
     sink: Sink,
     counters: Arc<CanCounters>,
+    /// Controller: the cycle trigger.
+    trigger: Option<TriggerGate>,
+}
+
+/// How long the cycle trigger waits for the first frame of every sensor message after the
+/// link came up before it fires anyway, ns.
+pub const TRIGGER_WARMUP_NS: u64 = 1_000_000_000;
+
+/// The controller's cycle trigger as the receive side drives it.
+///
+/// It notes the trigger messages only once every sensor message of the signal map arrived
+/// once since the link came up (or [`TRIGGER_WARMUP_NS`] after the first trigger message):
+/// the first healthy cycle takes over bumplessly from the *measured* valve position, which
+/// travels in a message of its own (`config/skid.dbc`: `PLANT_Positions`, every 2 ms, sent
+/// after the pressures). A first cycle fired by the pressures alone would start the law
+/// from an unknown position. Until then the control thread runs on its deadline.
+#[derive(Debug)]
+struct TriggerGate {
+    trigger: Arc<CycleTrigger>,
+    /// Per message index: its trigger bit (0: not a trigger message).
+    bits: Vec<u32>,
+    /// Per message index: seen since the link came up (messages not consumed count as seen).
+    seen: Vec<bool>,
+    /// Consumed messages not seen yet.
+    missing: usize,
+    /// Arrival of the first trigger message since the link came up.
+    first_ns: Option<u64>,
+}
+
+impl TriggerGate {
+    fn reset(&mut self, consumes: &[bool]) {
+        self.seen = consumes.iter().map(|c| !c).collect();
+        self.missing = consumes.iter().filter(|c| **c).count();
+        self.first_ns = None;
+    }
+
+    /// Message `index` was published at `t_ns`.
+    #[inline]
+    fn published(&mut self, index: usize, t_ns: u64) {
+        if self.missing > 0 {
+            if let Some(s) = self.seen.get_mut(index) {
+                if !*s {
+                    *s = true;
+                    self.missing -= 1;
+                }
+            }
+        }
+        let bit = self.bits.get(index).copied().unwrap_or(0);
+        if bit == 0 {
+            return;
+        }
+        let first = *self.first_ns.get_or_insert(t_ns);
+        if self.missing == 0 || t_ns.saturating_sub(first) >= TRIGGER_WARMUP_NS {
+            self.trigger.note(bit, t_ns);
+        }
+    }
 }
 
 impl RxHandler {
@@ -128,7 +185,25 @@ impl RxHandler {
             sink: Sink::Sensors(sensors),
             codec,
             counters,
+            trigger: None,
         }
+    }
+
+    /// Controller: arm `trigger` with `plan` and note each of its messages once its values
+    /// are published (so the control thread woken by the last one reads them all), from the
+    /// moment every sensor message arrived once ([`TriggerGate`]).
+    pub fn with_trigger(mut self, trigger: Arc<CycleTrigger>, plan: &super::TriggerPlan) -> Self {
+        trigger.arm(plan.required);
+        let mut gate = TriggerGate {
+            trigger,
+            bits: plan.bits.clone(),
+            seen: Vec::new(),
+            missing: 0,
+            first_ns: None,
+        };
+        gate.reset(&self.consumes);
+        self.trigger = Some(gate);
+        self
     }
 
     /// Plant side: actuator frames go to `commands`, the heartbeat to `heartbeat`.
@@ -154,12 +229,17 @@ impl RxHandler {
             },
             codec,
             counters,
+            trigger: None,
         }
     }
 
-    /// Forget the previous alive counters (after a reconnect the next frame is a "first").
+    /// Forget the previous alive counters (after a reconnect the next frame is a "first") and,
+    /// with a cycle trigger, wait again for every sensor message before it fires.
     pub fn reset_alive(&mut self) {
         self.checkers = self.codec.frames.alive_checkers();
+        if let Some(gate) = &mut self.trigger {
+            gate.reset(&self.consumes);
+        }
         if let Sink::Commands {
             heartbeat_alive: Some(c),
             ..
@@ -265,6 +345,9 @@ impl RxHandler {
                     }
                 }
             }
+        }
+        if let Some(gate) = &mut self.trigger {
+            gate.published(frame.message().get(), t_ns);
         }
         CanCounters::inc(&self.counters.rx_published);
         RxOutcome::Published

@@ -7,6 +7,7 @@ use crate::io::can::codec::{skid_bindings, MessageIndex};
 use crate::io::can::e2e::frame_crc;
 use crate::io::can::heartbeat::ControllerMode;
 use crate::runtime::handoff::{HeartbeatSeen, Outputs, SensorBoard};
+use crate::runtime::trigger::CycleTrigger;
 use crate::signals::{ActuatorCommands, ActuatorId, SensorId, SensorSnapshot};
 use socketcan::errors::{ControllerProblems, ErrorCause};
 use socketcan::{
@@ -170,6 +171,97 @@ fn controller_rx_publishes_sensors_within_resolution() {
             ..Default::default()
         }
     );
+}
+
+#[test]
+fn the_cycle_trigger_fires_once_the_inputs_of_a_cycle_are_published() {
+    // the default trigger on skid.dbc: PLANT_Pressures and PLANT_SpeedFlowTemp; the control
+    // thread woken by the fire must find both messages' values on the board
+    let c = codec();
+    let sensors = Arc::new(SensorBoard::default());
+    let counters = Arc::new(CanCounters::default());
+    let trigger = Arc::new(CycleTrigger::new());
+    let plan = c
+        .trigger_plan(&CycleTriggerSpec::Inputs)
+        .expect("resolves")
+        .expect("plan");
+    let mut rx = RxHandler::controller(Arc::clone(&c), Arc::clone(&sensors), counters)
+        .with_trigger(Arc::clone(&trigger), &plan);
+    assert!(trigger.is_armed());
+    let mut enc = FrameEncoder::new(&c.frames, &messages(&c, true), false, refresh()).expect("enc");
+    let name = |f: &CanDataFrame| {
+        let (id, _) = parts(f);
+        let m = c.frames.message_for_id(id).expect("known");
+        c.frames.message_name(m).expect("named").to_string()
+    };
+    // the first sets in DBC order: pressures, speed, positions (every 2 ms), drive (10 ms).
+    // No fire until every sensor message arrived once: the first cycle must find the measured
+    // valve position to take over from
+    let mut fires = Vec::new();
+    for (batch, t0) in [(0u64, 1_000u64), (1, 2_000), (2, 3_000)] {
+        // encoded 1 ms apart, each message at its DBC cycle time
+        let snap = snapshot();
+        let frames: Vec<_> = (0..enc.len())
+            .filter_map(|i| enc.encode(i, &snap, batch * 1_000_000))
+            .collect();
+        assert_eq!(frames.len(), [4, 2, 3][batch as usize], "batch {batch}");
+        for (k, f) in frames.iter().enumerate() {
+            let (id, data) = parts(f);
+            let before = trigger.count();
+            rx.handle_data(id, &data, t0 + k as u64);
+            if trigger.count() != before {
+                fires.push((name(f), trigger.last_fire_ns()));
+            }
+        }
+    }
+    assert_eq!(
+        fires,
+        [
+            ("PLANT_SpeedFlowTemp".to_string(), 2_001),
+            ("PLANT_SpeedFlowTemp".to_string(), 3_001)
+        ]
+    );
+    // all messages again (the encoder's slow messages are due at 10 ms)
+    let mut enc = FrameEncoder::new(&c.frames, &messages(&c, true), false, refresh()).expect("enc");
+    let frames = sensor_frames(&mut enc, &snapshot());
+    // send in reverse DBC order: positions and drive torque do not count, the set completes
+    // with the pressures, whichever comes last
+    let mut fired_at = None;
+    for (k, f) in frames.iter().enumerate().rev() {
+        let (id, data) = parts(f);
+        let before = trigger.count();
+        let _ = rx.handle_data(id, &data, 5_000 + k as u64);
+        if trigger.count() != before {
+            assert!(fired_at.is_none(), "fired twice on one set");
+            fired_at = Some((name(f), trigger.last_fire_ns()));
+            // everything the cycle needs is already on the board
+            for s in [
+                SensorId::PSuction,
+                SensorId::PDischarge,
+                SensorId::ShaftSpeed,
+            ] {
+                assert!(
+                    sensors.get(s).0.is_finite(),
+                    "{} not published yet",
+                    s.name()
+                );
+            }
+        }
+    }
+    assert_eq!(fired_at, Some(("PLANT_Pressures".to_string(), 5_000)));
+    // a repeated alive counter (stuck sender) is dropped and does not fire
+    let (id, data) = parts(&frames[1]);
+    let before = trigger.count();
+    assert_eq!(
+        rx.handle_data(id, &data, 6_000),
+        RxOutcome::Rejected(RxReject::AliveRepeated)
+    );
+    let (id, data) = parts(&frames[0]);
+    assert_eq!(
+        rx.handle_data(id, &data, 6_001),
+        RxOutcome::Rejected(RxReject::AliveRepeated)
+    );
+    assert_eq!(trigger.count(), before);
 }
 
 #[test]
@@ -820,6 +912,7 @@ async fn missing_interface_backs_off_and_stops_on_shutdown() {
         sensors: Arc::new(SensorBoard::default()),
         outputs: Arc::new(OutputBoard::default()),
         wake: Arc::new(Wakeup::new().expect("eventfd")),
+        trigger: None,
     };
     let task = tokio::spawn(run_controller(
         fast_cfg("nocan7"),
@@ -918,6 +1011,7 @@ async fn bad_config_is_an_error_not_a_retry_loop() {
         sensors: Arc::new(SensorBoard::default()),
         outputs: Arc::new(OutputBoard::default()),
         wake: Arc::new(Wakeup::new().expect("eventfd")),
+        trigger: None,
     };
     let e = run_controller(cfg, (*c).clone(), boards, handles)
         .await
