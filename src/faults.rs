@@ -142,9 +142,7 @@ impl FaultSet {
                 InputFault::Nan
                 | InputFault::OutOfRange
                 | InputFault::Frozen
-                | InputFault::Drift => {
-                    f.set(FaultCategory::SensorImplausible)
-                }
+                | InputFault::Drift => f.set(FaultCategory::SensorImplausible),
             }
         }
         f

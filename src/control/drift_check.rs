@@ -80,7 +80,13 @@ impl DriftCheckConfig {
             50.0,
             "% of surge-line flow; below the map's accuracy it false-alarms, above the control margin it is useless",
         );
-        check("noise_factor", self.noise_factor, 0.0, 20.0, "multiples of σ");
+        check(
+            "noise_factor",
+            self.noise_factor,
+            0.0,
+            20.0,
+            "multiples of σ",
+        );
         check(
             "map_uncertainty_pct",
             self.map_uncertainty_pct,
@@ -314,8 +320,16 @@ impl DriftCheck {
             thr_line.map(|t| (side(self.line.e, t), self.line.e < 0.5 * t))
         };
         let vs = [
-            if thr_obs.is_some() { self.obs.e } else { f64::NAN },
-            if thr_line.is_some() { self.line.e } else { f64::NAN },
+            if thr_obs.is_some() {
+                self.obs.e
+            } else {
+                f64::NAN
+            },
+            if thr_line.is_some() {
+                self.line.e
+            } else {
+                f64::NAN
+            },
         ];
         if let (true, Some((sign, back))) = (usable, judgement) {
             if !self.drifting {

@@ -463,7 +463,9 @@ impl ControlNode {
                 .unwrap_or(FallbackReason::Stale);
                 // the drift check says by how much the transmitter is off, % of surge-line flow
                 let v = self.core.dp_drift_check().verdict();
-                let pct = |x: f64| (reason == FallbackReason::Drift && x.is_finite()).then_some(100.0 * x);
+                let pct = |x: f64| {
+                    (reason == FallbackReason::Drift && x.is_finite()).then_some(100.0 * x)
+                };
                 self.push(FallbackEntered {
                     input: SensorId::OrificeDp,
                     reason,

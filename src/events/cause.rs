@@ -166,9 +166,7 @@ impl Cause {
             FallbackReason::Nan
             | FallbackReason::OutOfRange
             | FallbackReason::Frozen
-            | FallbackReason::Drift => {
-                Some("sensor_implausible")
-            }
+            | FallbackReason::Drift => Some("sensor_implausible"),
         }
     }
 
