@@ -381,7 +381,7 @@ mod tests {
     }
 
     /// 20 s at 1 kHz: true flow 1.2 × the surge-line flow 10; the observer sees the truth
-    /// + `obs_off`, the speed line the truth + `line_off` (fractions of q_SL), both with
+    /// plus `obs_off`, the speed line the truth plus `line_off` (fractions of q_SL), both with
     /// `noise`; map uncertainties 2 % of q_SL each; the transmitter reads truth + bias(t).
     /// Returns when drift was first declared and when it last cleared.
     fn run(
