@@ -139,9 +139,10 @@ impl FaultSet {
             match v.fault[id.index()] {
                 InputFault::None => {}
                 InputFault::Stale => f.set(FaultCategory::SensorTimeout),
-                InputFault::Nan | InputFault::OutOfRange | InputFault::Frozen => {
-                    f.set(FaultCategory::SensorImplausible)
-                }
+                InputFault::Nan
+                | InputFault::OutOfRange
+                | InputFault::Frozen
+                | InputFault::Drift => f.set(FaultCategory::SensorImplausible),
             }
         }
         f

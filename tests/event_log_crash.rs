@@ -83,6 +83,8 @@ fn crash_child() {
             input: SensorId::OrificeDp,
             reason: FallbackReason::Stale,
             replaced_by: Replacement::Observer,
+            vs_observer_pct: None,
+            vs_speed_line_pct: None,
         }) && rt.try_push(DeadlineOverrun {
             count: i,
             worst_lateness_us: i % 1000,

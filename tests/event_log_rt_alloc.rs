@@ -102,6 +102,8 @@ fn all_rt_events(i: u64) -> [RtEvent; 9] {
             input: SensorId::OrificeDp,
             reason: FallbackReason::BusOff,
             replaced_by: Replacement::Observer,
+            vs_observer_pct: None,
+            vs_speed_line_pct: None,
         }
         .into(),
         FallbackLeft {

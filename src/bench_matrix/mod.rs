@@ -47,6 +47,17 @@ pub enum FieldFault {
         /// Duration, s.
         for_s: f64,
     },
+    /// The Δp transmitter drifts: from `at_s` it reads `rate_pct_per_s` % of its span more
+    /// per second, up to `max_pct` % of span (a bias that makes it read more flow than
+    /// true: the dangerous direction).
+    DpDrift {
+        /// Start, s.
+        at_s: f64,
+        /// Drift rate, % of span per s.
+        rate_pct_per_s: f64,
+        /// Largest offset, % of span.
+        max_pct: f64,
+    },
     /// Every input arrives `len_s` late, `count` times, every `every_s` from `at_s`.
     Blips {
         /// First blip, s.
@@ -79,7 +90,7 @@ pub struct Case {
 }
 
 /// The cases, in table order.
-pub const CASES: [Case; 9] = [
+pub const CASES: [Case; 10] = [
     Case {
         name: "throttle closure",
         scenario: "throttle-closure",
@@ -116,6 +127,15 @@ pub const CASES: [Case; 9] = [
         fault: FieldFault::DpFrozen {
             at_s: 5.5,
             for_s: 1.0,
+        },
+    },
+    Case {
+        name: "closure + Δp drift",
+        scenario: "throttle-closure",
+        fault: FieldFault::DpDrift {
+            at_s: 1.0,
+            rate_pct_per_s: 1000.0,
+            max_pct: 30.0,
         },
     },
     Case {
@@ -188,6 +208,14 @@ pub struct CaseResult {
     /// Time from the first event to the first instant the true operating point lies left of
     /// the surge line, s (NaN: never).
     pub surge_after_s: f64,
+    /// Times the drift cross-check declared the Δp drifting (episodes).
+    pub dp_drift_found: u32,
+    /// In the "Δp drift" case, how long after the drift started the cross-check first found
+    /// it, s (NaN: not found, or another case).
+    pub dp_drift_found_after_s: f64,
+    /// Largest |filtered residual| of the drift check against the observer and against the
+    /// speed-line flow, fraction of surge-line flow (how close a case came to a find).
+    pub dp_drift_residual_max: [f64; 2],
 }
 
 /// The recycle flow an ideal controller needs at one instant of the plant's true state, kg/s:
@@ -248,8 +276,54 @@ pub fn run_case_traced(
     law: LawId,
     margin_pct: f64,
 ) -> Result<(CaseResult, crate::sim::SimResult), SimError> {
-    let mut pr = PlantRun::new(desc, scenario)?;
     let model = crate::sim::control_model(desc);
+    run_case_traced_with_model(desc, scenario, case, law, margin_pct, model)
+}
+
+/// The controller's model with a map that is not the plant's: flows stretched by
+/// `flow_factor` and the pressure rise R − 1 scaled by `rise_factor` (the controller is not
+/// told the machine exactly; the surge line it protects is kept).
+pub fn map_off(model: &ControlModel, flow_factor: f64, rise_factor: f64) -> ControlModel {
+    use crate::physics::compressor_map::MapModel;
+    let mut m = model.clone();
+    if let Some(map) = m.map.as_mut() {
+        if let MapModel::Polynomial(p) = &mut map.model {
+            p.flow_scale *= flow_factor;
+            p.flow_lo *= flow_factor;
+            p.flow_hi *= flow_factor;
+            for row in p.coeffs.iter_mut() {
+                for c in row.iter_mut() {
+                    *c *= rise_factor;
+                }
+            }
+            p.coeffs[0][0] += 1.0 - rise_factor;
+        }
+    }
+    m
+}
+
+/// [`run_case`] with the controller's model given (e.g. [`map_off`]).
+pub fn run_case_with_model(
+    desc: &PlantCase,
+    scenario: &Scenario,
+    case: &Case,
+    law: LawId,
+    margin_pct: f64,
+    model: ControlModel,
+) -> Result<CaseResult, SimError> {
+    run_case_traced_with_model(desc, scenario, case, law, margin_pct, model).map(|(r, _)| r)
+}
+
+/// [`run_case_traced`] with the controller's model given.
+pub fn run_case_traced_with_model(
+    desc: &PlantCase,
+    scenario: &Scenario,
+    case: &Case,
+    law: LawId,
+    margin_pct: f64,
+    model: ControlModel,
+) -> Result<(CaseResult, crate::sim::SimResult), SimError> {
+    let mut pr = PlantRun::new(desc, scenario)?;
     let settings = CoreSettings::defaults_for(&model);
     let nominal_speed = model.drive.nominal_speed_rad_s;
     let t0_torque = pr.plant().truth().load_torque_nm;
@@ -314,9 +388,13 @@ pub fn run_case_traced(
         dp_frozen_found_after_s: f64::NAN,
         oracle_energy_j: 0.0,
         surge_after_s: f64::NAN,
+        dp_drift_found: 0,
+        dp_drift_found_after_s: f64::NAN,
+        dp_drift_residual_max: [0.0; 2],
     };
     let gas = &desc.file.gas;
     let mut kg_per_map_unit = f64::NAN;
+    let mut was_drifting = false;
     let mut was_frozen = false;
     let mut held_raw: Option<RawSensors> = None;
     let mut frozen_dp = f64::NAN;
@@ -347,6 +425,18 @@ pub fn run_case_traced(
                         frozen_dp = raw.values.get(SensorId::OrificeDp);
                     }
                     raw.values.set(SensorId::OrificeDp, frozen_dp);
+                }
+            }
+            FieldFault::DpDrift {
+                at_s,
+                rate_pct_per_s,
+                max_pct,
+            } => {
+                if t >= at_s {
+                    let off = (rate_pct_per_s * (t - at_s)).min(max_pct);
+                    let v = raw.values.get(SensorId::OrificeDp)
+                        + 0.01 * off * span(SensorId::OrificeDp, 2.0);
+                    raw.values.set(SensorId::OrificeDp, v);
                 }
             }
             FieldFault::Blips {
@@ -401,6 +491,26 @@ pub fn run_case_traced(
             }
         }
         was_frozen = frozen;
+        let drifting = out.validity.fault[SensorId::OrificeDp.index()] == InputFault::Drift;
+        if drifting && !was_drifting {
+            res.dp_drift_found += 1;
+            if let FieldFault::DpDrift { at_s, .. } = case.fault {
+                if res.dp_drift_found_after_s.is_nan() && t >= at_s {
+                    res.dp_drift_found_after_s = t - at_s;
+                }
+            }
+        }
+        was_drifting = drifting;
+        let v = core.dp_drift_check().verdict();
+        for (m, x) in res
+            .dp_drift_residual_max
+            .iter_mut()
+            .zip([v.vs_observer, v.vs_speed_line])
+        {
+            if x.is_finite() {
+                *m = m.max(x.abs());
+            }
+        }
         if out.mode == Mode::FailSafe {
             res.failsafe_s += dt;
             if last_mode != Mode::FailSafe {
@@ -689,10 +799,19 @@ fn pct(x: f64) -> String {
     }
 }
 
-/// Sum of recycle energy over the matrix for one plant, law and margin, J.
+/// Whether a case counts in the energy sums: the nine cases of issue 10's matrix do; the
+/// "Δp drift" case is a detection test added beside them (a run that surges recycles little,
+/// so its energy would reward the law that fails it).
+pub fn counts_in_energy(case: &str) -> bool {
+    !case.contains("Δp drift")
+}
+
+/// Sum of recycle energy over the matrix (the cases [`counts_in_energy`]) for one plant, law
+/// and margin, J.
 pub fn energy_total(rows: &[CaseResult], plant: &str, law: LawId, margin_pct: f64) -> f64 {
     rows.iter()
         .filter(|r| r.plant == plant && r.law == law && r.margin_pct == margin_pct)
+        .filter(|r| counts_in_energy(&r.case))
         .map(|r| r.recycle_energy_j)
         .sum()
 }
@@ -763,7 +882,44 @@ pub fn markdown(rows: &[CaseResult]) -> String {
         );
     }
     s.push('\n');
-    s.push_str("| plant | recycle energy over the matrix | surge cycles |\n|---|---|---|\n");
+    s.push_str(
+        "Δp drift (the cross-check of the transmitter's flow against the observer and the speed-line flow):\n\n",
+    );
+    for p in &plants {
+        let found: Vec<String> = rows
+            .iter()
+            .filter(|r| r.plant == *p && r.case.contains("Δp drift"))
+            .map(|r| {
+                if r.dp_drift_found_after_s.is_finite() {
+                    format!(
+                        "{} @ {:.0} % after {:.2} s",
+                        r.law.name(),
+                        r.margin_pct,
+                        r.dp_drift_found_after_s
+                    )
+                } else {
+                    format!("{} @ {:.0} % not found", r.law.name(), r.margin_pct)
+                }
+            })
+            .collect();
+        let others = rows
+            .iter()
+            .filter(|r| r.plant == *p && !r.case.contains("Δp drift"));
+        let spurious: u32 = others.clone().map(|r| r.dp_drift_found).sum();
+        let worst = others
+            .flat_map(|r| r.dp_drift_residual_max)
+            .fold(0.0f64, f64::max);
+        let _ = writeln!(
+            s,
+            "- {p}: found {}; false finds in the other cases: {spurious} (largest filtered residual there: {:.1} % of surge-line flow).",
+            found.join(", "),
+            100.0 * worst
+        );
+    }
+    s.push('\n');
+    s.push_str(
+        "| plant | recycle energy over the matrix (all cases but the Δp drift) | surge cycles (all cases) |\n|---|---|---|\n",
+    );
     for p in &plants {
         for law in LAWS {
             for m in MARGINS_PCT {
@@ -826,6 +982,7 @@ pub fn markdown(rows: &[CaseResult]) -> String {
 pub fn oracle_total(rows: &[CaseResult], plant: &str, law: LawId, margin_pct: f64) -> f64 {
     rows.iter()
         .filter(|r| r.plant == plant && r.law == law && r.margin_pct == margin_pct)
+        .filter(|r| counts_in_energy(&r.case))
         .map(|r| r.oracle_energy_j)
         .sum()
 }

@@ -4,6 +4,7 @@
 //! for that benchmark machine, and the daemon's config may override any key. Every field has a
 //! default (from the seeds where they give one), so an absent table means "seed defaults".
 
+use super::drift_check::DriftCheckConfig;
 use super::drive_torque::DriveTorqueConfig;
 use super::observer::ObserverConfig;
 use super::recycle_fl::RecycleFlConfig;
@@ -37,6 +38,9 @@ pub struct ControllerConfig {
     pub observer: ObserverConfig,
     /// Surge detection.
     pub detector: DetectorConfig,
+    /// Cross-check of the flow transmitter against the observer and the speed-line flow
+    /// (drifting or biased Δp).
+    pub drift_check: DriftCheckConfig,
     /// Cut-off of the filtered pressure derivatives some laws use, Hz.
     #[serde(default = "default_derivative_hz")]
     pub derivative_filter_hz: f64,
@@ -161,6 +165,11 @@ impl ControllerConfig {
                     key,
                     format!("{v} is beyond ±{ABSURD_MAGNITUDE:e}: not a plausible setting"),
                 ));
+            }
+        }
+        for p in self.drift_check.problems() {
+            if !out.iter().any(|(k, _)| *k == p.0) {
+                out.push(p);
             }
         }
         if self.recycle_pi.kp_per_map_flow == 0.0 && self.recycle_pi.ki_per_map_flow_s == 0.0 {

@@ -4,6 +4,7 @@
 
 use super::config::{ControllerConfig, FlowSource};
 use super::cross_check::FrozenDpCheck;
+use super::drift_check::DriftCheck;
 use super::law::{Law, LawError, LawEvent, LawId, LawInputs, LoopHistory};
 use super::measurements::{Measurements, OperatorInputs, RawSensors};
 use super::model::ControlModel;
@@ -271,6 +272,9 @@ pub struct ControlCore {
     reload_restart: bool,
     /// Cross-check of the flow element's Δp against the pressures (frozen transmitter).
     dp_frozen: FrozenDpCheck,
+    /// Cross-check of the flow transmitter against the observer and the speed-line flow
+    /// (drifting or biased Δp).
+    dp_drift: DriftCheck,
 }
 
 impl ControlCore {
@@ -319,6 +323,7 @@ impl ControlCore {
             last_law_torque_nm: f64::NAN,
             reload_restart: false,
             dp_frozen: FrozenDpCheck::new(),
+            dp_drift: DriftCheck::new(),
             model,
             config,
             settings,
@@ -348,6 +353,12 @@ impl ControlCore {
     /// The frozen-Δp cross-check.
     pub fn dp_cross_check(&self) -> &FrozenDpCheck {
         &self.dp_frozen
+    }
+
+    /// The drift/bias cross-check of the flow transmitter (its last verdict holds the
+    /// residuals for the event log and status).
+    pub fn dp_drift_check(&self) -> &DriftCheck {
+        &self.dp_drift
     }
 
     /// The online surge detector.
@@ -519,7 +530,13 @@ impl ControlCore {
     }
 
     /// Build measurements from validated inputs.
-    fn measurements(&mut self, t_s: f64, dt: f64, raw: &RawSensors, v: &Validity) -> Measurements {
+    fn measurements(
+        &mut self,
+        t_s: f64,
+        dt: f64,
+        raw: &RawSensors,
+        v: &mut Validity,
+    ) -> Measurements {
         let get = |id: SensorId| {
             if v.ok(id) {
                 raw.values.get(id)
@@ -538,7 +555,7 @@ impl ControlCore {
         let recycle = get(SensorId::RecycleValvePosition);
         let throttle = get(SensorId::ThrottlePosition);
         let thrust = get(SensorId::ThrustPosition);
-        let m_meas = self.model.orifice.mass_flow_kg_s(
+        let mut m_meas = self.model.orifice.mass_flow_kg_s(
             &self.model.gas,
             get(SensorId::OrificeDp),
             p_s,
@@ -565,18 +582,64 @@ impl ControlCore {
                 }
             }
         }
+        // cross-check: the transmitter's flow against the observer's and the speed-line flow
+        // (a frozen Δp is the other check's; the drift check holds meanwhile)
+        let ratio = p_d / p_s;
+        let (q_line, line_unc) = match self.model.speed_line_flow(ratio, omega) {
+            Some((q, slope)) if slope < 0.0 => (
+                q,
+                0.01 * self.config.drift_check.map_uncertainty_pct
+                    * (q + (ratio - 1.0) / slope.abs()),
+            ),
+            _ => (f64::NAN, f64::NAN),
+        };
+        // the observer's steady-state error from a map error δΨ = ε (R − 1): the error
+        // dynamics (seed 000 eq. 16) settle at m̃ = p_s δΨ / (c2 − p_s ∂Ψ/∂m)
+        let eps = 0.01 * self.config.drift_check.map_uncertainty_pct;
+        let obs_unc = match &self.observer {
+            Some(o) if m_obs.is_finite() => {
+                let dm = 1e-4 * m_obs.abs().max(1e-3);
+                let psi = |m: f64| self.model.pressure_ratio_at(m, p_s, t_s_k, omega, thrust);
+                let slope = (psi(m_obs + dm) - psi(m_obs - dm)) / (2.0 * dm);
+                let gain = o.c2() - p_s * slope.max(0.0);
+                let m_err = if gain > 0.0 {
+                    p_s * eps * (ratio - 1.0).abs() / gain
+                } else {
+                    f64::INFINITY
+                };
+                self.model.map_flow(m_err, p_s, t_s_k)
+            }
+            _ => f64::NAN,
+        };
+        let drift = self.dp_drift.update(
+            &self.config.drift_check,
+            t_s,
+            self.model.map_flow(m_meas, p_s, t_s_k),
+            self.model.map_flow(m_obs, p_s, t_s_k),
+            obs_unc,
+            q_line,
+            line_unc,
+            self.model.surge_line.flow_at_ratio(ratio),
+        );
+        if drift.drifting && v.ok(SensorId::OrificeDp) {
+            v.fault[SensorId::OrificeDp.index()] = InputFault::Drift;
+            m_meas = f64::NAN;
+        }
         let (m, fallback) = match self.config.flow_source {
             FlowSource::Orifice => (m_meas, false),
             FlowSource::Observer => (m_obs, false),
             FlowSource::OrificeWithObserverFallback => {
                 if m_meas.is_finite() {
                     (m_meas, false)
-                } else if v.fault[SensorId::OrificeDp.index()] == InputFault::Frozen
-                    && m_obs.is_finite()
+                } else if matches!(
+                    v.fault[SensorId::OrificeDp.index()],
+                    InputFault::Frozen | InputFault::Drift
+                ) && m_obs.is_finite()
                 {
-                    // a frozen Δp: the conservative estimate, the lower of the observer's
-                    // flow and the frozen reading's (a closing machine loses flow that the
-                    // frozen value does not show; an observer off the other way is capped)
+                    // a frozen or drifting Δp: the conservative estimate, the lower of the
+                    // observer's flow and the transmitter's (a closing machine loses flow that
+                    // the frozen value does not show; a transmitter reading high is replaced;
+                    // an observer off the other way is capped)
                     let m_frozen = self.model.orifice.mass_flow_kg_s(
                         &self.model.gas,
                         raw.values.get(SensorId::OrificeDp),
@@ -769,7 +832,7 @@ impl ControlCore {
             0.0
         };
         self.last_t_s = t_s;
-        let meas = self.measurements(t_s, dt, raw, &validity);
+        let meas = self.measurements(t_s, dt, raw, &mut validity);
         self.last_meas = meas;
         let age = essentials
             .iter()

@@ -9,6 +9,7 @@ pub mod baseline_pi;
 pub mod config;
 pub mod core;
 pub mod cross_check;
+pub mod drift_check;
 pub mod drive_torque;
 pub mod law;
 pub mod measurements;

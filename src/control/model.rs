@@ -260,6 +260,45 @@ impl ControlModel {
         }
     }
 
+    /// The speed-line flow: the flow (map coordinate) at which the speed line at `omega_rad_s`
+    /// gives the pressure ratio `ratio`, Ψc(q, ω) = R (the steady state of the duct equation,
+    /// seed 000 eq. 1b: L/A dm/dt = Ψc p_s − p_d), with ∂Ψc/∂q there. Defined only right of
+    /// the speed line's peak, where Ψc falls with the flow and one ratio gives one flow: `None`
+    /// at or above the peak ratio, without a map, or with a tip-clearance effect (the map
+    /// alone does not give the ratio there). Bisection between the peak and a bracket found by
+    /// doubling: allocation-free, at most 70 map evaluations.
+    pub fn speed_line_flow(&self, ratio: f64, omega_rad_s: f64) -> Option<(f64, f64)> {
+        let map = self.map.as_ref()?;
+        if self.tip.is_some() || !(ratio.is_finite() && omega_rad_s.is_finite()) {
+            return None;
+        }
+        let (q_peak, r_peak) = map.peak(omega_rad_s)?;
+        if !(ratio < r_peak && q_peak > 0.0) {
+            return None;
+        }
+        let psi = |q: f64| map.eval(q, omega_rad_s).value;
+        let (mut lo, mut hi) = (q_peak, 1.25 * q_peak);
+        let mut k = 0;
+        while psi(hi) > ratio {
+            lo = hi;
+            hi = q_peak + 2.0 * (hi - q_peak);
+            k += 1;
+            if k > 30 {
+                return None;
+            }
+        }
+        for _ in 0..40 {
+            let mid = 0.5 * (lo + hi);
+            if psi(mid) > ratio {
+                lo = mid;
+            } else {
+                hi = mid;
+            }
+        }
+        let q = 0.5 * (lo + hi);
+        Some((q, map.eval(q, omega_rad_s).d_dflow))
+    }
+
     /// Flow in the map's coordinate for mass flow `m` at suction (p, T).
     #[inline]
     pub fn map_flow(&self, m_kg_s: f64, p_suction_pa: f64, t_suction_k: f64) -> f64 {

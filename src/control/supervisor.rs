@@ -31,6 +31,10 @@ pub enum InputFault {
     /// Fresh and in range but repeating itself while related signals move (the control
     /// core's cross-check, [`crate::control::cross_check`]).
     Frozen,
+    /// Fresh, in range and moving, but disagreeing persistently with the observer and the
+    /// speed-line flow (drifting or biased; the control core's cross-check,
+    /// [`crate::control::drift_check`]).
+    Drift,
 }
 
 /// Validity of every input after one check.

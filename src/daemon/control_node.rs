@@ -467,10 +467,17 @@ impl ControlNode {
                     out.validity.fault[SensorId::OrificeDp.index()],
                 )
                 .unwrap_or(FallbackReason::Stale);
+                // the drift check says by how much the transmitter is off, % of surge-line flow
+                let v = self.core.dp_drift_check().verdict();
+                let pct = |x: f64| {
+                    (reason == FallbackReason::Drift && x.is_finite()).then_some(100.0 * x)
+                };
                 self.push(FallbackEntered {
                     input: SensorId::OrificeDp,
                     reason,
                     replaced_by: Replacement::Observer,
+                    vs_observer_pct: pct(v.vs_observer),
+                    vs_speed_line_pct: pct(v.vs_speed_line),
                 });
                 self.fallback_since_ns = Some(now);
             }

@@ -168,9 +168,10 @@ impl Cause {
         match self.fault? {
             FallbackReason::Stale | FallbackReason::BusOff => Some("sensor_timeout"),
             FallbackReason::AliveCounter => Some("sensor_alive_error"),
-            FallbackReason::Nan | FallbackReason::OutOfRange | FallbackReason::Frozen => {
-                Some("sensor_implausible")
-            }
+            FallbackReason::Nan
+            | FallbackReason::OutOfRange
+            | FallbackReason::Frozen
+            | FallbackReason::Drift => Some("sensor_implausible"),
         }
     }
 
@@ -198,6 +199,10 @@ impl Cause {
             Some(FallbackReason::BusOff) => "bus off".to_string(),
             Some(FallbackReason::Frozen) => {
                 "frozen: no change while the pressures moved (cross-check)".to_string()
+            }
+            Some(FallbackReason::Drift) => {
+                "drifting or biased: disagrees with the observer's and the speed-line flow (cross-check)"
+                    .to_string()
             }
             None => "healthy".to_string(),
         };
@@ -230,6 +235,7 @@ pub fn fallback_reason(fault: InputFault) -> Option<FallbackReason> {
         InputFault::OutOfRange => Some(FallbackReason::OutOfRange),
         InputFault::Stale => Some(FallbackReason::Stale),
         InputFault::Frozen => Some(FallbackReason::Frozen),
+        InputFault::Drift => Some(FallbackReason::Drift),
     }
 }
 

@@ -50,6 +50,9 @@ pub enum FallbackReason {
     /// Fresh and in range, but frozen: no change beyond its noise floor while the related
     /// signals moved (cross-check).
     Frozen,
+    /// Fresh, in range and moving, but drifting or biased: it disagreed persistently with the
+    /// observer's flow and the speed-line flow (cross-check).
+    Drift,
 }
 
 /// What stands in for a bad input while the fallback lasts.
@@ -174,7 +177,7 @@ pub struct LawChanged {
 }
 
 /// An input went bad and something stands in for it.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
 pub struct FallbackEntered {
     /// The input that went bad.
     pub input: SensorId,
@@ -182,6 +185,14 @@ pub struct FallbackEntered {
     pub reason: FallbackReason,
     /// What replaces it.
     pub replaced_by: Replacement,
+    /// For a drifting flow transmitter: its flow minus the observer's, filtered, % of the
+    /// surge-line flow (the unit of the control margin; + reads more flow than the observer).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub vs_observer_pct: Option<f64>,
+    /// For a drifting flow transmitter: its flow minus the speed-line flow, filtered, % of
+    /// the surge-line flow.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub vs_speed_line_pct: Option<f64>,
 }
 
 /// A previously bad input is trusted again.
@@ -601,6 +612,8 @@ pub(crate) mod tests {
                     input: SensorId::OrificeDp,
                     reason: FallbackReason::Stale,
                     replaced_by: Replacement::Observer,
+                    vs_observer_pct: None,
+                    vs_speed_line_pct: None,
                 }),
                 r#"{"ts":"2024-05-01T12:34:56.123456Z","seq":42,"event":"fallback_entered","input":"orifice_dp","reason":"stale","replaced_by":"observer"}"#,
             ),
@@ -686,8 +699,21 @@ pub(crate) mod tests {
                     input: SensorId::OrificeDp,
                     reason: FallbackReason::Frozen,
                     replaced_by: Replacement::Observer,
+                    vs_observer_pct: None,
+                    vs_speed_line_pct: None,
                 }),
                 r#"{"ts":"2024-05-01T12:34:56.123456Z","seq":42,"event":"fallback_entered","input":"orifice_dp","reason":"frozen","replaced_by":"observer"}"#,
+            ),
+            (
+                // the drift cross-check: how far the transmitter is off each estimate
+                Event::FallbackEntered(FallbackEntered {
+                    input: SensorId::OrificeDp,
+                    reason: FallbackReason::Drift,
+                    replaced_by: Replacement::Observer,
+                    vs_observer_pct: Some(12.5),
+                    vs_speed_line_pct: Some(11.0),
+                }),
+                r#"{"ts":"2024-05-01T12:34:56.123456Z","seq":42,"event":"fallback_entered","input":"orifice_dp","reason":"drift","replaced_by":"observer","vs_observer_pct":12.5,"vs_speed_line_pct":11.0}"#,
             ),
         ]
     }

@@ -25,6 +25,7 @@ fn fault_name(c: &Option<Cause>) -> Option<&'static str> {
         super::FallbackReason::AliveCounter => "alive_counter",
         super::FallbackReason::BusOff => "bus_off",
         super::FallbackReason::Frozen => "frozen",
+        super::FallbackReason::Drift => "drift",
     })
 }
 
@@ -54,9 +55,19 @@ pub fn record(event: &Event) {
             }
         }
         Event::FallbackEntered(f) => {
+            let off = |x: Option<f64>, what: &str| {
+                x.map(|v| format!(", reads {v:+.1} % of surge-line flow against the {what}"))
+                    .unwrap_or_default()
+            };
+            let detail = format!(
+                "{}{}",
+                off(f.vs_observer_pct, "observer"),
+                off(f.vs_speed_line_pct, "speed-line flow")
+            );
             tracing::warn!(target: "event", event = "fallback_entered", input = f.input.name(),
                 fault = ?f.reason, replaced_by = ?f.replaced_by,
-                "{} failed ({:?}): {:?} stands in", f.input.name(), f.reason, f.replaced_by)
+                vs_observer_pct = f.vs_observer_pct, vs_speed_line_pct = f.vs_speed_line_pct,
+                "{} failed ({:?}{detail}): {:?} stands in", f.input.name(), f.reason, f.replaced_by)
         }
         Event::FallbackLeft(f) => {
             tracing::warn!(target: "event", event = "fallback_left", input = f.input.name(),

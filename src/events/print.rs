@@ -174,6 +174,7 @@ mod tests {
             "note              text=\"operator: \\\"valve stroke test\\\"\"",
             "events_dropped    count=7  cause=queue_full",
             "fallback_entered  input=orifice_dp  reason=frozen  replaced_by=observer",
+            "fallback_entered  input=orifice_dp  reason=drift  replaced_by=observer  vs_observer_pct=12.5  vs_speed_line_pct=11.0",
         ];
         let ex = examples();
         assert_eq!(ex.len(), expected.len());

@@ -151,6 +151,7 @@ fn fault_code(f: Option<FallbackReason>) -> u8 {
         Some(FallbackReason::AliveCounter) => 4,
         Some(FallbackReason::BusOff) => 5,
         Some(FallbackReason::Frozen) => 6,
+        Some(FallbackReason::Drift) => 7,
     }
 }
 
@@ -162,6 +163,7 @@ fn fault_of(c: u8) -> Option<FallbackReason> {
         4 => FallbackReason::AliveCounter,
         5 => FallbackReason::BusOff,
         6 => FallbackReason::Frozen,
+        7 => FallbackReason::Drift,
         _ => return None,
     })
 }

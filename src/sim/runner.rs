@@ -243,6 +243,9 @@ impl HealthRecord {
             InputFault::Frozen => {
                 "flow transmitter (orifice_dp) frozen: no change while the pressures moved"
             }
+            InputFault::Drift => {
+                "flow transmitter (orifice_dp) drifting or biased: disagrees with the observer and the speed-line flow"
+            }
         }
     }
 

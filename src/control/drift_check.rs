@@ -1,0 +1,491 @@
+//! Transmitter cross-check, second part: a flow element's Δp that is fresh, in range and
+//! moving, but **drifting or biased** (a zero shift, a span error, an impulse line filling
+//! up). The frozen check ([`super::cross_check`]) cannot see it; this one compares the flow
+//! the transmitter gives with two estimates that do not use it:
+//!
+//! - the observer's flow (seed 000 eq. 14–15, [`super::observer`]), which integrates the duct
+//!   and outlet-volume dynamics from the pressures, the speed and the valve positions;
+//! - the *speed-line flow*: the flow at which the compressor map's speed line at the measured
+//!   speed gives the measured pressure ratio, Ψc(q, ω) = p_d/p_s (the steady state of the duct
+//!   equation, seed 000 eq. 1b / seed 001 eq. 2.1b: L/A dm/dt = Ψc p_s − p_d). The inversion is
+//!   well-defined only **right of the peak** of the speed line, where Ψc falls with the flow;
+//!   there one ratio gives one flow. Left of the peak, and near it where the line is flat
+//!   (one ratio, a wide range of flows), it is not used: its uncertainty (below) grows as
+//!   1/|∂Ψc/∂q| and rules it out by itself.
+//!
+//! Residuals are in fractions of the surge-line flow at the measured ratio (the unit of the
+//! control margin): r = (q_transmitter − q_estimate)/q_SL(R). Each is low-passed (time
+//! constant `filter_s`). A leg disagrees when its filtered residual exceeds its combined
+//! uncertainty: `threshold_pct` (model and transmitter accuracy) + `noise_factor` × the
+//! filtered residual's noise, measured online from its sample-to-sample increments (blind to
+//! a bias or a slow drift, which do not change from one sample to the next) + for the
+//! speed-line leg the map's uncertainty `map_uncertainty_pct` carried through the inversion
+//! (ε (q + (R − 1)/|∂Ψc/∂q|)). The transmitter is declared drifting when every available leg
+//! disagrees, in the same direction, for `persistence_s` without a break; it is trusted again
+//! when every leg is back within half its threshold for `persistence_s`.
+//!
+//! Pure and allocation-free: a few numbers of state, one call per new sample.
+
+use serde::{Deserialize, Serialize};
+
+/// Settings of the drift/bias cross-check (`[controller.drift_check]`).
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct DriftCheckConfig {
+    /// Whether the check runs.
+    pub enabled: bool,
+    /// Disagreement always tolerated (model and transmitter accuracy), % of the surge-line
+    /// flow at the measured pressure ratio.
+    pub threshold_pct: f64,
+    /// Multiples of the filtered residual's measured noise (1 σ) added to the threshold.
+    pub noise_factor: f64,
+    /// Uncertainty of the compressor map, % (of its flow and of its pressure rise R − 1),
+    /// carried through the speed-line inversion.
+    pub map_uncertainty_pct: f64,
+    /// Time constant of the residual filter, s.
+    pub filter_s: f64,
+    /// How long every check must disagree (or agree again) without a break, s.
+    pub persistence_s: f64,
+}
+
+impl Default for DriftCheckConfig {
+    fn default() -> Self {
+        DriftCheckConfig {
+            enabled: true,
+            threshold_pct: 5.0,
+            noise_factor: 4.0,
+            map_uncertainty_pct: 3.0,
+            filter_s: 1.0,
+            persistence_s: 1.0,
+        }
+    }
+}
+
+impl DriftCheckConfig {
+    /// Problems with the settings as `(key relative to [controller], message)`.
+    pub fn problems(&self) -> Vec<(String, String)> {
+        let mut out = Vec::new();
+        let mut check = |key: &str, v: f64, lo: f64, hi: f64, what: &str| {
+            if !(v.is_finite() && v >= lo && v <= hi) {
+                out.push((
+                    format!("drift_check.{key}"),
+                    format!("{v} is outside {lo} … {hi} ({what})"),
+                ));
+            }
+        };
+        check(
+            "threshold_pct",
+            self.threshold_pct,
+            0.5,
+            50.0,
+            "% of surge-line flow; below the map's accuracy it false-alarms, above the control margin it is useless",
+        );
+        check(
+            "noise_factor",
+            self.noise_factor,
+            0.0,
+            20.0,
+            "multiples of σ",
+        );
+        check(
+            "map_uncertainty_pct",
+            self.map_uncertainty_pct,
+            0.0,
+            50.0,
+            "% of the map's flow and pressure rise",
+        );
+        check("filter_s", self.filter_s, 0.01, 60.0, "s");
+        check("persistence_s", self.persistence_s, 0.0, 60.0, "s");
+        out
+    }
+}
+
+/// Weight of one new sample in the running increment (noise) estimates.
+const NOISE_WEIGHT: f64 = 0.01;
+/// Largest sample noise (1 σ, fraction of surge-line flow) of an estimate that is judged.
+const MAX_NOISE: f64 = 0.25;
+/// Samples a leg must have seen before its noise estimate is trusted.
+const MIN_SAMPLES: u32 = 200;
+
+/// One comparison (transmitter against one estimate).
+#[derive(Debug, Clone, Copy)]
+struct Leg {
+    /// Filtered residual, fraction of surge-line flow (NaN: none yet).
+    e: f64,
+    last_r: f64,
+    /// Running mean |increment| of the raw residual.
+    inc: f64,
+    /// Filtered extra uncertainty (the map's, for the speed-line leg), fraction.
+    unc: f64,
+    last_valid_t_s: f64,
+    first_t_s: f64,
+    n: u32,
+}
+
+impl Leg {
+    const NEW: Leg = Leg {
+        e: f64::NAN,
+        last_r: f64::NAN,
+        inc: 0.0,
+        unc: 0.0,
+        last_valid_t_s: f64::NAN,
+        first_t_s: f64::NAN,
+        n: 0,
+    };
+
+    fn update(&mut self, t_s: f64, r: f64, unc: f64, a: f64) {
+        if !(r.is_finite() && unc.is_finite()) {
+            self.last_r = f64::NAN;
+            return;
+        }
+        if self.e.is_finite() {
+            self.e += a * (r - self.e);
+            self.unc += a * (unc - self.unc);
+        } else {
+            self.e = r;
+            self.unc = unc;
+            self.first_t_s = t_s;
+        }
+        if self.last_r.is_finite() {
+            self.inc += NOISE_WEIGHT * ((r - self.last_r).abs() - self.inc);
+            self.n = self.n.saturating_add(1);
+        }
+        self.last_r = r;
+        self.last_valid_t_s = t_s;
+    }
+
+    /// Threshold (fraction) if the leg can be judged now.
+    fn threshold(&self, t_s: f64, cfg: &DriftCheckConfig, a: f64) -> Option<f64> {
+        let ready = self.e.is_finite()
+            && self.n >= MIN_SAMPLES
+            && t_s - self.first_t_s >= cfg.filter_s
+            && t_s - self.last_valid_t_s <= cfg.filter_s;
+        // white noise of σ: E|Δ| = 2σ/√π; a first-order filter of gain a keeps σ √(a/(2 − a))
+        let sigma = self.inc * std::f64::consts::PI.sqrt() / 2.0;
+        // an estimate whose sample noise is of the order of the flow itself is no reference:
+        // the map's curvature biases its mean (the observer passes pressure noise with gain
+        // K_z, ERRATA.md)
+        if !ready || sigma > MAX_NOISE {
+            return None;
+        }
+        let sigma_f = sigma * (a / (2.0 - a)).sqrt();
+        Some(0.01 * cfg.threshold_pct + cfg.noise_factor * sigma_f + self.unc)
+    }
+}
+
+/// What the check concluded this sample.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct DriftVerdict {
+    /// The transmitter is declared drifting or biased.
+    pub drifting: bool,
+    /// Filtered residual against the observer, fraction of surge-line flow (NaN: not judged).
+    pub vs_observer: f64,
+    /// Filtered residual against the speed-line flow, fraction (NaN: not judged).
+    pub vs_speed_line: f64,
+}
+
+/// The drift/bias check (see the module doc).
+#[derive(Debug, Clone, Copy)]
+pub struct DriftCheck {
+    obs: Leg,
+    line: Leg,
+    /// Observer against the speed-line flow (whether the observer is confirmed).
+    agree: Leg,
+    last_t_s: f64,
+    /// Since when every leg disagrees (or, while drifting, agrees), s; NaN: not.
+    since_s: f64,
+    sign: f64,
+    drifting: bool,
+    verdict: DriftVerdict,
+}
+
+impl Default for DriftCheck {
+    fn default() -> Self {
+        Self::new()
+    }
+}
+
+impl DriftCheck {
+    /// A check with no history.
+    pub const fn new() -> DriftCheck {
+        DriftCheck {
+            obs: Leg::NEW,
+            line: Leg::NEW,
+            agree: Leg::NEW,
+            last_t_s: f64::NAN,
+            since_s: f64::NAN,
+            sign: 0.0,
+            drifting: false,
+            verdict: DriftVerdict {
+                drifting: false,
+                vs_observer: f64::NAN,
+                vs_speed_line: f64::NAN,
+            },
+        }
+    }
+
+    /// Whether the transmitter is declared drifting now.
+    pub fn drifting(&self) -> bool {
+        self.drifting
+    }
+
+    /// The last verdict (residuals for the event log and status).
+    pub fn verdict(&self) -> DriftVerdict {
+        self.verdict
+    }
+
+    /// One new sample. Flows in the map's coordinate: `q_transmitter` from the Δp (NaN: not
+    /// usable, e.g. frozen or stale; the check then holds), `q_observer` (NaN: no observer),
+    /// `observer_unc` its steady-state error from the map's uncertainty, `q_speed_line` with
+    /// `speed_line_unc` its map uncertainty in the same unit (NaN: left of the peak or no
+    /// map), `q_surge_line` the surge-line flow at the measured ratio.
+    #[allow(clippy::too_many_arguments)]
+    pub fn update(
+        &mut self,
+        cfg: &DriftCheckConfig,
+        t_s: f64,
+        q_transmitter: f64,
+        q_observer: f64,
+        observer_unc: f64,
+        q_speed_line: f64,
+        speed_line_unc: f64,
+        q_surge_line: f64,
+    ) -> DriftVerdict {
+        if !cfg.enabled {
+            *self = DriftCheck::new();
+            return self.verdict;
+        }
+        let dt = if self.last_t_s.is_finite() {
+            (t_s - self.last_t_s).max(0.0)
+        } else {
+            0.0
+        };
+        self.last_t_s = t_s;
+        let a = 1.0 - (-dt / cfg.filter_s.max(1e-6)).exp();
+        let scale = q_surge_line.abs();
+        let usable = q_transmitter.is_finite() && scale > 1e-12 && scale.is_finite();
+        let r = |q: f64| {
+            if usable {
+                (q_transmitter - q) / scale
+            } else {
+                f64::NAN
+            }
+        };
+        self.obs
+            .update(t_s, r(q_observer), observer_unc.abs() / scale, a);
+        self.line
+            .update(t_s, r(q_speed_line), speed_line_unc.abs() / scale, a);
+
+        // the observer is a reference only while the speed line confirms it: both within
+        // the speed line's uncertainty of each other (an observer still converging after a
+        // transient, or off on a model error the map does not share, is not)
+        let both = |o: f64, l: f64| {
+            if o.is_finite() && l.is_finite() && scale > 1e-12 {
+                (o - l) / scale
+            } else {
+                f64::NAN
+            }
+        };
+        self.agree.update(
+            t_s,
+            both(q_observer, q_speed_line),
+            speed_line_unc.abs() / scale,
+            a,
+        );
+        let thr_obs = self.obs.threshold(t_s, cfg, a);
+        let thr_line = self.line.threshold(t_s, cfg, a);
+        let confirmed = self
+            .agree
+            .threshold(t_s, cfg, a)
+            .is_some_and(|thr| self.agree.e.abs() <= thr);
+        // only the dangerous direction is declared: a transmitter reading MORE flow than true
+        // lets the law close onto the surge line; one reading less makes it recycle more (the
+        // fallback, the lower flow, would keep its reading anyway), and a map that over-states
+        // the pressure rise looks just the same
+        let side = |e: f64, thr: f64| if e > thr { 1.0 } else { 0.0 };
+        // (judged, direction of a disagreement beyond the threshold, back within half of it)
+        let judgement = if self.obs.e.is_finite() {
+            // a machine with an observer: the transmitter beyond the confirmed observer's
+            // uncertainty, and beyond the speed-line flow's tolerance and noise too (its map
+            // allowance went into confirming the observer)
+            match (thr_obs, thr_line) {
+                (Some(t), Some(tl)) if confirmed => {
+                    let s = side(self.obs.e, t) * side(self.line.e, tl - self.line.unc);
+                    Some((s, self.obs.e < 0.5 * t))
+                }
+                _ => None,
+            }
+        } else {
+            // no observer: the speed-line flow alone
+            thr_line.map(|t| (side(self.line.e, t), self.line.e < 0.5 * t))
+        };
+        let vs = [
+            if thr_obs.is_some() {
+                self.obs.e
+            } else {
+                f64::NAN
+            },
+            if thr_line.is_some() {
+                self.line.e
+            } else {
+                f64::NAN
+            },
+        ];
+        if let (true, Some((sign, back))) = (usable, judgement) {
+            if !self.drifting {
+                if sign != 0.0 && sign == self.sign && self.since_s.is_finite() {
+                    if t_s - self.since_s >= cfg.persistence_s {
+                        self.drifting = true;
+                        self.since_s = f64::NAN;
+                    }
+                } else if sign != 0.0 {
+                    self.sign = sign;
+                    self.since_s = t_s;
+                } else {
+                    self.since_s = f64::NAN;
+                }
+            } else if back {
+                if !self.since_s.is_finite() {
+                    self.since_s = t_s;
+                }
+                if t_s - self.since_s >= cfg.persistence_s {
+                    self.drifting = false;
+                    self.since_s = f64::NAN;
+                    self.sign = 0.0;
+                }
+            } else {
+                self.since_s = f64::NAN;
+            }
+        } else if !self.drifting {
+            // nothing to judge: a disagreement must start over
+            self.since_s = f64::NAN;
+        }
+        self.verdict = DriftVerdict {
+            drifting: self.drifting,
+            vs_observer: vs[0],
+            vs_speed_line: vs[1],
+        };
+        self.verdict
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn rnd(seed: &mut u64) -> f64 {
+        *seed ^= *seed << 13;
+        *seed ^= *seed >> 7;
+        *seed ^= *seed << 17;
+        (*seed >> 11) as f64 / (1u64 << 53) as f64 * 2.0 - 1.0
+    }
+
+    /// 20 s at 1 kHz: true flow 1.2 × the surge-line flow 10; the observer sees the truth
+    /// plus `obs_off`, the speed line the truth plus `line_off` (fractions of q_SL), both with
+    /// `noise`; map uncertainties 2 % of q_SL each; the transmitter reads truth + bias(t).
+    /// Returns when drift was first declared and when it last cleared.
+    fn run(
+        bias: impl Fn(f64) -> f64,
+        noise: f64,
+        obs_off: f64,
+        line_off: f64,
+    ) -> (Option<f64>, Option<f64>) {
+        let cfg = DriftCheckConfig::default();
+        let mut c = DriftCheck::new();
+        let mut seed = 11u64;
+        let (mut found, mut cleared) = (None, None);
+        for k in 0..20_000 {
+            let t = k as f64 * 1e-3;
+            let q = 12.0 * (1.0 + 0.05 * (0.5 * t).sin());
+            let qt = q + 10.0 * bias(t) + 10.0 * noise * rnd(&mut seed);
+            let qo = q + 10.0 * obs_off + 10.0 * noise * rnd(&mut seed);
+            let ql = q + 10.0 * line_off + 10.0 * noise * rnd(&mut seed);
+            let v = c.update(&cfg, t, qt, qo, 0.2, ql, 0.2, 10.0);
+            if v.drifting && found.is_none() {
+                found = Some(t);
+            }
+            if !v.drifting && found.is_some() && cleared.is_none() {
+                cleared = Some(t);
+            }
+        }
+        (found, cleared.filter(|_| !c.drifting()))
+    }
+
+    #[test]
+    fn a_high_bias_beyond_the_combined_uncertainty_is_found_and_clears() {
+        // +20 % of surge-line flow from 5 s to 10 s (reads more flow than true)
+        let (found, cleared) = run(
+            |t| if (5.0..10.0).contains(&t) { 0.2 } else { 0.0 },
+            0.02,
+            0.0,
+            0.0,
+        );
+        // threshold ≈ 5 % + 2 % map + noise: the filter crosses it within ≈ 0.6 s, then 1 s
+        let found = found.expect("bias not found");
+        assert!((5.5..7.5).contains(&found), "found at {found}");
+        assert!(
+            cleared.is_some_and(|c| (10.5..13.0).contains(&c)),
+            "{cleared:?}"
+        );
+    }
+
+    #[test]
+    fn a_drift_ramp_is_found_once_it_exceeds_the_threshold() {
+        // +2 %/s from t = 4 s: 7 % (tolerance + map) at 7.5 s, + filter lag and persistence
+        let (found, _) = run(|t| 0.02 * (t - 4.0).max(0.0), 0.01, 0.0, 0.0);
+        let found = found.expect("drift not found");
+        assert!((7.5..11.0).contains(&found), "found at {found}");
+    }
+
+    #[test]
+    fn noise_map_errors_low_readings_and_an_unconfirmed_observer_never_fire() {
+        // 4 % high, both estimates 3 % low (a map error), 3 % noise: within the uncertainty
+        assert_eq!(run(|_| 0.04, 0.03, -0.03, -0.03).0, None);
+        // heavy noise: the estimates are no reference
+        assert_eq!(run(|_| 0.3, 0.5, 0.0, 0.0).0, None);
+        // reading LESS flow than true is not declared (safe direction)
+        assert_eq!(run(|_| -0.3, 0.0, 0.0, 0.0).0, None);
+        // an observer off by 30 % that the speed line does not confirm is no reference
+        assert_eq!(run(|_| 0.0, 0.0, -0.3, 0.0).0, None);
+        // the transmitter high against the observer but right by the speed line: not declared
+        assert_eq!(run(|_| 0.1, 0.0, 0.0, 0.1).0, None);
+    }
+
+    #[test]
+    fn the_speed_line_alone_decides_without_an_observer_and_a_disabled_check_never_fires() {
+        let cfg = DriftCheckConfig::default();
+        let mut c = DriftCheck::new();
+        let mut found = false;
+        for k in 0..5000 {
+            let t = k as f64 * 1e-3;
+            // no observer; the speed line (map) alone, the transmitter 20 % high
+            found |= c
+                .update(&cfg, t, 14.0, f64::NAN, f64::NAN, 12.0, 0.1, 10.0)
+                .drifting;
+        }
+        assert!(found);
+        let off = DriftCheckConfig {
+            enabled: false,
+            ..cfg
+        };
+        let mut c = DriftCheck::new();
+        for k in 0..5000 {
+            let v = c.update(&off, k as f64 * 1e-3, 14.0, 12.0, 0.1, 12.0, 0.1, 10.0);
+            assert!(!v.drifting && v.vs_observer.is_nan());
+        }
+    }
+
+    #[test]
+    fn defaults_are_valid_and_bad_values_are_named() {
+        assert!(DriftCheckConfig::default().problems().is_empty());
+        let bad = DriftCheckConfig {
+            threshold_pct: 0.0,
+            filter_s: f64::NAN,
+            ..DriftCheckConfig::default()
+        };
+        let p = bad.problems();
+        assert_eq!(p.len(), 2, "{p:?}");
+        assert_eq!(p[0].0, "drift_check.threshold_pct");
+        assert_eq!(p[1].0, "drift_check.filter_s");
+    }
+}
