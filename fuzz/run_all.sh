@@ -1,21 +1,41 @@
 #!/usr/bin/env bash
 # Build every fuzz target and run each for SECONDS (default 60), one after the other.
-# Prints a table: target, executions, seconds, result. Exits non-zero if any target
-# crashed; the crashing input is in fuzz/artifacts/<target>/ (turn it into a regression test
-# in tests/fuzz_regressions.rs).
+# Prints a table: target, executions, seconds, result. Exits 1 if any target crashed (or hit
+# libFuzzer's timeout or memory limit), 0 otherwise; the crashing input is in
+# fuzz/artifacts/<target>/ (turn it into a regression test in tests/fuzz_regressions.rs).
 #
 # Seed corpora are made from the repository's own files (config/, tests/good_configs,
 # tests/bad_configs, DBCs, a written event log) into fuzz/corpus/<target>/ (git-ignored).
 # Needs the nightly toolchain and cargo-fuzz: `rustup toolchain install nightly`,
 # `cargo install cargo-fuzz`. Environment: FUZZ_JOBS (default 1), FUZZ_TARGETS (a subset),
 # FUZZ_SANITIZER (default none: the code under test is safe Rust, and without ASan a target
-# runs about twice as many executions; `address` for the unsafe paths).
+# runs about twice as many executions; `address` for the unsafe paths), FUZZ_RUNS (stop each
+# target after this many executions instead of SECONDS; SECONDS is then only a cap),
+# FUZZ_SKIP_BUILD=1 (run the targets already built, e.g. for a second campaign in parallel: the
+# build script rebuilds the crate after every commit), FUZZ_BIN_DIR (where the built targets
+# are; default fuzz/target/<host>/release, where `cargo fuzz build` puts them).
+#
+# Input length (-max_len) suits each format: a DBC or TOML file of 16 KiB holds every construct
+# of the grammar (the largest shipped file, config/skid.dbc, is 11.6 KiB; config/antisurge.toml
+# 10 KiB), and longer inputs only repeat them while each execution costs more (can-dbc's pest
+# parser runs at ~1 µs per byte instrumented). The event reader gets 72 KiB so that a line past
+# its 64 KiB limit (MAX_READ_LINE_BYTES) is reachable; the binary targets get a little more than
+# their largest frame (CAN FD: 1 + 64 bytes; Modbus TCP ADU: 260 bytes).
 set -euo pipefail
 cd "$(dirname "$0")/.."
 secs=${1:-60}
 san=${FUZZ_SANITIZER:-none}
 root=$PWD
 targets=${FUZZ_TARGETS:-"can_frame_decode dbc_parse modbus_register_codec modbus_request config_layers plant_file scenario_file signal_map event_reader"}
+
+max_len() {
+    case $1 in
+    can_frame_decode | modbus_register_codec) echo 128 ;;
+    modbus_request) echo 512 ;;
+    event_reader) echo 73728 ;;
+    *) echo 16384 ;;
+    esac
+}
 
 seed() {
     local t=$1 d=fuzz/corpus/$1
@@ -52,8 +72,12 @@ seed() {
     esac
 }
 
-echo "== building fuzz targets (cargo +nightly fuzz build)"
-(cd fuzz && cargo +nightly fuzz build -s "$san") >&2
+if [ -z "${FUZZ_SKIP_BUILD:-}" ]; then
+    echo "== building fuzz targets (cargo +nightly fuzz build)" >&2
+    (cd fuzz && cargo +nightly fuzz build -s "$san") >&2
+fi
+# what `cargo fuzz run` runs after its build: the binaries of the host triple
+bin=${FUZZ_BIN_DIR:-$root/fuzz/target/$(rustc +nightly -vV | sed -n 's/^host: //p')/release}
 printf '%-24s %14s %8s %s\n' target executions seconds result
 status=0
 for t in $targets; do
@@ -62,12 +86,23 @@ for t in $targets; do
     result=ok
     par=()
     if [ "${FUZZ_JOBS:-1}" -gt 1 ]; then par=(-jobs="$FUZZ_JOBS" -workers="$FUZZ_JOBS"); fi
-    (cd fuzz && cargo +nightly fuzz run -s "$san" "$t" -- -max_total_time="$secs" -max_len=65536 \
-        -rss_limit_mb=2048 -print_final_stats=1 "${par[@]}") \
-        >"$log" 2>&1 || { result="CRASH (see fuzz/artifacts/$t)"; status=1; tail -n 40 "$log" >&2; }
+    if [ -n "${FUZZ_RUNS:-}" ]; then par+=(-runs="$FUZZ_RUNS"); fi
+    start=$(date +%s)
+    mkdir -p "fuzz/artifacts/$t"
+    (cd fuzz && "$bin/$t" -artifact_prefix="artifacts/$t/" -max_total_time="$secs" \
+        -max_len="$(max_len "$t")" -rss_limit_mb=2048 -print_final_stats=1 "${par[@]}" "corpus/$t") \
+        >"$log" 2>&1 || {
+        rc=$?
+        result="FAILED: exit $rc (crash, leak, timeout or out-of-memory; input in fuzz/artifacts/$t)"
+        # libFuzzer's -interrupted_exitcode: stopped by SIGINT, not a finding (still not a pass)
+        [ "$rc" -ne 72 ] || result="INTERRUPTED (SIGINT): no finding, the run was cut short"
+        status=1
+        tail -n 40 "$log" >&2
+    }
     execs=$({ grep -h 'stat::number_of_executed_units' "$log" fuzz/fuzz-*.log 2>/dev/null || true; } |
         awk '{s += $2} END {print s + 0}')
-    printf '%-24s %14s %8s %s\n' "$t" "$execs" "$secs" "$result"
+    took=$(($(date +%s) - start))
+    printf '%-24s %14s %8s %s\n' "$t" "$execs" "$took" "$result"
     rm -f "$log" fuzz/fuzz-*.log
 done
 exit $status

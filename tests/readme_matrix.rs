@@ -114,3 +114,37 @@ fn esd_stroke_verdict_names_a_stroke_that_holds() {
     assert_eq!(r.surge_cycles, 0, "{r:?}");
     assert!(r.min_margin_during > 0.0, "{r:?}");
 }
+
+#[test]
+fn the_variant_plant_with_the_stroke_the_check_names_holds_the_esd() {
+    let cfg = common::root().join("config");
+    let p = PlantCase::load(&cfg.join("plants/kvangardsnes2009_recycle.toml")).unwrap();
+    let variant =
+        PlantCase::load(&cfg.join("plants/variants/kvangardsnes2009_recycle_valve_1s.toml"))
+            .expect("variant plant");
+    let sc = bench_matrix::builtin_esd_scenario().expect("ESD scenario");
+    let case = bench_matrix::CASES
+        .iter()
+        .find(|c| c.scenario == "emergency-shutdown")
+        .expect("ESD case");
+    // at 10 %: the variant file has exactly the stroke the check names, and holds the ESD
+    let v10 = bench_matrix::esd_stroke(&p, &sc, 10.0).unwrap().unwrap();
+    let stroke = variant
+        .file
+        .recycle_system
+        .unwrap()
+        .recycle_valve
+        .stroke_time_s;
+    assert_eq!(v10.holding_stroke_s, Some(stroke), "{v10:?}");
+    let r = bench_matrix::run_case(&variant, &sc, case, LawId::RecyclePi, 10.0).unwrap();
+    assert_eq!(r.surge_cycles, 0, "{r:?}");
+    assert!(r.min_margin_during > 0.0, "{r:?}");
+    // at 5 %: the machine is past its surge line within 20 ms of the trip, before any
+    // speed-decay detection; the check names no stroke (and the README says why)
+    let v5 = bench_matrix::esd_stroke(&p, &sc, 5.0).unwrap().unwrap();
+    assert!(v5.surge_cycles > 0, "{v5:?}");
+    assert_eq!(v5.holding_stroke_s, None, "{v5:?}");
+    assert!(v5.surge_after_s < 0.02, "{v5:?}");
+    let r5 = bench_matrix::run_case(&variant, &sc, case, LawId::RecyclePi, 5.0).unwrap();
+    assert!(r5.surge_cycles > 0, "{r5:?}");
+}

@@ -36,10 +36,13 @@ pub fn run(args: &BenchMatrixArgs) -> Result<()> {
         .context("running the benchmark matrix")?;
     let esd =
         antisurge::bench_matrix::esd_strokes(&plants, &cfg).context("checking the ESD stroke")?;
+    let variants = antisurge::bench_matrix::esd_variants_markdown(&cfg)
+        .context("running the ESD on the plant variants")?;
     let md = format!(
-        "{}\nESD rundown, recycle-pi:\n\n{}",
+        "{}\nESD rundown, recycle-pi:\n\n{}{}",
         antisurge::bench_matrix::markdown(&rows),
-        antisurge::bench_matrix::esd_markdown(&esd)
+        antisurge::bench_matrix::esd_markdown(&esd),
+        variants
     );
     print!("{md}");
     if let Some(out) = &args.out {

@@ -148,7 +148,7 @@ pub struct RecyclePiConfig {
     pub ki_per_s: f64,
     /// Closing-rate adaptation: the allowed closing rate grows by `closing_rate_per_s` for
     /// every this many percent of control-line flow the operating point lies right of the
-    /// control line (far from the line the valve closes fast, near it slowly), at most 5× the
+    /// control line (far from the line the valve closes fast, near it slowly), at most 10× the
     /// base rate; 0 disables. Default 10 %.
     pub closing_rate_distance_pct: f64,
     /// ESD detection: a shaft deceleration beyond this percentage of the nominal speed per
@@ -323,6 +323,8 @@ pub struct RecyclePi {
     esd_rising_s: f64,
     /// Opening held by the trip.
     trip_level: f64,
+    /// Whether the held trip was a level trip (past the trip line).
+    level_tripped: bool,
     /// Trips so far.
     trips: u32,
     /// Safety-on shifts so far.
@@ -449,6 +451,7 @@ impl RecyclePi {
             esd: false,
             esd_rising_s: 0.0,
             trip_level: 0.0,
+            level_tripped: false,
             trips: 0,
             shifts: 0,
             shift_pending: false,
@@ -528,6 +531,7 @@ impl RecyclePi {
         self.margin_f2_last = old.margin_f2_last;
         self.trip_left_s = old.trip_left_s;
         self.trip_level = old.trip_level;
+        self.level_tripped = old.level_tripped;
         self.shift_pending = old.shift_pending;
         self.started = true;
         true
@@ -611,16 +615,24 @@ impl RecyclePi {
     /// Allowed closing rate, fraction/s: the base rate, plus one base rate per
     /// `closing_rate_distance_pct` of control-line flow right of the line.
     fn closing_rate(&self, q: f64, ratio: f64) -> f64 {
-        let base = self.cfg.closing_rate_per_s;
+        self.cfg.closing_rate_per_s * self.distance_factor(q, ratio)
+    }
+
+    /// How far right of the control line the operating point lies, as the factor
+    /// 1 + distance/`closing_rate_distance_pct` (1 at or left of the line, at most 10): the
+    /// closing rate grows with it (a valve left open far from the line after a trip or a
+    /// fail-safe resume closes quickly; near the line slowly). (Growing the integral gain
+    /// with it too closed the valve into surge after a frozen Δp at a 5 % margin.)
+    fn distance_factor(&self, q: f64, ratio: f64) -> f64 {
         if self.cfg.closing_rate_distance_pct <= 0.0 {
-            return base;
+            return 1.0;
         }
         let c = self.scl.flow_at_ratio(ratio);
         let right = if c > 0.0 { (q - c) / c } else { 0.0 };
         if right.is_finite() && right > 0.0 {
-            base * (1.0 + right / (0.01 * self.cfg.closing_rate_distance_pct)).min(5.0)
+            (1.0 + right / (0.01 * self.cfg.closing_rate_distance_pct)).min(10.0)
         } else {
-            base
+            1.0
         }
     }
 
@@ -735,9 +747,19 @@ impl SurgeLaw for RecyclePi {
         self.margin_prev = [margin, p1];
         // (capped: in deep surge the margin swings hard, which is no reason not to trip)
         let allowance = (self.cfg.trip_noise_factor * self.margin_noise).min(0.5 * trip_margin);
-        let predicted = margin + self.cfg.trip_lead_time_s * d_margin.min(0.0);
+        // the level the trip judges: the raw margin when it has moved away from its filtered
+        // value by more than `trip_noise_factor` × its noise (a real, fast move: no filter
+        // lag; the gate is not capped like the allowance), else the
+        // filtered one (noise alone: a single noisy sample must not size the step)
+        let gate = (self.cfg.trip_noise_factor * self.margin_noise).max(1e-6);
+        let margin_t = if (margin - self.margin_f1).abs() > gate {
+            margin
+        } else {
+            self.margin_f1
+        };
+        let predicted = margin_t + self.cfg.trip_lead_time_s * d_margin.min(0.0);
         let trip_cond = margin.is_finite()
-            && (margin < trip_margin - allowance
+            && (margin_t < trip_margin - allowance
                 || (self.approach_armed(z) && predicted < trip_margin - allowance));
         self.trip_agree = if trip_cond {
             self.trip_agree.saturating_add(1)
@@ -747,18 +769,40 @@ impl SurgeLaw for RecyclePi {
         let trip_now = trip_cond && self.trip_agree >= self.cfg.trip_confirm_samples.max(1);
         self.trip_left_s -= dt;
         let mut event = None;
-        if trip_now && self.trip_left_s <= 0.0 && self.cfg.trip_step > 0.0 {
+        // a level trip (past the trip line) escalates a held, smaller rate trip: the rate
+        // trip's proportional step must not block the full step when the point gets there
+        let level_now = margin_t < trip_margin - allowance;
+        let escalate = level_now && !self.level_tripped && self.trip_left_s > 0.0;
+        if trip_now && (self.trip_left_s <= 0.0 || escalate) && self.cfg.trip_step > 0.0 {
             let (_, hi) = self.limits();
             // the step grows with the predicted penetration past the trip line (seed 002
             // §2.2.2 [11]: the faster the approach, the larger the open-loop step): a slow
             // drift gets `trip_step`, a throttle slam that would cross the whole trip margin
             // within the lead time gets a multiple of it (a soft PI cannot catch that alone)
+            // Below the trip line (the level criterion) at least `trip_step`; a rate trip
+            // still right of the line gets a step in proportion to the predicted penetration
+            // (a slow drift that would just touch the trip line needs little, and a full
+            // `trip_step` there recycled 3 % of a matrix's energy for nothing)
+            let level = margin_t < trip_margin - allowance;
             let depth = if trip_margin > 0.0 {
-                ((trip_margin - predicted) / trip_margin).max(1.0)
+                let d = (trip_margin - predicted) / trip_margin;
+                if level {
+                    d.max(1.0)
+                } else {
+                    d.max(0.0)
+                }
             } else {
                 1.0
             };
-            self.trip_level = (self.u_last + self.cfg.trip_step * depth).min(hi);
+            self.trip_level =
+                (self.u_last + self.cfg.trip_step * depth)
+                    .min(hi)
+                    .max(if self.trip_left_s > 0.0 {
+                        self.trip_level
+                    } else {
+                        0.0
+                    });
+            self.level_tripped = level;
             self.trip_left_s = self.cfg.trip_hold_s.max(dt);
             self.trips = self.trips.saturating_add(1);
             event = Some(LawEvent::RecycleTrip {
