@@ -811,7 +811,7 @@ pub fn counts_in_energy(case: &str) -> bool {
 pub fn energy_total(rows: &[CaseResult], plant: &str, law: LawId, margin_pct: f64) -> f64 {
     rows.iter()
         .filter(|r| r.plant == plant && r.law == law && r.margin_pct == margin_pct)
-        .filter(|r| counts_in_energy(&r.case))
+        .filter(|r| counts_in_energy(r.case))
         .map(|r| r.recycle_energy_j)
         .sum()
 }
@@ -982,7 +982,7 @@ pub fn markdown(rows: &[CaseResult]) -> String {
 pub fn oracle_total(rows: &[CaseResult], plant: &str, law: LawId, margin_pct: f64) -> f64 {
     rows.iter()
         .filter(|r| r.plant == plant && r.law == law && r.margin_pct == margin_pct)
-        .filter(|r| counts_in_energy(&r.case))
+        .filter(|r| counts_in_energy(r.case))
         .map(|r| r.oracle_energy_j)
         .sum()
 }
