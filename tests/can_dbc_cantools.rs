@@ -292,6 +292,8 @@ fn value_sets(db: &CanDatabase) -> Vec<Vec<(SignalTarget, f64)>> {
         .into_iter()
         .map(SignalTarget::Sensor)
         .chain(ActuatorId::ALL.into_iter().map(SignalTarget::Actuator))
+        // only what skid.dbc carries (the ESD contact is optional and not on this bus)
+        .filter(|t| skid_bindings().iter().any(|b| b.target == *t))
         .collect();
     let lim = |t: SignalTarget| {
         let (_, s) = bound_signal(db, t);
@@ -317,7 +319,7 @@ fn value_sets(db: &CanDatabase) -> Vec<Vec<(SignalTarget, f64)>> {
         SignalTarget::Sensor(SensorId::ThrottlePosition) => 0.7,
         SignalTarget::Sensor(SensorId::ThrustPosition) => -1.0e-3,
         SignalTarget::Sensor(SensorId::DriveTorque) => 1_234.5,
-        SignalTarget::Sensor(SensorId::EsdInput) => 1.0, // not in skid.dbc
+        SignalTarget::Sensor(SensorId::EsdInput) => 1.0, // filtered out above: not in skid.dbc
         SignalTarget::Actuator(ActuatorId::DriveTorque) => -30_000.0,
         SignalTarget::Actuator(ActuatorId::RecycleValve) => 0.0001,
         SignalTarget::Actuator(ActuatorId::Throttle) => 1.0,
