@@ -73,15 +73,8 @@ fn kill_9_of_the_controller_leaves_the_plant_safe() {
     let dir = tmp.path();
     let (mut plant, mut ctl, out) = start_pair(dir, "throttle-closure");
     // the closure runs from t = 5 s to 7 s of scenario time: kill in the middle of it
-    std::thread::sleep(Duration::from_millis(6500));
-    let kill_unix_s = unix_now_s();
-    signal(&ctl, libc::SIGKILL);
-    let _ = wait(&mut ctl, Duration::from_secs(5), "killed controller", dir);
-    let st = wait(&mut plant, Duration::from_secs(60), "plant", dir);
-    assert!(st.success(), "plant failed:\n{}", logs(dir));
-
-    let s = summary(&out);
-    let ctx = format!("{s:#}\n{}", logs(dir));
+    let (kill_unix_s, s, ctx) =
+        kill_controller_and_finish(&mut plant, &mut ctl, &out, dir, Duration::from_millis(6500));
     assert_eq!(s["field_failsafe_entries"], 1, "{ctx}");
     assert_eq!(s["surge_cycles"], 0, "{ctx}");
     assert_eq!(s["flow_reversal"], false, "{ctx}");

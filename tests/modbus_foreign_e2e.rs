@@ -157,14 +157,8 @@ fn kill_9_on_the_foreign_map_fails_the_valve_open() {
     let tmp = tempfile::tempdir().expect("tmp");
     let dir = tmp.path();
     let (mut plant, mut ctl, out, _) = start(dir, "modbus_map.toml");
-    std::thread::sleep(Duration::from_millis(6500));
-    let kill_unix_s = unix_now_s();
-    signal(&ctl, libc::SIGKILL);
-    let _ = wait(&mut ctl, Duration::from_secs(5), "killed controller", dir);
-    let st = wait(&mut plant, Duration::from_secs(60), "plant", dir);
-    assert!(st.success(), "plant failed:\n{}", logs(dir));
-    let s = summary(&out);
-    let ctx = format!("{s:#}\n{}", logs(dir));
+    let (kill_unix_s, s, ctx) =
+        kill_controller_and_finish(&mut plant, &mut ctl, &out, dir, Duration::from_millis(6500));
     assert_eq!(s["field_failsafe_entries"], 1, "{ctx}");
     let pos = column(&out, "recycle_valve_position");
     assert!(pos.last().expect("rows").1 > 0.95, "{ctx}");
@@ -300,14 +294,8 @@ fn a_watchdog_toggle_coil_keeps_the_device_alive_until_kill_9() {
     let map = "modbus_map_coils.toml";
     let (mut plant, mut ctl, out, _) = start_with(dir, map, map, "throttle-closure");
     // past the closure (5–7 s): the device watchdog saw the coil flip all along
-    std::thread::sleep(Duration::from_millis(8000));
-    let kill_unix_s = unix_now_s();
-    signal(&ctl, libc::SIGKILL);
-    let _ = wait(&mut ctl, Duration::from_secs(5), "killed controller", dir);
-    let st = wait(&mut plant, Duration::from_secs(60), "plant", dir);
-    assert!(st.success(), "plant failed:\n{}", logs(dir));
-    let s = summary(&out);
-    let ctx = format!("{s:#}\n{}", logs(dir));
+    let (kill_unix_s, s, ctx) =
+        kill_controller_and_finish(&mut plant, &mut ctl, &out, dir, Duration::from_millis(8000));
     assert_eq!(s["field_failsafe_entries"], 1, "only the kill: {ctx}");
     assert_eq!(s["surge_cycles"], 0, "{ctx}");
     // the coil flipped until the kill, and the device failed safe 300 ms after its last flip

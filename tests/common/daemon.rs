@@ -301,3 +301,24 @@ pub fn assert_device_watchdog_timing(
     );
     gap
 }
+
+/// The kill -9 scenario shared by the device-watchdog tests: let the pair run `after`, SIGKILL
+/// the controller, let the plant finish its scenario (it must exit 0). Returns the Unix time of
+/// the kill, s, the plant's summary and a context string (summary + logs) for assertions.
+pub fn kill_controller_and_finish(
+    plant: &mut Child,
+    ctl: &mut Child,
+    out: &Path,
+    dir: &Path,
+    after: Duration,
+) -> (f64, serde_json::Value, String) {
+    std::thread::sleep(after);
+    let kill_unix_s = unix_now_s();
+    signal(ctl, libc::SIGKILL);
+    let _ = wait(ctl, Duration::from_secs(5), "killed controller", dir);
+    let st = wait(plant, Duration::from_secs(60), "plant", dir);
+    assert!(st.success(), "plant failed:\n{}", logs(dir));
+    let s = summary(out);
+    let ctx = format!("{s:#}\n{}", logs(dir));
+    (kill_unix_s, s, ctx)
+}
