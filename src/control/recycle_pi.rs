@@ -849,12 +849,16 @@ impl SurgeLaw for RecyclePi {
         }
         self.margin_prev = [margin, p1];
         // (capped: in deep surge the margin swings hard, which is no reason not to trip)
-        let allowance = (self.cfg.trip_noise_factor * self.margin_noise).min(0.5 * trip_margin);
+        // (the larger of the per-cycle and the per-change noise: a value held by a slower
+        // bus changes only every few cycles, and its per-cycle second difference understates
+        // its noise: a 100 Hz poll under a 1 kHz loop fired the rate trip on noise)
+        let noise = self.margin_noise.max(self.onset_noise);
+        let allowance = (self.cfg.trip_noise_factor * noise).min(0.5 * trip_margin);
         // the level the trip judges: the raw margin when it has moved away from its filtered
         // value by more than `trip_noise_factor` × its noise (a real, fast move: no filter
         // lag; the gate is not capped like the allowance), else the
         // filtered one (noise alone: a single noisy sample must not size the step)
-        let gate = (self.cfg.trip_noise_factor * self.margin_noise).max(1e-6);
+        let gate = (self.cfg.trip_noise_factor * noise).max(1e-6);
         let margin_t = if (margin - self.margin_f1).abs() > gate {
             margin
         } else {
