@@ -42,6 +42,11 @@
 //!   (kvangardsnes2009 at 5 %: 4 ms after the step, where the 2 Hz approach filter tripped at
 //!   25 ms and the 2-s valve could no longer hold it); while held, its level follows its
 //!   growing prediction;
+//! - a rate or onset trip right of the trip line steps at most 2 × `trip_step` (the level trip
+//!   escalates it should the point get there);
+//! - after a (re)start far right of the line (link outage, fail-safe exit), the integrator
+//!   unwinds so that the valve closes at the distance-adapted rate until the point is within
+//!   `closing_rate_distance_pct` of the line;
 //! - safety-on ([13] surge-count bias): after each detected surge the SCL moves right by
 //!   `safety_on_step_pct` of the surge-line flow (up to `safety_on_max_pct`), counted and
 //!   reported as [`LawEvent::SafetyOnShift`];
@@ -356,6 +361,10 @@ pub struct RecyclePi {
     shifts: u32,
     /// A safety-on shift not yet reported.
     shift_pending: bool,
+    /// After a (re)start far right of the control line: the integrator unwinds so that the
+    /// demand falls at the distance-adapted closing rate (see `update`), until the point is
+    /// within `closing_rate_distance_pct` of the line or a trip fires.
+    resume_unwind: bool,
     started: bool,
 }
 
@@ -488,6 +497,7 @@ impl RecyclePi {
             trips: 0,
             shifts: 0,
             shift_pending: false,
+            resume_unwind: false,
             started: false,
         })
     }
@@ -774,6 +784,7 @@ impl SurgeLaw for RecyclePi {
         self.omega_f = f64::NAN;
         self.omega_f_last = f64::NAN;
         self.esd = false;
+        self.resume_unwind = true;
         self.started = true;
     }
 
@@ -926,6 +937,15 @@ impl SurgeLaw for RecyclePi {
             } else {
                 1.0
             };
+            // A rate or onset trip (still right of the trip line) gets at most 2 × `trip_step`:
+            // its prediction extrapolates the approach linearly over the lead time, and for
+            // a throttle slam that reads as a penetration of several surge-line flows, which
+            // no valve needs (kvangardsnes2009 throttle step at 10 %: 71 % valve travel for a
+            // closest approach of +6.0 %, the same +6.0 % with 56 %; a cap of 1 × fell to
+            // 27 % but let the observer-fallback run on hemchi2016 settle on the line only
+            // after 11.4 s); should the point still reach the trip line, the level trip
+            // escalates the held step.
+            let depth = if level { depth } else { depth.min(2.0) };
             let raised_only = follow_onset && !escalate;
             // a raised onset trip steps from where its trip started (the valve command has
             // followed the held level since: stepping from it would ratchet)
@@ -967,14 +987,34 @@ impl SurgeLaw for RecyclePi {
         // PI on z (seed 001 eq. 3.7, K_d = 0) with anti-windup against the static limits: the
         // integrator tracks the clamped demand
         let (lo, hi) = self.limits();
-        let integ_next = self.integ + self.ki_z * z * dt;
+        let mut integ_next = self.integ + self.ki_z * z * dt;
+        let rate = self.closing_rate(q, r);
+        if self.resume_unwind
+            && (z >= 0.0
+                || self.distance_factor(q, r) <= 2.0
+                || self.trip_left_s > 0.0
+                || self.u_last <= lo)
+        {
+            self.resume_unwind = false;
+        }
+        // resume far right of the line (a link outage or a fail-safe leaves the valve open):
+        // the bumpless start put Kp·z0 into the integrator, and as the point moves towards
+        // the line the rising Kp·z cancels the integral's fall, so the demand, not the
+        // closing-rate limit, set the pace (hemchi2016: 0.12/s from 43 % open while 80 %
+        // right of the line). Until the point is within `closing_rate_distance_pct` of the
+        // line, the integrator unwinds so that the demand falls at least at the
+        // distance-adapted closing rate; from there on the PI closes as before (the base
+        // rate near the line: no overshoot into it). Only after a (re)start: after a trip
+        // the same unwinding closed kvangardsnes2009's valve back into surge.
+        if self.resume_unwind && self.u_last > lo {
+            integ_next = integ_next.min(self.u_last - rate * dt - self.kp_z * z);
+        }
         let u_pi = integ_next + self.kp_z * z;
         let demand = u_pi.clamp(lo, hi);
         // fast opening, rate-limited closing ([15]): the valve follows the demand up at once and
         // down at most at the closing rate; the PI keeps its own demand meanwhile. The rate
         // grows with the distance right of the control line: far from it the valve closes
         // fast (less recycle after a trip or a fail-safe), near it slowly.
-        let rate = self.closing_rate(q, r);
         let follow = demand.max(self.u_last - rate * dt);
         let mut u = follow;
         // trip hold: at least the tripped opening
