@@ -594,7 +594,8 @@ impl ControlCore {
             _ => (f64::NAN, f64::NAN),
         };
         // the observer's steady-state error from a map error δΨ = ε (R − 1): the error
-        // dynamics (seed 000 eq. 16) settle at m̃ = p_s δΨ / (c2 − p_s ∂Ψ/∂m)
+        // dynamics (seed 000 eq. 16) settle at m̃ = p_s δΨ / (c2 − p_s ∂Ψ/∂m); plus a map
+        // whose flows are off by ε: the observer settles where Ψ̂(m̂) matches, ε m̂ off
         let eps = 0.01 * self.config.drift_check.map_uncertainty_pct;
         let obs_unc = match &self.observer {
             Some(o) if m_obs.is_finite() => {
@@ -607,7 +608,7 @@ impl ControlCore {
                 } else {
                     f64::INFINITY
                 };
-                self.model.map_flow(m_err, p_s, t_s_k)
+                self.model.map_flow(m_err + eps * m_obs.abs(), p_s, t_s_k)
             }
             _ => f64::NAN,
         };

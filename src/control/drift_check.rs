@@ -22,7 +22,7 @@
 //! speed-line leg the map's uncertainty `map_uncertainty_pct` carried through the inversion
 //! (ε (q + (R − 1)/|∂Ψc/∂q|)). The transmitter is declared drifting when every available leg
 //! disagrees, in the same direction, for `persistence_s` without a break; it is trusted again
-//! when every leg is back within half its threshold for `persistence_s`.
+//! when every leg is back within half its threshold for `clear_s` without a break.
 //!
 //! Pure and allocation-free: a few numbers of state, one call per new sample.
 
@@ -44,8 +44,13 @@ pub struct DriftCheckConfig {
     pub map_uncertainty_pct: f64,
     /// Time constant of the residual filter, s.
     pub filter_s: f64,
-    /// How long every check must disagree (or agree again) without a break, s.
+    /// How long every check must disagree without a break before the transmitter is
+    /// declared drifting, s.
     pub persistence_s: f64,
+    /// How long every check must agree again without a break before a transmitter declared
+    /// drifting is trusted again, s (a bias does not go away by itself: longer than
+    /// `persistence_s`).
+    pub clear_s: f64,
 }
 
 impl Default for DriftCheckConfig {
@@ -55,8 +60,9 @@ impl Default for DriftCheckConfig {
             threshold_pct: 5.0,
             noise_factor: 4.0,
             map_uncertainty_pct: 3.0,
-            filter_s: 1.0,
-            persistence_s: 1.0,
+            filter_s: 0.03,
+            persistence_s: 0.03,
+            clear_s: 1.0,
         }
     }
 }
@@ -96,6 +102,7 @@ impl DriftCheckConfig {
         );
         check("filter_s", self.filter_s, 0.01, 60.0, "s");
         check("persistence_s", self.persistence_s, 0.0, 60.0, "s");
+        check("clear_s", self.clear_s, 0.0, 600.0, "s");
         out
     }
 }
@@ -311,8 +318,12 @@ impl DriftCheck {
             match (thr_obs, thr_line) {
                 (Some(t), Some(tl)) if confirmed => {
                     let s = side(self.obs.e, t) * side(self.line.e, tl - self.line.unc);
-                    Some((s, self.obs.e < 0.5 * t))
+                    Some((s, self.obs.e < 0.5 * t && self.line.e < 0.5 * tl))
                 }
+                // an observer the speed line does not confirm (still converging, or off on
+                // an outflow it models without the outlet lines' inertia) is no reference:
+                // the speed-line flow alone, with its whole map allowance
+                (_, Some(tl)) => Some((side(self.line.e, tl), self.line.e < 0.5 * tl)),
                 _ => None,
             }
         } else {
@@ -348,7 +359,7 @@ impl DriftCheck {
                 if !self.since_s.is_finite() {
                     self.since_s = t_s;
                 }
-                if t_s - self.since_s >= cfg.persistence_s {
+                if t_s - self.since_s >= cfg.clear_s {
                     self.drifting = false;
                     self.since_s = f64::NAN;
                     self.sign = 0.0;
@@ -356,8 +367,8 @@ impl DriftCheck {
             } else {
                 self.since_s = f64::NAN;
             }
-        } else if !self.drifting {
-            // nothing to judge: a disagreement must start over
+        } else {
+            // nothing to judge: a disagreement (or an agreement again) must start over
             self.since_s = f64::NAN;
         }
         self.verdict = DriftVerdict {
@@ -420,21 +431,23 @@ mod tests {
             0.0,
             0.0,
         );
-        // threshold ≈ 5 % + 2 % map + noise: the filter crosses it within ≈ 0.6 s, then 1 s
+        // threshold ≈ 5 % + 2 % map + noise: the 30 ms filter crosses it within ≈ 20 ms,
+        // then 30 ms of persistence; trusted again 1 s (clear_s) after the bias has gone
         let found = found.expect("bias not found");
-        assert!((5.5..7.5).contains(&found), "found at {found}");
+        assert!((5.02..5.1).contains(&found), "found at {found}");
         assert!(
-            cleared.is_some_and(|c| (10.5..13.0).contains(&c)),
+            cleared.is_some_and(|c| (11.0..11.2).contains(&c)),
             "{cleared:?}"
         );
     }
 
     #[test]
     fn a_drift_ramp_is_found_once_it_exceeds_the_threshold() {
-        // +2 %/s from t = 4 s: 7 % (tolerance + map) at 7.5 s, + filter lag and persistence
+        // +2 %/s from t = 4 s: 7 % (tolerance + map) + noise at ≈ 7.6 s, + filter lag and
+        // persistence
         let (found, _) = run(|t| 0.02 * (t - 4.0).max(0.0), 0.01, 0.0, 0.0);
         let found = found.expect("drift not found");
-        assert!((7.5..11.0).contains(&found), "found at {found}");
+        assert!((7.5..8.5).contains(&found), "found at {found}");
     }
 
     #[test]
@@ -449,6 +462,25 @@ mod tests {
         assert_eq!(run(|_| 0.0, 0.0, -0.3, 0.0).0, None);
         // the transmitter high against the observer but right by the speed line: not declared
         assert_eq!(run(|_| 0.1, 0.0, 0.0, 0.1).0, None);
+    }
+
+    #[test]
+    fn an_observer_the_speed_line_does_not_confirm_leaves_the_speed_line_to_decide() {
+        // the observer 30 % off the other way (an outflow model without the outlet lines'
+        // inertia, in a transient): the speed line alone finds a +30 % bias, 30 ms + 30 ms
+        let (found, _) = run(
+            |t| if t >= 5.0 { 0.3 } else { 0.0 },
+            0.0,
+            0.3,
+            0.0,
+        );
+        let found = found.expect("bias not found by the speed line alone");
+        assert!((5.02..5.1).contains(&found), "found at {found}");
+        // within the speed line's whole allowance (5 % + 2 % map) it is not
+        assert_eq!(
+            run(|t| if t >= 5.0 { 0.06 } else { 0.0 }, 0.0, 0.3, 0.0).0,
+            None
+        );
     }
 
     #[test]
@@ -481,11 +513,13 @@ mod tests {
         let bad = DriftCheckConfig {
             threshold_pct: 0.0,
             filter_s: f64::NAN,
+            clear_s: -1.0,
             ..DriftCheckConfig::default()
         };
         let p = bad.problems();
-        assert_eq!(p.len(), 2, "{p:?}");
+        assert_eq!(p.len(), 3, "{p:?}");
         assert_eq!(p[0].0, "drift_check.threshold_pct");
         assert_eq!(p[1].0, "drift_check.filter_s");
+        assert_eq!(p[2].0, "drift_check.clear_s");
     }
 }
