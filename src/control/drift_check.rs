@@ -24,6 +24,19 @@
 //! disagrees, in the same direction, for `persistence_s` without a break; it is trusted again
 //! when every leg is back within half its threshold for `clear_s` without a break.
 //!
+//! The observer is a reference only while the speed-line flow confirms it (both within the
+//! speed line's uncertainty of each other); then both legs must disagree, and the speed-line
+//! leg's map allowance has gone into the confirmation. An observer the speed line does not
+//! confirm (converging, or off in a transient: its outflow is the valve equations, without the
+//! outlet lines' inertia) leaves the speed-line flow alone to decide, with its whole allowance.
+//!
+//! Time scale: a step bias must be found faster than a law believing it closes the machine
+//! into surge (≈ 150 ms from the control line on kvangardsnes2009's recycle system, README),
+//! hence 30 ms of filter and 30 ms of persistence by default; noise is kept out by the
+//! measured-noise term of the threshold, which grows as the filter shortens, not by the
+//! filter's length. Trusting the transmitter again takes `clear_s` (1 s): a bias does not go
+//! away by itself.
+//!
 //! Pure and allocation-free: a few numbers of state, one call per new sample.
 
 use serde::{Deserialize, Serialize};
@@ -468,12 +481,7 @@ mod tests {
     fn an_observer_the_speed_line_does_not_confirm_leaves_the_speed_line_to_decide() {
         // the observer 30 % off the other way (an outflow model without the outlet lines'
         // inertia, in a transient): the speed line alone finds a +30 % bias, 30 ms + 30 ms
-        let (found, _) = run(
-            |t| if t >= 5.0 { 0.3 } else { 0.0 },
-            0.0,
-            0.3,
-            0.0,
-        );
+        let (found, _) = run(|t| if t >= 5.0 { 0.3 } else { 0.0 }, 0.0, 0.3, 0.0);
         let found = found.expect("bias not found by the speed line alone");
         assert!((5.02..5.1).contains(&found), "found at {found}");
         // within the speed line's whole allowance (5 % + 2 % map) it is not
