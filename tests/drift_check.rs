@@ -102,8 +102,7 @@ fn noise_with_other_seeds_fires_no_false_find() {
                 for margin in bench_matrix::MARGINS_PCT {
                     let r = bench_matrix::run_case(&p, &sc, &case, law, margin).unwrap();
                     assert_eq!(
-                        r.dp_drift_found,
-                        0,
+                        r.dp_drift_found, 0,
                         "{stem} seed {seed} {law:?} @ {margin} %: {r:?}"
                     );
                 }
