@@ -70,9 +70,11 @@ fn recycle_pi_with_defaults_holds_the_matrix_without_surge() {
             assert_eq!(r.dp_drift_found, 0, "false drift find: {r:?}");
         }
     }
-    // a +30 % of span Δp bias is found in time on both plants (zero surge, checked below)
+    // a +30 % of span Δp bias is found on both plants under either law, and in time for
+    // recycle-pi (zero surge, checked below; baseline-pi closes slower, so later)
     for r in rows.iter().filter(|r| r.case.contains("Δp drift")) {
-        assert!(r.dp_drift_found_after_s < 0.1, "{r:?}");
+        let bound = if r.law == LawId::RecyclePi { 0.1 } else { 0.5 };
+        assert!(r.dp_drift_found_after_s < bound, "{r:?}");
     }
     for r in rows.iter().filter(|r| r.law == LawId::RecyclePi) {
         // kvangardsnes2009's 2 s valve cannot hold the ESD (the table says so and names the
