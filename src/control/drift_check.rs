@@ -132,9 +132,14 @@ const MIN_SAMPLES: u32 = 200;
 struct Leg {
     /// Filtered residual, fraction of surge-line flow (NaN: none yet).
     e: f64,
-    last_r: f64,
-    /// Running mean |increment| of the raw residual.
+    /// Raw residual at its last new sample, and when (NaN: none).
+    r_at_change: f64,
+    t_at_change: f64,
+    /// Running mean |increment| of the raw residual from one new sample to the next.
     inc: f64,
+    /// Running mean time between new samples, s (inputs polled slower than the cycle repeat
+    /// their values: a repeated value is not a sample of the noise).
+    interval_s: f64,
     /// Filtered extra uncertainty (the map's, for the speed-line leg), fraction.
     unc: f64,
     last_valid_t_s: f64,
@@ -145,17 +150,20 @@ struct Leg {
 impl Leg {
     const NEW: Leg = Leg {
         e: f64::NAN,
-        last_r: f64::NAN,
+        r_at_change: f64::NAN,
+        t_at_change: f64::NAN,
         inc: 0.0,
+        interval_s: 0.0,
         unc: 0.0,
         last_valid_t_s: f64::NAN,
         first_t_s: f64::NAN,
         n: 0,
     };
 
-    fn update(&mut self, t_s: f64, r: f64, unc: f64, a: f64) {
+    /// One call per cycle; `new_sample`: an input of this residual changed since the last.
+    fn update(&mut self, t_s: f64, r: f64, unc: f64, a: f64, new_sample: bool) {
         if !(r.is_finite() && unc.is_finite()) {
-            self.last_r = f64::NAN;
+            self.r_at_change = f64::NAN;
             return;
         }
         if self.e.is_finite() {
@@ -166,11 +174,22 @@ impl Leg {
             self.unc = unc;
             self.first_t_s = t_s;
         }
-        if self.last_r.is_finite() {
-            self.inc += NOISE_WEIGHT * ((r - self.last_r).abs() - self.inc);
+        if self.r_at_change.is_finite() {
             self.n = self.n.saturating_add(1);
         }
-        self.last_r = r;
+        if new_sample || !self.r_at_change.is_finite() {
+            if self.r_at_change.is_finite() {
+                let gap = t_s - self.t_at_change;
+                self.inc += NOISE_WEIGHT * ((r - self.r_at_change).abs() - self.inc);
+                self.interval_s = if self.interval_s > 0.0 {
+                    self.interval_s + NOISE_WEIGHT * (gap - self.interval_s)
+                } else {
+                    gap
+                };
+            }
+            self.r_at_change = r;
+            self.t_at_change = t_s;
+        }
         self.last_valid_t_s = t_s;
     }
 
@@ -188,7 +207,13 @@ impl Leg {
         if !ready || sigma > MAX_NOISE {
             return None;
         }
-        let sigma_f = sigma * (a / (2.0 - a)).sqrt();
+        // held between new samples, the noise reaches the filter once per sample interval
+        let a_sample = if self.interval_s > 0.0 {
+            1.0 - (-self.interval_s / cfg.filter_s.max(1e-6)).exp()
+        } else {
+            a
+        };
+        let sigma_f = sigma * (a_sample / (2.0 - a_sample)).sqrt();
         Some(0.01 * cfg.threshold_pct + cfg.noise_factor * sigma_f + self.unc)
     }
 }
@@ -212,6 +237,9 @@ pub struct DriftCheck {
     /// Observer against the speed-line flow (whether the observer is confirmed).
     agree: Leg,
     last_t_s: f64,
+    /// The inputs' last values (a repeated value is no new sample).
+    last_q_transmitter: f64,
+    last_q_line: f64,
     /// Since when every leg disagrees (or, while drifting, agrees), s; NaN: not.
     since_s: f64,
     sign: f64,
@@ -233,6 +261,8 @@ impl DriftCheck {
             line: Leg::NEW,
             agree: Leg::NEW,
             last_t_s: f64::NAN,
+            last_q_transmitter: f64::NAN,
+            last_q_line: f64::NAN,
             since_s: f64::NAN,
             sign: 0.0,
             drifting: false,
@@ -291,10 +321,26 @@ impl DriftCheck {
                 f64::NAN
             }
         };
-        self.obs
-            .update(t_s, r(q_observer), observer_unc.abs() / scale, a);
-        self.line
-            .update(t_s, r(q_speed_line), speed_line_unc.abs() / scale, a);
+        // a new sample: the transmitter's or the pressures' (the speed-line flow's) value moved
+        let moved = |x: f64, last: f64| x.to_bits() != last.to_bits();
+        let new_line = moved(q_speed_line, self.last_q_line);
+        let new_sample = moved(q_transmitter, self.last_q_transmitter) || new_line;
+        self.last_q_transmitter = q_transmitter;
+        self.last_q_line = q_speed_line;
+        self.obs.update(
+            t_s,
+            r(q_observer),
+            observer_unc.abs() / scale,
+            a,
+            new_sample,
+        );
+        self.line.update(
+            t_s,
+            r(q_speed_line),
+            speed_line_unc.abs() / scale,
+            a,
+            new_sample,
+        );
 
         // the observer is a reference only while the speed line confirms it: both within
         // the speed line's uncertainty of each other (an observer still converging after a
@@ -311,6 +357,7 @@ impl DriftCheck {
             both(q_observer, q_speed_line),
             speed_line_unc.abs() / scale,
             a,
+            new_line,
         );
         let thr_obs = self.obs.threshold(t_s, cfg, a);
         let thr_line = self.line.threshold(t_s, cfg, a);
@@ -475,6 +522,38 @@ mod tests {
         assert_eq!(run(|_| 0.0, 0.0, -0.3, 0.0).0, None);
         // the transmitter high against the observer but right by the speed line: not declared
         assert_eq!(run(|_| 0.1, 0.0, 0.0, 0.1).0, None);
+    }
+
+    #[test]
+    fn a_transmitter_polled_slower_than_the_cycle_is_judged_on_its_samples_noise() {
+        // a 1 kHz cycle, the Δp and the pressures polled at 50 Hz (each value repeated 20
+        // cycles), the Δp with ±10 % of q_SL of noise: counted per cycle its noise would look
+        // 20× smaller and a 30 ms filter pass most of it; no find. A +30 % bias is found.
+        for bias in [0.0, 0.3] {
+            let cfg = DriftCheckConfig::default();
+            let mut c = DriftCheck::new();
+            let mut seed = 5u64;
+            let mut found = None;
+            let (mut qt, mut ql) = (0.0, 0.0);
+            for k in 0..20_000 {
+                let t = k as f64 * 1e-3;
+                let q = 12.0 * (1.0 + 0.05 * (0.5 * t).sin());
+                if k % 20 == 0 {
+                    let b = if t >= 10.0 { bias } else { 0.0 };
+                    qt = q + 10.0 * (b + 0.1 * rnd(&mut seed));
+                    ql = q;
+                }
+                if c.update(&cfg, t, qt, ql, 0.2, ql, 0.2, 10.0).drifting && found.is_none() {
+                    found = Some(t);
+                }
+            }
+            if bias == 0.0 {
+                assert_eq!(found, None);
+            } else {
+                let found = found.expect("bias not found");
+                assert!((10.0..10.2).contains(&found), "found at {found}");
+            }
+        }
     }
 
     #[test]
