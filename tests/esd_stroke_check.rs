@@ -79,7 +79,7 @@ fn a_valve_too_slow_for_an_esd_is_named_with_the_stroke_that_holds_from_the_spee
     assert!(c >= named && c < v.stroke_time_s, "{v:?}");
     assert!(
         line.contains(&format!(
-            "with the drive's trip contact wired as esd_input (acted on within 1 ms of the trip) it surges {} surge cycle{}, and a ≤ {c} s stroke holds",
+            "with the drive's trip contact wired as esd_input (acted on within 1 ms of the trip) it still surges ({} surge cycle{}), and a ≤ {c} s stroke holds",
             v.contact_surge_cycles,
             if v.contact_surge_cycles == 1 { "" } else { "s" }
         )),

@@ -958,12 +958,12 @@ fn esd_verdict(r: &EsdStroke) -> String {
     let contact = match r.longest_contact_s {
         Some(t) if t == r.stroke_time_s => format!("{wired} it holds"),
         Some(t) => format!(
-            "{wired} it surges {}, and a ≤ {} s stroke holds",
+            "{wired} it still surges ({}), and a ≤ {} s stroke holds",
             cycles(r.contact_surge_cycles),
             secs(t)
         ),
         None => format!(
-            "{wired} it surges {}, and no stroke down to {} s holds",
+            "{wired} it still surges ({}), and no stroke down to {} s holds",
             cycles(r.contact_surge_cycles),
             secs(ESD_STROKE_MIN_S)
         ),
@@ -1268,8 +1268,8 @@ pub fn esd_variants_markdown(config_dir: &Path) -> Result<String, SimError> {
             ] {
                 let r = esd_run(&p, &sc, m, trip)?;
                 parts.push(format!(
-                    "at {m:.0} % with the {what} {} surge cycles (closest approach {})",
-                    r.surge_cycles,
+                    "at {m:.0} % with the {what} {} (closest approach {})",
+                    cycles(r.surge_cycles),
                     pct(r.min_margin_during.min(r.min_margin_after))
                 ));
             }
