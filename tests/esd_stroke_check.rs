@@ -45,7 +45,8 @@ fn stroke_warning(err: &str) -> &str {
     assert!(line.starts_with("warning: "), "{line}");
     assert!(line.contains("kvangardsnes2009_recycle.toml"), "{line}");
     assert!(
-        line.contains("emergency shutdown") && line.contains("recycle valve's 2 s stroke is too slow"),
+        line.contains("emergency shutdown")
+            && line.contains("recycle valve's 2 s stroke is too slow"),
         "{line}"
     );
     line
@@ -75,7 +76,9 @@ fn a_valve_too_slow_for_an_esd_is_named_with_the_stroke_that_holds_from_the_spee
         "{line}"
     );
     // the contact situation is stated too: the 2 s valve surges even with it wired
-    let c = v.longest_contact_s.expect("a stroke that holds with the contact");
+    let c = v
+        .longest_contact_s
+        .expect("a stroke that holds with the contact");
     assert!(c >= named && c < v.stroke_time_s, "{v:?}");
     assert!(
         line.contains(&format!(
@@ -100,7 +103,9 @@ fn at_a_5_pct_margin_the_check_says_the_trip_contact_must_be_wired_and_how_fast(
     // speed decay alone, and the check names the stroke with the trip contact wired
     assert_eq!(v.longest_speed_decay_s, None, "{v:?}");
     assert!(v.surge_after_s < 0.02, "{v:?}");
-    let (named, trip) = v.recommended().expect("a stroke that holds with the contact");
+    let (named, trip) = v
+        .recommended()
+        .expect("a stroke that holds with the contact");
     assert_eq!(trip, TripSignal::Contact, "{v:?}");
     assert!(
         line.contains("no stroke down to 0.05 s holds without the trip contact")
@@ -201,8 +206,8 @@ fn the_wired_contact_is_what_holds_the_5_pct_esd() {
         scenario: "emergency-shutdown",
         fault: bench_matrix::FieldFault::EsdContact { delay_s: 0.02 },
     };
-    let r = bench_matrix::run_case(&q, &sc, &slow, antisurge::control::LawId::RecyclePi, 5.0)
-        .unwrap();
+    let r =
+        bench_matrix::run_case(&q, &sc, &slow, antisurge::control::LawId::RecyclePi, 5.0).unwrap();
     assert!(r.surge_cycles > 0, "{}: {r:?}", f.display());
     // at 10 % the same variant holds with the speed decay alone and with the contact
     for trip in [TripSignal::SpeedDecay, TripSignal::Contact] {
