@@ -11,6 +11,11 @@
 //! to the surge line during and after the event, recycle mass and energy, valve travel, time
 //! in fail-safe, and the largest valve step at a resume.
 //!
+//! The emergency shutdown is also run apart ([`esd_stroke`], the machine check's ESD stroke
+//! warning): with the trip seen in the speed decay alone and with the drive's trip contact
+//! wired as `esd_input` ([`FieldFault::EsdContact`]), searching the longest recycle-valve
+//! stroke that holds in each.
+//!
 //! Deterministic (fixed noise seeds), allocation outside the cycle only, a few seconds for the
 //! whole matrix on one core; cases run on std threads.
 
@@ -98,6 +103,15 @@ pub struct Case {
     pub fault: FieldFault,
 }
 
+/// The emergency shutdown as the matrix runs it: the trip contact not wired, so the
+/// controller sees the drive trip in the speed decay alone ([`TripSignal`] for the other
+/// situation).
+pub const ESD_CASE: Case = Case {
+    name: "ESD rundown",
+    scenario: "emergency-shutdown",
+    fault: FieldFault::None,
+};
+
 /// The cases, in table order.
 pub const CASES: [Case; 10] = [
     Case {
@@ -120,11 +134,7 @@ pub const CASES: [Case; 10] = [
         scenario: "speed-ramp",
         fault: FieldFault::None,
     },
-    Case {
-        name: "ESD rundown",
-        scenario: "emergency-shutdown",
-        fault: FieldFault::None,
-    },
+    ESD_CASE,
     Case {
         name: "closure + noise",
         scenario: "throttle-closure",
@@ -678,7 +688,7 @@ impl TripSignal {
     /// The field of the ESD case in this situation.
     pub fn case(self) -> Case {
         match self {
-            TripSignal::SpeedDecay => CASES[4],
+            TripSignal::SpeedDecay => ESD_CASE,
             TripSignal::Contact => Case {
                 name: "ESD rundown, trip contact wired",
                 scenario: "emergency-shutdown",
