@@ -215,3 +215,79 @@ fn the_wired_contact_is_what_holds_the_5_pct_esd() {
         assert!(esd_holds(&r), "{} at 10 % {trip:?}: {r:?}", f.display());
     }
 }
+
+/// With the trip contact bound in the signal map (a Modbus discrete input), the check also
+/// says what the contact as configured does for the plant's own stroke, with its poll
+/// latency: a 1.3 s valve on kvangardsnes2009 at 10 % (too slow from the speed decay alone,
+/// fast enough with a contact read within 1 ms) holds with the contact polled at 1 kHz and
+/// not at 50 Hz (read and written at 50 Hz it acts up to 41 ms after the trip).
+#[test]
+fn a_contact_bound_over_modbus_is_judged_with_its_poll_latency() {
+    let tmp = tempfile::tempdir().expect("tmp");
+    let root = common::root();
+    let text = std::fs::read_to_string(root.join("config/plants/kvangardsnes2009_recycle.toml"))
+        .expect("plant");
+    let maps = root.join("config/maps");
+    let text = text
+        .replace(
+            "file = \"../maps/",
+            &format!("file = \"{}/", maps.display()),
+        )
+        .replace(
+            "stroke_time_s = 2.0                # chosen",
+            "stroke_time_s = 1.3                # chosen",
+        );
+    assert!(
+        text.contains("stroke_time_s = 1.3 "),
+        "the plant file changed"
+    );
+    let plant = tmp.path().join("kvangardsnes2009_recycle.toml");
+    std::fs::write(&plant, text).expect("write plant");
+    let map = root.join("tests/fixtures/foreign_skid/modbus_map_coils.toml");
+    let run = |poll_hz: f64| {
+        let cfg = tmp.path().join("antisurge.toml");
+        std::fs::write(
+            &cfg,
+            format!(
+                "[plant]\nfile = \"{}\"\n[control]\nlaw = \"recycle-pi\"\n[bus]\n\
+                 transport = \"field\"\nsignal_map = \"{}\"\n[bus.modbus]\n\
+                 poll_rate_hz = {poll_hz:.1}\n[bus.modbus.client]\n\
+                 transport = {{ kind = \"tcp\", address = \"127.0.0.1:1502\" }}\n",
+                plant.display(),
+                map.display()
+            ),
+        )
+        .expect("write");
+        let out = Command::new(env!("CARGO_BIN_EXE_antisurge"))
+            .arg("check-config")
+            .arg(&cfg)
+            .output()
+            .expect("run check-config");
+        let err = String::from_utf8_lossy(&out.stderr).to_string();
+        assert!(out.status.success(), "check-config failed: {err}");
+        err.lines()
+            .find(|l| l.contains("stroke_time_s"))
+            .unwrap_or_else(|| panic!("no ESD stroke warning:\n{err}"))
+            .to_string()
+    };
+    let slow = run(50.0);
+    assert!(
+        slow.contains("recycle valve's 1.3 s stroke is too slow"),
+        "{slow}"
+    );
+    assert!(
+        slow.contains(
+            "As configured, esd_input is bound and acted on up to 41 ms after the trip: with it \
+             the 1.3 s stroke does not hold the ESD"
+        ),
+        "{slow}"
+    );
+    let fast = run(1000.0);
+    assert!(
+        fast.contains(
+            "As configured, esd_input is bound and acted on up to 3 ms after the trip: with it \
+             the 1.3 s stroke holds the ESD"
+        ),
+        "{fast}"
+    );
+}

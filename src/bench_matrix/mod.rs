@@ -960,6 +960,19 @@ fn cycles(n: u32) -> String {
     format!("{n} surge cycle{}", if n == 1 { "" } else { "s" })
 }
 
+/// Why an ESD run does not hold ([`esd_holds`]): its surge cycles, or its excursion left of
+/// the surge line.
+fn failure(r: &CaseResult) -> String {
+    if r.surge_cycles > 0 {
+        cycles(r.surge_cycles)
+    } else {
+        format!(
+            "no surge cycle, but {} left of the surge line",
+            pct(-r.min_margin_during.min(r.min_margin_after))
+        )
+    }
+}
+
 fn esd_verdict(r: &EsdStroke) -> String {
     let wired = format!(
         "with the drive's trip contact wired as esd_input (acted on within {:.0} ms of the trip)",
@@ -1032,6 +1045,20 @@ fn esd_verdict(r: &EsdStroke) -> String {
 /// the longest stroke time that would, and whether the drive's trip contact must be wired
 /// as `esd_input` for it.
 pub fn esd_stroke_warning(p: &PlantCase, margin_pct: f64) -> Result<Option<String>, SimError> {
+    esd_stroke_warning_as_wired(p, margin_pct, None)
+}
+
+/// [`esd_stroke_warning`] for a controller whose configuration binds the trip contact
+/// (`esd_input` in the signal map) with a worst-case latency `contact_latency_s` from the
+/// drive trip to the open command at the valve (read period + control cycle + write
+/// period): the warning then also says whether the plant's own stroke holds the ESD with the
+/// contact as configured. None: the contact is not bound (the warning is
+/// [`esd_stroke_warning`]'s).
+pub fn esd_stroke_warning_as_wired(
+    p: &PlantCase,
+    margin_pct: f64,
+    contact_latency_s: Option<f64>,
+) -> Result<Option<String>, SimError> {
     let sc = builtin_esd_scenario()?;
     let Some(v) = esd_stroke(p, &sc, margin_pct)? else {
         return Ok(None);
@@ -1039,8 +1066,30 @@ pub fn esd_stroke_warning(p: &PlantCase, margin_pct: f64) -> Result<Option<Strin
     if v.holds_own() {
         return Ok(None);
     }
+    let configured = match contact_latency_s {
+        Some(d) => {
+            let case = Case {
+                name: "ESD rundown, trip contact as configured",
+                scenario: "emergency-shutdown",
+                fault: FieldFault::EsdContact { delay_s: d },
+            };
+            let r = run_case(p, &sc, &case, LawId::RecyclePi, margin_pct)?;
+            format!(
+                ". As configured, esd_input is bound and acted on up to {:.0} ms after the trip: \
+                 with it the {} s stroke {}",
+                1e3 * d,
+                secs(v.stroke_time_s),
+                if esd_holds(&r) {
+                    "holds the ESD".to_string()
+                } else {
+                    format!("does not hold the ESD ({})", failure(&r))
+                }
+            )
+        }
+        None => String::new(),
+    };
     Ok(Some(format!(
-        "recycle_system.recycle_valve.stroke_time_s: in an emergency shutdown (drive trip, simulated, recycle-pi at a {margin_pct} % margin) the recycle valve's {} s stroke {}",
+        "recycle_system.recycle_valve.stroke_time_s: in an emergency shutdown (drive trip, simulated, recycle-pi at a {margin_pct} % margin) the recycle valve's {} s stroke {}{configured}",
         secs(v.stroke_time_s),
         esd_verdict(&v)
     )))
