@@ -957,3 +957,72 @@ fn retune_keeps_safety_on_shifts_and_counters() {
     assert!(!other.take_over_from(&law));
     assert_eq!(other.control_line().shift, shift);
 }
+
+/// Drive the law open loop with flows `q(k)` at a fixed pressure ratio, 1 kHz, the
+/// measurements' clock advancing; returns the sample of the first recycle trip, if any.
+fn first_trip(
+    law: &mut RecyclePi,
+    model: &ControlModel,
+    ratio: f64,
+    n: usize,
+    q: impl Fn(usize) -> f64,
+) -> Option<usize> {
+    let op = operator();
+    let m0 = measurements(q(0), ratio);
+    start_at_20pct(law, &m0, &op, model);
+    for k in 0..n {
+        let mut m = measurements(q(k), ratio);
+        m.t_s = k as f64 * 1e-3;
+        let inputs = LawInputs {
+            m: &m,
+            op: &op,
+            model,
+            history: &antisurge::control::law::LoopHistory::EMPTY,
+        };
+        let out = law.update(&inputs, 1e-3);
+        if matches!(out.event, Some(LawEvent::RecycleTrip { .. })) {
+            return Some(k);
+        }
+    }
+    None
+}
+
+#[test]
+fn onset_trip_catches_a_clean_slam_within_its_window_and_noise_never_fires_it() {
+    let desc = common::plant(KV);
+    let model = antisurge::sim::control_model(&desc);
+    let cfg = RecyclePiConfig::default();
+    let confirm = cfg.trip_confirm_samples as usize;
+    let ratio = 2.2;
+    let q_line = RecyclePi::new(&cfg, &model)
+        .expect("law")
+        .control_line()
+        .flow_at_ratio(ratio);
+    // a throttle slam on the control line: the flow falls by 0.1 % of the line's flow per
+    // millisecond from sample 200 on (the 2 Hz approach filter alone needs ~20 samples)
+    let mut law = RecyclePi::new(&cfg, &model).expect("law");
+    let slam = |k: usize| q_line * (1.0 - 1e-3 * k.saturating_sub(200) as f64);
+    let k = first_trip(&mut law, &model, ratio, 400, slam).expect("the slam trips");
+    assert!(
+        k > 200 && k <= 200 + confirm + 1,
+        "tripped at sample {k}, the slam began at 200 (window {confirm})"
+    );
+    // white noise of ±2 % of the line's flow on the line, every sample, then held for 10
+    // samples (a 100 Hz poll under a 1 kHz loop): 20 s each without a trip
+    let mut state = 0x9E37_79B9_7F4A_7C15u64;
+    let noise: Vec<f64> = (0..20_000)
+        .map(|_| {
+            state ^= state >> 12;
+            state ^= state << 25;
+            state ^= state >> 27;
+            let r = state.wrapping_mul(0x2545_F491_4F6C_DD1D);
+            (r >> 11) as f64 / (1u64 << 53) as f64 * 2.0 - 1.0
+        })
+        .collect();
+    for hold in [1usize, 10] {
+        let mut law = RecyclePi::new(&cfg, &model).expect("law");
+        let noisy = |k: usize| q_line * (1.0 + 0.02 * noise[k / hold * hold]);
+        let k = first_trip(&mut law, &model, ratio, noise.len(), noisy);
+        assert_eq!(k, None, "noise (held {hold} samples) fired a trip");
+    }
+}

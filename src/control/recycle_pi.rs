@@ -35,6 +35,13 @@
 //!   would be crossed within the lead time. (Armed only at z ≥ 0: the valve closing back towards
 //!   the line after a trip is an approach too, and must not re-trip.) The step is held for
 //!   `trip_hold_s` (the integrator tracks the held opening), then the PI takes over from it;
+//! - the onset trip: the same prediction from the *raw* margin's rate over the last
+//!   `trip_confirm_samples` distinct samples, when they fell strictly and in total by more than
+//!   2 × `trip_noise_factor` × their measured noise (agreement over several samples, thresholds
+//!   from the noise: white noise cannot fire it). It catches a throttle slam within the window
+//!   (kvangardsnes2009 at 5 %: 4 ms after the step, where the 2 Hz approach filter tripped at
+//!   25 ms and the 2-s valve could no longer hold it); while held, its level follows its
+//!   growing prediction;
 //! - safety-on ([13] surge-count bias): after each detected surge the SCL moves right by
 //!   `safety_on_step_pct` of the surge-line flow (up to `safety_on_max_pct`), counted and
 //!   reported as [`LawEvent::SafetyOnShift`];
@@ -283,6 +290,9 @@ pub fn speed_line_flow(map: &CompressorMap, ratio: f64, omega_rad_s: f64) -> f64
     0.5 * (lo + hi)
 }
 
+/// Length of the onset detector's ring of raw margins (the window is at most one less).
+const HIST_LEN: usize = 17;
+
 /// Law state (fixed size, no allocation).
 #[derive(Debug, Clone)]
 pub struct RecyclePi {
@@ -314,6 +324,21 @@ pub struct RecyclePi {
     margin_noise: f64,
     /// The two previous raw margins (for the noise estimate).
     margin_prev: [f64; 2],
+    /// The last distinct raw margins, newest at `hist_at`, and the time each took since the
+    /// one before, s (ring; the onset detector's window: a value held by a slower bus or a
+    /// hold is one sample, not several).
+    margin_hist: [f64; HIST_LEN],
+    hist_dt_s: [f64; HIST_LEN],
+    hist_at: usize,
+    /// Time of the newest distinct margin, s, and whether the flow came from the fallback.
+    hist_t_s: f64,
+    hist_fallback: bool,
+    /// Noise of the distinct margins (mean of half the absolute second difference).
+    onset_noise: f64,
+    /// Whether the held trip came from the onset detector (it may raise its own level).
+    onset_tripped: bool,
+    /// The command when the held trip started, fraction.
+    trip_base: f64,
     /// Filtered shaft speed, rad/s, and its previous value (ESD detection).
     omega_f: f64,
     omega_f_last: f64,
@@ -446,6 +471,14 @@ impl RecyclePi {
             closing: false,
             margin_noise: 0.0,
             margin_prev: [f64::NAN; 2],
+            margin_hist: [f64::NAN; HIST_LEN],
+            hist_dt_s: [f64::NAN; HIST_LEN],
+            hist_at: 0,
+            hist_t_s: f64::NAN,
+            hist_fallback: false,
+            onset_noise: 0.0,
+            onset_tripped: false,
+            trip_base: 0.0,
             omega_f: f64::NAN,
             omega_f_last: f64::NAN,
             esd: false,
@@ -532,6 +565,14 @@ impl RecyclePi {
         self.trip_left_s = old.trip_left_s;
         self.trip_level = old.trip_level;
         self.level_tripped = old.level_tripped;
+        self.onset_tripped = old.onset_tripped;
+        self.trip_base = old.trip_base;
+        self.margin_hist = old.margin_hist;
+        self.hist_dt_s = old.hist_dt_s;
+        self.hist_at = old.hist_at;
+        self.hist_t_s = old.hist_t_s;
+        self.hist_fallback = old.hist_fallback;
+        self.onset_noise = old.onset_noise;
         self.shift_pending = old.shift_pending;
         self.started = true;
         true
@@ -608,6 +649,65 @@ impl RecyclePi {
             && (z >= 0.0 || (self.trip_left_s <= 0.0 && self.u_last <= self.limits().0 + 1e-9))
     }
 
+    /// The onset detector's prediction: the raw surge margin extrapolated over
+    /// `trip_lead_time_s` at its rate over the last `trip_confirm_samples` samples, when
+    /// over that window it never rose by more than the noise gate and fell in total by more
+    /// than twice that gate (`trip_noise_factor` × the measured noise): agreement over
+    /// several samples, so white noise cannot fire it (a monotonic run of that depth is
+    /// improbable), a clean fast fall fires it within the window. NaN otherwise.
+    fn onset_prediction(&self) -> f64 {
+        let w = (self.cfg.trip_confirm_samples.max(1) as usize).min(HIST_LEN - 1);
+        if self.cfg.trip_lead_time_s <= 0.0 {
+            return f64::NAN;
+        }
+        let idx = |i: usize| (self.hist_at + HIST_LEN - i) % HIST_LEN;
+        let at = |i: usize| self.margin_hist[idx(i)];
+        let mut span_s = 0.0;
+        for i in 0..w {
+            let (newer, older) = (at(i), at(i + 1));
+            // strictly falling distinct samples (a rise of any size breaks the agreement)
+            if !(newer.is_finite() && older.is_finite()) || newer > older {
+                return f64::NAN;
+            }
+            span_s += self.hist_dt_s[idx(i)];
+        }
+        let drop = at(w) - at(0);
+        if !(drop > 2.0 * self.cfg.trip_noise_factor * self.onset_noise && span_s > 0.0) {
+            return f64::NAN;
+        }
+        at(0) - self.cfg.trip_lead_time_s * drop / span_s
+    }
+
+    /// Record a raw margin for the onset detector when it differs from the last one (time
+    /// from the measurements' own clock, so a hold or a slow poll counts as the time it
+    /// took); a switch to or from the fallback flow starts the window afresh (the step
+    /// between two flow sources is no approach).
+    fn push_onset_sample(&mut self, margin: f64, t_s: f64, fallback: bool) {
+        if fallback != self.hist_fallback || !margin.is_finite() || !t_s.is_finite() {
+            self.margin_hist = [f64::NAN; HIST_LEN];
+            self.hist_fallback = fallback;
+            self.hist_t_s = f64::NAN;
+        }
+        let last = self.margin_hist[self.hist_at];
+        if margin == last || !margin.is_finite() {
+            return;
+        }
+        let age = t_s - self.hist_t_s;
+        let (p1, p2) = (
+            last,
+            self.margin_hist[(self.hist_at + HIST_LEN - 1) % HIST_LEN],
+        );
+        if p1.is_finite() && p2.is_finite() && age.is_finite() {
+            let a = age.clamp(0.0, 1.0);
+            let d2 = 0.5 * (margin - 2.0 * p1 + p2).abs();
+            self.onset_noise += a * (d2 - self.onset_noise);
+        }
+        self.hist_at = (self.hist_at + 1) % HIST_LEN;
+        self.margin_hist[self.hist_at] = margin;
+        self.hist_dt_s[self.hist_at] = if age.is_finite() { age } else { f64::NAN };
+        self.hist_t_s = t_s;
+    }
+
     fn trip_margin_at(&self, ratio: f64) -> f64 {
         trip_margin_at(self.cfg.trip_margin_pct, &self.scl, ratio)
     }
@@ -666,6 +766,9 @@ impl SurgeLaw for RecyclePi {
         self.trip_left_s = 0.0;
         self.trip_agree = 0;
         self.margin_prev = [f64::NAN; 2];
+        self.margin_hist = [f64::NAN; HIST_LEN];
+        self.hist_t_s = f64::NAN;
+        self.onset_tripped = false;
         // the speed filter restarts too: after a fail-safe or a hold, the last filtered
         // speed is old, and the difference is no deceleration
         self.omega_f = f64::NAN;
@@ -746,34 +849,63 @@ impl SurgeLaw for RecyclePi {
         }
         self.margin_prev = [margin, p1];
         // (capped: in deep surge the margin swings hard, which is no reason not to trip)
-        let allowance = (self.cfg.trip_noise_factor * self.margin_noise).min(0.5 * trip_margin);
+        // (the larger of the per-cycle and the per-change noise: a value held by a slower
+        // bus changes only every few cycles, and its per-cycle second difference understates
+        // its noise: a 100 Hz poll under a 1 kHz loop fired the rate trip on noise)
+        let noise = self.margin_noise.max(self.onset_noise);
+        let allowance = (self.cfg.trip_noise_factor * noise).min(0.5 * trip_margin);
         // the level the trip judges: the raw margin when it has moved away from its filtered
         // value by more than `trip_noise_factor` × its noise (a real, fast move: no filter
         // lag; the gate is not capped like the allowance), else the
         // filtered one (noise alone: a single noisy sample must not size the step)
-        let gate = (self.cfg.trip_noise_factor * self.margin_noise).max(1e-6);
+        let gate = (self.cfg.trip_noise_factor * noise).max(1e-6);
         let margin_t = if (margin - self.margin_f1).abs() > gate {
             margin
         } else {
             self.margin_f1
         };
         let predicted = margin_t + self.cfg.trip_lead_time_s * d_margin.min(0.0);
+        let armed = self.approach_armed(z);
         let trip_cond = margin.is_finite()
             && (margin_t < trip_margin - allowance
-                || (self.approach_armed(z) && predicted < trip_margin - allowance));
+                || (armed && predicted < trip_margin - allowance));
         self.trip_agree = if trip_cond {
             self.trip_agree.saturating_add(1)
         } else {
             0
         };
-        let trip_now = trip_cond && self.trip_agree >= self.cfg.trip_confirm_samples.max(1);
+        // onset detector: the raw margin's own rate over the agreement window, without the
+        // approach filter's lag (≈ 0.15 s at 2 Hz, far too late for a throttle slam on a
+        // seconds-long valve stroke: kvangardsnes2009 at 5 % crosses its surge line 55 ms
+        // after the step, and the filtered rate tripped at 25 ms)
+        self.push_onset_sample(margin, m.t_s, m.flow_fallback);
+        let onset_pred = if armed {
+            self.onset_prediction()
+        } else {
+            f64::NAN
+        };
+        let onset_now = onset_pred < trip_margin - allowance;
+        let trip_now =
+            (trip_cond && self.trip_agree >= self.cfg.trip_confirm_samples.max(1)) || onset_now;
+        // the step is sized on the deeper of the two predictions
+        let predicted = if onset_now {
+            predicted.min(onset_pred)
+        } else {
+            predicted
+        };
         self.trip_left_s -= dt;
         let mut event = None;
         // a level trip (past the trip line) escalates a held, smaller rate trip: the rate
         // trip's proportional step must not block the full step when the point gets there
         let level_now = margin_t < trip_margin - allowance;
         let escalate = level_now && !self.level_tripped && self.trip_left_s > 0.0;
-        if trip_now && (self.trip_left_s <= 0.0 || escalate) && self.cfg.trip_step > 0.0 {
+        // a held onset trip follows the onset's growing prediction (the first samples of a
+        // slam see only its start): its level may rise, silently, while the onset lasts
+        let follow_onset = onset_now && self.onset_tripped && self.trip_left_s > 0.0;
+        if trip_now
+            && (self.trip_left_s <= 0.0 || escalate || follow_onset)
+            && self.cfg.trip_step > 0.0
+        {
             let (_, hi) = self.limits();
             // the step grows with the predicted penetration past the trip line (seed 002
             // §2.2.2 [11]: the faster the approach, the larger the open-loop step): a slow
@@ -794,20 +926,28 @@ impl SurgeLaw for RecyclePi {
             } else {
                 1.0
             };
-            self.trip_level =
-                (self.u_last + self.cfg.trip_step * depth)
-                    .min(hi)
-                    .max(if self.trip_left_s > 0.0 {
-                        self.trip_level
-                    } else {
-                        0.0
-                    });
-            self.level_tripped = level;
-            self.trip_left_s = self.cfg.trip_hold_s.max(dt);
-            self.trips = self.trips.saturating_add(1);
-            event = Some(LawEvent::RecycleTrip {
-                opening: self.trip_level,
-            });
+            let raised_only = follow_onset && !escalate;
+            // a raised onset trip steps from where its trip started (the valve command has
+            // followed the held level since: stepping from it would ratchet)
+            if !raised_only {
+                self.trip_base = self.u_last;
+            }
+            self.trip_level = (self.trip_base + self.cfg.trip_step * depth).min(hi).max(
+                if self.trip_left_s > 0.0 {
+                    self.trip_level
+                } else {
+                    0.0
+                },
+            );
+            if !raised_only {
+                self.level_tripped = level;
+                self.onset_tripped = onset_now && !level;
+                self.trip_left_s = self.cfg.trip_hold_s.max(dt);
+                self.trips = self.trips.saturating_add(1);
+                event = Some(LawEvent::RecycleTrip {
+                    opening: self.trip_level,
+                });
+            }
         }
 
         // emergency shutdown (seed 002 §2.2.2: ESD events): the shaft decelerates faster than
