@@ -70,23 +70,19 @@ fn recycle_pi_with_defaults_holds_the_matrix_without_surge() {
             assert_eq!(r.dp_drift_found, 0, "false drift find: {r:?}");
         }
     }
-    // a +30 % of span Δp bias is found on hemchi2016 in time (zero surge, checked below)
-    for r in rows
-        .iter()
-        .filter(|r| r.plant == "hemchi2016" && r.case.contains("Δp drift"))
-    {
-        assert!(r.dp_drift_found_after_s < 2.0, "{r:?}");
+    // a +30 % of span Δp bias is found on both plants under either law, and in time for
+    // recycle-pi (zero surge, checked below; baseline-pi closes slower, so later)
+    for r in rows.iter().filter(|r| r.case.contains("Δp drift")) {
+        let bound = if r.law == LawId::RecyclePi { 0.1 } else { 0.5 };
+        assert!(r.dp_drift_found_after_s < bound, "{r:?}");
     }
     for r in rows.iter().filter(|r| r.law == LawId::RecyclePi) {
         // kvangardsnes2009's 2 s valve cannot hold the ESD (the table says so and names the
         // stroke that does at 10 %, checked below)
         let known_valve_limit = r.plant == "kvangardsnes2009" && r.case == "ESD rundown";
-        // NOT HELD, issue 10 still open (listed here so that every OTHER case stays guarded;
-        // the README says so): kvangardsnes2009's Δp bias, found too late (the observer is not
-        // confirmed by the flat speed line near the control line). (Its throttle step at 5 %
-        // holds since the onset trip fires 4 ms after the step: guarded.)
-        let not_held_open_issue = r.plant == "kvangardsnes2009" && r.case.contains("Δp drift");
-        if r.surge_cycles > 0 && !known_valve_limit && !not_held_open_issue {
+        // (kvangardsnes2009's throttle step at 5 % holds since the onset trip fires 4 ms after
+        // the step, and its Δp bias since the drift check finds it within 0.1 s: both guarded)
+        if r.surge_cycles > 0 && !known_valve_limit {
             failures.push(format!(
                 "{} {} at {} %: {} cycles",
                 r.plant, r.case, r.margin_pct, r.surge_cycles
@@ -101,65 +97,4 @@ fn recycle_pi_with_defaults_holds_the_matrix_without_surge() {
     assert!(failures.is_empty(), "{failures:#?}");
 }
 
-#[test]
-fn esd_stroke_verdict_names_a_stroke_that_holds() {
-    let cfg = common::root().join("config");
-    let p = PlantCase::load(&cfg.join("plants/kvangardsnes2009_recycle.toml")).unwrap();
-    let sc = bench_matrix::builtin_esd_scenario().expect("ESD scenario");
-    let v = bench_matrix::esd_stroke(&p, &sc, 10.0)
-        .unwrap()
-        .expect("recycle valve");
-    assert!(v.surge_cycles > 0, "{v:?}");
-    let named = v.holding_stroke_s.expect("no stroke named");
-    assert!(named < v.stroke_time_s, "{v:?}");
-    // the variant with the stroke the check names holds the ESD without surge
-    let mut variant = p.clone();
-    variant
-        .file
-        .recycle_system
-        .as_mut()
-        .expect("recycle system")
-        .recycle_valve
-        .stroke_time_s = named;
-    let case = bench_matrix::CASES
-        .iter()
-        .find(|c| c.scenario == "emergency-shutdown")
-        .expect("ESD case");
-    let r = bench_matrix::run_case(&variant, &sc, case, LawId::RecyclePi, 10.0).unwrap();
-    assert_eq!(r.surge_cycles, 0, "{r:?}");
-    assert!(r.min_margin_during > 0.0, "{r:?}");
-}
-
-#[test]
-fn the_variant_plant_with_the_stroke_the_check_names_holds_the_esd() {
-    let cfg = common::root().join("config");
-    let p = PlantCase::load(&cfg.join("plants/kvangardsnes2009_recycle.toml")).unwrap();
-    let variant =
-        PlantCase::load(&cfg.join("plants/variants/kvangardsnes2009_recycle_valve_1s.toml"))
-            .expect("variant plant");
-    let sc = bench_matrix::builtin_esd_scenario().expect("ESD scenario");
-    let case = bench_matrix::CASES
-        .iter()
-        .find(|c| c.scenario == "emergency-shutdown")
-        .expect("ESD case");
-    // at 10 %: the variant file has exactly the stroke the check names, and holds the ESD
-    let v10 = bench_matrix::esd_stroke(&p, &sc, 10.0).unwrap().unwrap();
-    let stroke = variant
-        .file
-        .recycle_system
-        .unwrap()
-        .recycle_valve
-        .stroke_time_s;
-    assert_eq!(v10.holding_stroke_s, Some(stroke), "{v10:?}");
-    let r = bench_matrix::run_case(&variant, &sc, case, LawId::RecyclePi, 10.0).unwrap();
-    assert_eq!(r.surge_cycles, 0, "{r:?}");
-    assert!(r.min_margin_during > 0.0, "{r:?}");
-    // at 5 %: the machine is past its surge line within 20 ms of the trip, before any
-    // speed-decay detection; the check names no stroke (and the README says why)
-    let v5 = bench_matrix::esd_stroke(&p, &sc, 5.0).unwrap().unwrap();
-    assert!(v5.surge_cycles > 0, "{v5:?}");
-    assert_eq!(v5.holding_stroke_s, None, "{v5:?}");
-    assert!(v5.surge_after_s < 0.02, "{v5:?}");
-    let r5 = bench_matrix::run_case(&variant, &sc, case, LawId::RecyclePi, 5.0).unwrap();
-    assert!(r5.surge_cycles > 0, "{r5:?}");
-}
+// The ESD stroke verdicts and the plant variants they name: tests/esd_stroke_check.rs.

@@ -125,7 +125,26 @@ pub fn check(args: &CheckArgs) -> Result<std::process::ExitCode> {
                     } => margin_pct,
                     _ => 10.0,
                 };
-                match antisurge::bench_matrix::esd_stroke_warning(p, margin_pct) {
+                // a bound trip contact acts after its read, one cycle and the valve write:
+                // over Modbus up to a poll period each way, else (CAN, in-process) one cycle
+                let esd = antisurge::signals::SensorId::EsdInput;
+                let contact_latency_s = l.signal_map.sensors.contains_key(&esd).then(|| {
+                    let polled = l
+                        .signal_map
+                        .modbus_sensors()
+                        .iter()
+                        .any(|(id, _)| *id == esd);
+                    let poll_s = match (&l.config.bus.modbus, polled) {
+                        (Some(m), true) => 2.0 / m.poll_rate_hz,
+                        _ => 0.0,
+                    };
+                    poll_s + 1.0 / l.config.cycle.rate_hz
+                });
+                match antisurge::bench_matrix::esd_stroke_warning_as_wired(
+                    p,
+                    margin_pct,
+                    contact_latency_s,
+                ) {
                     Ok(Some(w)) => eprintln!("warning: {}: {w}", p.path.display()),
                     Ok(None) => {}
                     Err(e) => eprintln!("warning: ESD stroke check not run: {e}"),

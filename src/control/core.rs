@@ -142,6 +142,21 @@ impl CoreSettings {
         self.supervisor
             .follow_poll_period_of(ids, poll_period_s, POLL_PERIODS_PER_TIMEOUT);
     }
+
+    /// Bind an on/off contact ([`SensorId::is_contact`], e.g. the ESD / drive-trip input):
+    /// supervised like any input, 0 or 1, fresh within the default 50 ms (limits already set
+    /// are kept). An unbound contact is ignored, so a skid that does not wire it is not
+    /// tripped by a value nobody reads. The daemon binds the contacts its signal map names;
+    /// the benchmark binds the ESD contact in its "trip contact wired" runs.
+    pub fn bind_contact(&mut self, id: SensorId) {
+        if id.is_contact() {
+            self.supervisor.limits[id.index()].get_or_insert(InputLimits {
+                min: 0.0,
+                max: 1.0,
+                timeout_s: 0.05,
+            });
+        }
+    }
 }
 
 /// Default transmitter-failure hold, s: longer than a 100 ms blip plus a 50 Hz poll period,
@@ -594,7 +609,8 @@ impl ControlCore {
             _ => (f64::NAN, f64::NAN),
         };
         // the observer's steady-state error from a map error δΨ = ε (R − 1): the error
-        // dynamics (seed 000 eq. 16) settle at m̃ = p_s δΨ / (c2 − p_s ∂Ψ/∂m)
+        // dynamics (seed 000 eq. 16) settle at m̃ = p_s δΨ / (c2 − p_s ∂Ψ/∂m); plus a map
+        // whose flows are off by ε: the observer settles where Ψ̂(m̂) matches, ε m̂ off
         let eps = 0.01 * self.config.drift_check.map_uncertainty_pct;
         let obs_unc = match &self.observer {
             Some(o) if m_obs.is_finite() => {
@@ -607,7 +623,7 @@ impl ControlCore {
                 } else {
                     f64::INFINITY
                 };
-                self.model.map_flow(m_err, p_s, t_s_k)
+                self.model.map_flow(m_err + eps * m_obs.abs(), p_s, t_s_k)
             }
             _ => f64::NAN,
         };

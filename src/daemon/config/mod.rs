@@ -230,11 +230,7 @@ fn load_layers(main: &Path, layers: Vec<Layer>) -> Result<Loaded, Vec<Problem>> 
     // 0 or 1, fresh within the default timeout (polled: the poll-period rule below)
     for id in SensorId::ALL.into_iter().filter(|id| id.is_contact()) {
         if signal_map.sensors.contains_key(&id) {
-            core.supervisor.limits[id.index()].get_or_insert(InputLimits {
-                min: 0.0,
-                max: 1.0,
-                timeout_s: 0.05,
-            });
+            core.bind_contact(id);
         }
     }
     config.bus.follow_poll_period(&signal_map, &mut core);
