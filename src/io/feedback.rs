@@ -7,6 +7,12 @@
 //! torque ↔ delivered torque). A difference beyond `tolerance` (SI units of the actuator)
 //! that lasts `time_ms` is the industry's valve feedback fault
 //! ([`FaultCategory::ActuatorFeedbackMismatch`](crate::faults::FaultCategory)).
+//! An actuator that is still travelling towards its command follows it: each time the
+//! difference has shrunk by another `tolerance` the time starts again, so a slow-stroking
+//! valve after a large step is no fault, while a stuck one (or one moving the wrong way) is
+//! found `time_ms` after it stopped making progress. (The foreign Modbus skid's 2-s valve
+//! took longer than its map's 500 ms to follow a 0.2 trip step when the machine was loaded,
+//! and raised the fault on a healthy valve.)
 //!
 //! Configured per actuator in the signal map:
 //!
@@ -92,6 +98,9 @@ struct Slot {
     sensor: SensorId,
     limit: FeedbackLimit,
     since_ns: Option<u64>,
+    /// |command − feedback| when the time last (re)started, SI: shrinking below it by a
+    /// tolerance is progress, and restarts the time.
+    ref_diff: f64,
     active: bool,
 }
 
@@ -114,6 +123,7 @@ impl FeedbackSupervisor {
                     sensor,
                     limit: *l,
                     since_ns: None,
+                    ref_diff: f64::INFINITY,
                     active: false,
                 })
             })
@@ -143,12 +153,18 @@ impl FeedbackSupervisor {
                 s.since_ns = None;
                 continue;
             }
-            let off = (c - m).abs() > s.limit.tolerance;
+            let diff = (c - m).abs();
+            let off = diff > s.limit.tolerance;
             let lasted_s = |since: Option<u64>| {
                 since.map_or(0.0, |t0| now_ns.saturating_sub(t0) as f64 * 1e-9)
             };
             if off {
-                let since = *s.since_ns.get_or_insert(now_ns);
+                // travelling towards the command by another tolerance: still following
+                if s.since_ns.is_none() || diff < s.ref_diff - s.limit.tolerance {
+                    s.since_ns = Some(now_ns);
+                    s.ref_diff = diff;
+                }
+                let since = s.since_ns.unwrap_or(now_ns);
                 let lasted = lasted_s(Some(since));
                 if !s.active && lasted * 1e3 >= s.limit.time_ms {
                     s.active = true;
@@ -221,5 +237,54 @@ mod tests {
         // no feedback: no judgement
         sup.step(900 * ms, |_| 0.8, |_| f64::NAN, |t| seen.push((0, t)));
         assert_eq!(seen.len(), 2);
+    }
+
+    fn valve_limit(time_ms: f64) -> BTreeMap<ActuatorId, FeedbackLimit> {
+        let mut limits = BTreeMap::new();
+        limits.insert(
+            ActuatorId::RecycleValve,
+            FeedbackLimit {
+                tolerance: 0.05,
+                time_ms,
+            },
+        );
+        limits
+    }
+
+    #[test]
+    fn a_valve_stroking_slowly_towards_a_large_step_follows_and_a_stuck_one_does_not() {
+        let ms = 1_000_000u64;
+        // a 2-s stroke valve (0.5 /s) after a step from 0 to 0.8: 1.6 s to get there, far
+        // longer than the 500 ms: no fault while it travels
+        let mut sup = FeedbackSupervisor::new(&valve_limit(500.0));
+        let mut seen = Vec::new();
+        for k in 0..=300u64 {
+            let pos = (0.5 * k as f64 * 0.01).min(0.8);
+            sup.step(k * 10 * ms, |_| 0.8, |_| pos, |t| seen.push((k, t)));
+        }
+        assert!(seen.is_empty(), "{seen:?}");
+        // the same valve sticking at 0.3 on its way: found 500 ms after its last progress
+        let mut sup = FeedbackSupervisor::new(&valve_limit(500.0));
+        let mut seen = Vec::new();
+        for k in 0..=300u64 {
+            let pos = (0.5 * k as f64 * 0.01).min(0.3);
+            sup.step(k * 10 * ms, |_| 0.8, |_| pos, |t| seen.push((k, t)));
+        }
+        assert_eq!(seen.len(), 1, "{seen:?}");
+        let (k, t) = seen[0];
+        assert!(t.active);
+        // progress by more than a tolerance restarts the time every 11 steps (k = 11, 22,
+        // …, 55: difference 0.525); stuck from k = 60 at a difference of 0.5, no further
+        // progress: raised at k = 105, 500 ms after the last restart
+        assert_eq!(k, 105, "{seen:?}");
+        assert!(t.cause().contains("measured 0.3000"), "{}", t.cause());
+        // a valve moving the wrong way makes no progress: raised after 500 ms
+        let mut sup = FeedbackSupervisor::new(&valve_limit(500.0));
+        let mut seen = Vec::new();
+        for k in 0..=100u64 {
+            let pos = (0.4 - 0.5 * k as f64 * 0.01).max(0.0);
+            sup.step(k * 10 * ms, |_| 0.8, |_| pos, |t| seen.push((k, t)));
+        }
+        assert_eq!(seen.iter().map(|(k, _)| *k).collect::<Vec<_>>(), vec![50]);
     }
 }
