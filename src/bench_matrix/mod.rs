@@ -275,6 +275,17 @@ fn uniform(state: &mut u64) -> f64 {
     (r >> 11) as f64 / (1u64 << 53) as f64 * 2.0 - 1.0
 }
 
+/// Count one find of a cross-check (a fault newly declared at `t_s`) and, for the case that
+/// injects that fault from `injected_at_s`, the time from the injection to the first find.
+fn count_find(found: &mut u32, found_after_s: &mut f64, injected_at_s: Option<f64>, t_s: f64) {
+    *found += 1;
+    if let Some(at_s) = injected_at_s {
+        if found_after_s.is_nan() && t_s >= at_s {
+            *found_after_s = t_s - at_s;
+        }
+    }
+}
+
 /// Run one case.
 pub fn run_case(
     desc: &PlantCase,
@@ -520,24 +531,33 @@ pub fn run_case_traced_with_model(
             pr.count_law_event(e);
         }
         // scoring
-        let frozen = out.validity.fault[SensorId::OrificeDp.index()] == InputFault::Frozen;
+        let dp_fault = out.validity.fault[SensorId::OrificeDp.index()];
+        let frozen_at_s = match case.fault {
+            FieldFault::DpFrozen { at_s, .. } => Some(at_s),
+            _ => None,
+        };
+        let frozen = dp_fault == InputFault::Frozen;
         if frozen && !was_frozen {
-            res.dp_frozen_found += 1;
-            if let FieldFault::DpFrozen { at_s, .. } = case.fault {
-                if res.dp_frozen_found_after_s.is_nan() && t >= at_s {
-                    res.dp_frozen_found_after_s = t - at_s;
-                }
-            }
+            count_find(
+                &mut res.dp_frozen_found,
+                &mut res.dp_frozen_found_after_s,
+                frozen_at_s,
+                t,
+            );
         }
         was_frozen = frozen;
-        let drifting = out.validity.fault[SensorId::OrificeDp.index()] == InputFault::Drift;
+        let drift_at_s = match case.fault {
+            FieldFault::DpDrift { at_s, .. } => Some(at_s),
+            _ => None,
+        };
+        let drifting = dp_fault == InputFault::Drift;
         if drifting && !was_drifting {
-            res.dp_drift_found += 1;
-            if let FieldFault::DpDrift { at_s, .. } = case.fault {
-                if res.dp_drift_found_after_s.is_nan() && t >= at_s {
-                    res.dp_drift_found_after_s = t - at_s;
-                }
-            }
+            count_find(
+                &mut res.dp_drift_found,
+                &mut res.dp_drift_found_after_s,
+                drift_at_s,
+                t,
+            );
         }
         was_drifting = drifting;
         let v = core.dp_drift_check().verdict();
