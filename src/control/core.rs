@@ -635,7 +635,19 @@ impl ControlCore {
             obs_unc,
             q_line,
             line_unc,
-            self.model.surge_line.flow_at_ratio(ratio),
+            // the residuals' unit, the surge-line flow at the measured ratio, floored at half
+            // the design point's: running down towards standstill (R → 1) the surge-line
+            // flow goes to zero, and the map's 3 % flow error, which the observer and the
+            // speed line share (it confirms nothing), read as 70-140 % (kvangardsnes2009's
+            // ESD rundown at 13 % speed with the map 3 % off in flow: a false find; a tenth
+            // of the design flow still read it as 7 %). Near the design point, where surge
+            // matters, the unit is unchanged.
+            self.model.surge_line.flow_at_ratio(ratio).max(
+                0.5 * self
+                    .model
+                    .surge_line
+                    .flow_at_ratio(self.model.design_pressure_ratio),
+            ),
         );
         if drift.drifting && v.ok(SensorId::OrificeDp) {
             v.fault[SensorId::OrificeDp.index()] = InputFault::Drift;
