@@ -104,10 +104,25 @@ enum Band {
     Below,
 }
 
+/// The oscillation threshold is at least this many times the flow signal's measured noise
+/// (standard deviation per new sample): a noisy flow transmitter swings across a threshold
+/// of 5 % of the mean flow at every poll (hemchi2016 at 10 % of surge-line flow, 2 % of
+/// span of Δp noise: ±5 % of flow), which read as a 30 Hz limit cycle and moved the
+/// control line right by a safety-on step for nothing. Four standard deviations: a real
+/// surge cycle's swing is tens of percent of the flow, noise three cycles in a row that far
+/// out is improbable.
+pub const NOISE_THRESHOLD_FACTOR: f64 = 4.0;
+
 /// Online surge detector.
 #[derive(Debug, Clone)]
 pub struct SurgeDetector {
     cfg: DetectorConfig,
+    /// Noise of the flow per new sample, kg/s (running mean of half the absolute second
+    /// difference of distinct samples, ≈ σ for white noise, ≈ 0 for a ramp).
+    noise_kg_s: f64,
+    /// The last two distinct flow samples, newest first, and when the newest came, s.
+    distinct: [f64; 2],
+    distinct_t_s: f64,
     initialised: bool,
     mean: f64,
     band: Band,
@@ -138,6 +153,9 @@ impl SurgeDetector {
     pub fn new(cfg: DetectorConfig) -> Self {
         SurgeDetector {
             cfg,
+            noise_kg_s: 0.0,
+            distinct: [f64::NAN; 2],
+            distinct_t_s: f64::NAN,
             initialised: false,
             mean: 0.0,
             band: Band::Inside,
@@ -168,6 +186,28 @@ impl SurgeDetector {
         self.mean
     }
 
+    /// Measured noise of the flow signal per new sample, kg/s.
+    pub fn noise_kg_s(&self) -> f64 {
+        self.noise_kg_s
+    }
+
+    /// Update the noise estimate with a sample: only a value that differs from the last
+    /// counts (a slow bus under a fast cycle repeats each value), weighted by the time since
+    /// the last new one (≈ 1 s average).
+    fn track_noise(&mut self, t_s: f64, m_kg_s: f64) {
+        let [p1, p2] = self.distinct;
+        if m_kg_s == p1 {
+            return;
+        }
+        if p1.is_finite() && p2.is_finite() && self.distinct_t_s.is_finite() {
+            let w = (t_s - self.distinct_t_s).clamp(0.0, 1.0);
+            let d2 = 0.5 * (m_kg_s - 2.0 * p1 + p2).abs();
+            self.noise_kg_s += w * (d2 - self.noise_kg_s);
+        }
+        self.distinct = [m_kg_s, p1];
+        self.distinct_t_s = t_s;
+    }
+
     /// Feed one flow sample taken at `t_s` (`dt_s` since the previous one).
     pub fn update(&mut self, t_s: f64, dt_s: f64, m_kg_s: f64) -> Detection {
         if !m_kg_s.is_finite() {
@@ -179,6 +219,7 @@ impl SurgeDetector {
         }
         let a = (dt_s / self.cfg.mean_time_constant_s).min(1.0);
         self.mean += a * (m_kg_s - self.mean);
+        self.track_noise(t_s, m_kg_s);
         let mut result = Detection::None;
 
         // flow reversal episodes (with hysteresis)
@@ -201,7 +242,8 @@ impl SurgeDetector {
         self.cycle_max = self.cycle_max.max(dev);
         self.cycle_min = self.cycle_min.min(dev);
         let h = (self.cfg.amplitude_threshold_rel * self.mean.abs())
-            .max(self.cfg.amplitude_threshold_abs_kg_s);
+            .max(self.cfg.amplitude_threshold_abs_kg_s)
+            .max(NOISE_THRESHOLD_FACTOR * self.noise_kg_s);
         let band = if dev > h {
             Band::Above
         } else if dev < -h {
@@ -334,5 +376,53 @@ mod tests {
     fn slow_ramp_is_not_surge() {
         let d = run(|t| 10.0 - 0.8 * t.min(8.0), 12.0);
         assert_eq!(d.surge_cycles, 0);
+    }
+
+    /// Uniform noise, a new value every 10 ms (a 100 Hz poll under a 1 kHz cycle), fixed seed.
+    fn polled_noise(amplitude_kg_s: f64) -> impl Fn(f64) -> f64 {
+        move |t: f64| {
+            let k = (t / 0.01).floor() as u64;
+            let mut x = k.wrapping_mul(0x9E37_79B9_7F4A_7C15) ^ 0x5DEE_CE66;
+            x ^= x >> 31;
+            x = x.wrapping_mul(0xBF58_476D_1CE4_E5B9);
+            x ^= x >> 29;
+            amplitude_kg_s * ((x >> 11) as f64 / (1u64 << 53) as f64 * 2.0 - 1.0)
+        }
+    }
+
+    #[test]
+    fn a_noisy_transmitter_on_a_steady_flow_is_not_surge() {
+        // ±6 % of a 0.22 kg/s flow (hemchi2016 near its control line with 2 % of span of Δp
+        // noise): without the noise floor this read as a limit cycle within seconds
+        let noise = polled_noise(0.06 * 0.22);
+        let d = run(|t| 0.22 + noise(t), 30.0);
+        assert_eq!(d.surge_cycles, 0);
+        assert!(d.noise_kg_s() > 0.003, "noise {}", d.noise_kg_s());
+        let mut bare = SurgeDetector::new(DetectorConfig::default());
+        bare.noise_kg_s = f64::NAN; // the floor off (NaN drops out of the max)
+        let dt = 1e-3;
+        let mut cycles = 0;
+        for k in 0..30_000 {
+            let t = k as f64 * dt;
+            bare.update(t, dt, 0.22 + noise(t));
+            bare.noise_kg_s = f64::NAN;
+            cycles = bare.surge_cycles;
+        }
+        assert!(
+            cycles > 0,
+            "the fixture must fool a detector without the floor"
+        );
+    }
+
+    #[test]
+    fn surge_under_the_same_noise_is_still_counted() {
+        // 4 Hz, ±40 % of 0.22 kg/s (a surge cycle's swing), with the noise above
+        let noise = polled_noise(0.06 * 0.22);
+        let d = run(
+            |t| 0.22 * (1.0 + 0.4 * (2.0 * std::f64::consts::PI * 4.0 * t).sin()) + noise(t),
+            5.0,
+        );
+        assert!((15..=20).contains(&d.surge_cycles), "{}", d.surge_cycles);
+        assert!((d.frequency_hz - 4.0).abs() < 0.5, "{}", d.frequency_hz);
     }
 }
