@@ -260,22 +260,32 @@ fn valve_never_closes_faster_than_its_closing_rate() {
         let p = common::plant(stem);
         let rate = p.controller.recycle_pi.closing_rate_per_s;
         let r = common::simulate(&p, &fine_step(), LawId::RecyclePi);
-        let cmd: Vec<(f64, f64)> = r
+        let cmd: Vec<(f64, f64, f64)> = r
             .trace
             .iter()
             .filter(|row| row.cmd_recycle_valve.is_finite())
-            .map(|row| (row.t_s, row.cmd_recycle_valve))
+            .map(|row| (row.t_s, row.cmd_recycle_valve, row.recycle_valve_position))
             .collect();
         let mut fastest = 0.0f64;
+        let mut to_stem = 0;
         for w in cmd.windows(2) {
             let closing = (w[0].1 - w[1].1) / (w[1].0 - w[0].0);
-            assert!(
-                closing <= rate * (1.0 + 1e-9) + 1e-12,
-                "{stem}: closes at {closing}/s at {} s (limit {rate}/s)",
-                w[1].0
-            );
+            // the one exception: a trip released early takes the command down to where the
+            // stem has got to (still opening towards the step), never below it
+            if closing > rate * (1.0 + 1e-9) + 1e-12 {
+                assert!(
+                    (w[1].1 - w[0].2).abs() < 0.01 && w[1].1 < w[0].1,
+                    "{stem}: closes at {closing}/s at {} s (limit {rate}/s) to {} with the stem at {}",
+                    w[1].0,
+                    w[1].1,
+                    w[0].2
+                );
+                to_stem += 1;
+                continue;
+            }
             fastest = fastest.max(closing);
         }
+        assert!(to_stem <= 1, "{stem}: {to_stem} steps to the stem");
         // the limit was exercised where the trip overshoots the final opening: after the
         // trip the valve closed a long way, at the limit (on hemchi2016 the trip now lands on
         // the final opening: the closed-limit anti-windup no longer pre-opens the valve on
@@ -384,8 +394,9 @@ fn transmitter_failure_falls_back_to_the_observer_and_stays_out_of_surge() {
             r.summary.min_surge_margin
         );
     }
-    // on the seed 002 plant the observer (quasi-steady line flows) misreads the throttle
-    // transient; the cross-check with the speed line is what keeps the margin
+    // on the seed 002 plant the observer's one-step update misread the throttle transient
+    // (closest approach 0.12 without the speed-line cross-check); its implicit update follows
+    // it, and the observer alone keeps the margin the cross-checked run keeps
     let bare = plant_with(KV, |c| c.fallback_speed_line_check = false);
     let r = common::simulate(
         &bare,
@@ -395,7 +406,7 @@ fn transmitter_failure_falls_back_to_the_observer_and_stays_out_of_surge() {
     assert_eq!(r.summary.surge_cycles, 0, "{:?}", r.summary);
     assert!(!r.summary.flow_reversal);
     assert!(
-        r.summary.min_surge_margin < 0.12,
+        r.summary.min_surge_margin > 0.15,
         "observer alone: {}",
         r.summary.min_surge_margin
     );

@@ -53,9 +53,11 @@
 //! - flow-transmitter fallback: when the core feeds the observer's flow
 //!   (`Measurements::flow_fallback`), the law cross-checks it against the steady flow on the
 //!   speed line at the measured pressure ratio and speed (seed 002 §2.2.2, category four:
-//!   control without flow measurement) and uses the smaller. On the seed 002 plant the
-//!   observer, whose outflow model uses the quasi-steady valve equations, misreads the throttle
-//!   transient of the long discharge line by up to +30 % (it would close the valve).
+//!   control without flow measurement) and uses the smaller: a guard against an observer
+//!   whose model is off (its outflow is the quasi-steady valve equations, without the outlet
+//!   lines' inertia). On the seed 002 plant the observer's former one-step update misread the
+//!   throttle transient by up to +30 % (it would have closed the valve); its implicit update
+//!   ([`super::observer`]) follows it, and the observer alone now holds that case too.
 //!
 //! Deviation from seed 001 eq. 3.6, stated: there the error is clamped to zero right of the
 //! line, so the integral can only grow and the valve never closes again. We use the signed z:
@@ -340,10 +342,19 @@ pub struct RecyclePi {
     hist_fallback: bool,
     /// Noise of the distinct margins (mean of half the absolute second difference).
     onset_noise: f64,
+    /// Mean time between distinct margins, s (the input's sample period: a poll slower
+    /// than the cycle holds each value for several cycles).
+    sample_dt_s: f64,
+    /// The PI demand's closing-rate-limited envelope, fraction: it follows the demand up at
+    /// once and down at most at the closing rate; the valve follows the demand down to the
+    /// envelope less the noise band (see `update`).
+    close_env: f64,
     /// Whether the held trip came from the onset detector (it may raise its own level).
     onset_tripped: bool,
     /// The command when the held trip started, fraction.
     trip_base: f64,
+    /// The measured valve position when the held trip started, fraction (NaN: not measured).
+    trip_stem0: f64,
     /// Filtered shaft speed, rad/s, and its previous value (ESD detection).
     omega_f: f64,
     omega_f_last: f64,
@@ -486,8 +497,11 @@ impl RecyclePi {
             hist_t_s: f64::NAN,
             hist_fallback: false,
             onset_noise: 0.0,
+            sample_dt_s: f64::NAN,
+            close_env: f64::NAN,
             onset_tripped: false,
             trip_base: 0.0,
+            trip_stem0: f64::NAN,
             omega_f: f64::NAN,
             omega_f_last: f64::NAN,
             esd: false,
@@ -577,12 +591,15 @@ impl RecyclePi {
         self.level_tripped = old.level_tripped;
         self.onset_tripped = old.onset_tripped;
         self.trip_base = old.trip_base;
+        self.trip_stem0 = old.trip_stem0;
         self.margin_hist = old.margin_hist;
         self.hist_dt_s = old.hist_dt_s;
         self.hist_at = old.hist_at;
         self.hist_t_s = old.hist_t_s;
         self.hist_fallback = old.hist_fallback;
         self.onset_noise = old.onset_noise;
+        self.sample_dt_s = old.sample_dt_s;
+        self.close_env = old.close_env;
         self.shift_pending = old.shift_pending;
         self.started = true;
         true
@@ -685,7 +702,13 @@ impl RecyclePi {
         if !(drop > 2.0 * self.cfg.trip_noise_factor * self.onset_noise && span_s > 0.0) {
             return f64::NAN;
         }
-        at(0) - self.cfg.trip_lead_time_s * drop / span_s
+        // the horizon: the approach filter's lag (two poles), not the whole lead time
+        let lag_s = if self.cfg.approach_filter_hz > 0.0 {
+            2.0 / (2.0 * std::f64::consts::PI * self.cfg.approach_filter_hz)
+        } else {
+            self.cfg.trip_lead_time_s
+        };
+        at(0) - self.cfg.trip_lead_time_s.min(lag_s) * drop / span_s
     }
 
     /// Record a raw margin for the onset detector when it differs from the last one (time
@@ -716,6 +739,65 @@ impl RecyclePi {
         self.margin_hist[self.hist_at] = margin;
         self.hist_dt_s[self.hist_at] = if age.is_finite() { age } else { f64::NAN };
         self.hist_t_s = t_s;
+        // the sample period (a hold or an outage is no sample period: at most 0.1 s counts)
+        if age.is_finite() && age > 0.0 {
+            let age = age.min(0.1);
+            self.sample_dt_s = if self.sample_dt_s.is_finite() {
+                self.sample_dt_s + 0.05 * (age - self.sample_dt_s)
+            } else {
+                age
+            };
+        }
+    }
+
+    /// The noise band of the PI's demand, valve fraction: `trip_noise_factor` × the standard
+    /// deviation the measured margin noise leaves in the demand, K_p × (∂z/∂margin) × σ ×
+    /// √(a/(2 − a)), a = 1 − exp(−2π f_z T) the z filter's gain per input sample of period T
+    /// (the variance a first-order filter passes of white noise sampled at T; 1 without the
+    /// filter). ∂z/∂margin = (∂z/∂q on the line) × j, j the surge-line flow (margin =
+    /// (q − j)/j). The closing-rate limit acts beyond this band only: inside it the valve
+    /// follows the demand both ways, so noise cannot ratchet it open (an asymmetric
+    /// limiter, fast up and slow down, turns symmetric noise into a one-way opening:
+    /// hemchi2016 with 1 % pressure and 2 % Δp noise crept from 12 % to 16 % open and 10 %
+    /// beyond its control line in 10 s).
+    fn noise_band(&self, ratio: f64) -> f64 {
+        let t = self.sample_dt_s;
+        if !(t.is_finite() && self.onset_noise.is_finite() && self.onset_noise > 0.0) {
+            return 0.0;
+        }
+        let filter = if self.cfg.z_filter_hz > 0.0 {
+            let a = 1.0 - (-2.0 * std::f64::consts::PI * self.cfg.z_filter_hz * t).exp();
+            (a / (2.0 - a)).sqrt()
+        } else {
+            1.0
+        };
+        let c = self.scl.flow_at_ratio(ratio);
+        let j = self.scl.surge_line().flow_at_ratio(ratio);
+        let dz_dmargin = (self.cfg.control_variable.slope_on_line(c) * j).abs();
+        let band = self.cfg.trip_noise_factor * self.kp_z * dz_dmargin * self.onset_noise * filter;
+        if band.is_finite() {
+            band
+        } else {
+            0.0
+        }
+    }
+
+    /// Standard deviation of the filtered rate of approach that margin noise of standard
+    /// deviation `noise` (fraction of surge-line flow) leaves, 1/s: σ √(T ω³/4), T the input's
+    /// sample period (`dt_s` until one is measured), ω = 2π `approach_filter_hz`.
+    fn rate_noise_per_s(&self, noise: f64, dt_s: f64) -> f64 {
+        let t = if self.sample_dt_s.is_finite() {
+            self.sample_dt_s.max(dt_s)
+        } else {
+            dt_s
+        };
+        let w = 2.0 * std::f64::consts::PI * self.cfg.approach_filter_hz;
+        let s = noise * (t * w * w * w / 4.0).sqrt();
+        if s.is_finite() {
+            s
+        } else {
+            0.0
+        }
     }
 
     fn trip_margin_at(&self, ratio: f64) -> f64 {
@@ -765,6 +847,7 @@ impl SurgeLaw for RecyclePi {
         // bumpless: the first PI output equals the applied opening
         let z0 = self.z_at(m.flow_map, m.pressure_ratio);
         self.u_last = u0;
+        self.close_env = u0;
         self.z_f = z0;
         self.integ = if z0.is_finite() {
             u0 - self.kp_z * z0
@@ -875,7 +958,14 @@ impl SurgeLaw for RecyclePi {
         } else {
             self.margin_f1
         };
-        let predicted = margin_t + self.cfg.trip_lead_time_s * d_margin.min(0.0);
+        // the rate judged is the filtered rate beyond its own noise: white noise of standard
+        // deviation σ, sampled every T, leaves σ √(T ω³/4) in the derivative of its two-pole
+        // low-pass at ω = 2π `approach_filter_hz` (∫ w² |H(jw)|² dw/2π = ω³/4 for H =
+        // ω²/(s + ω)²); at a 5 % margin with 1 % pressure noise that is ±0.08/s, which over
+        // the 0.5 s lead time alone crossed the trip line on noise (hemchi2016: four trips in
+        // 15 s, each 10-14 % of valve for nothing)
+        let rate_noise = self.cfg.trip_noise_factor * self.rate_noise_per_s(noise, dt);
+        let predicted = margin_t + self.cfg.trip_lead_time_s * (d_margin + rate_noise).min(0.0);
         let armed = self.approach_armed(z);
         let trip_cond = margin.is_finite()
             && (margin_t < trip_margin - allowance
@@ -905,6 +995,33 @@ impl SurgeLaw for RecyclePi {
             predicted
         };
         self.trip_left_s -= dt;
+        // the hold ends early once the trip has done its work: the point right of the control
+        // line by the noise allowance, and moving away from it (the filtered rate positive).
+        // Holding a slam's step the full `trip_hold_s` while the point ran 40 % beyond the
+        // line recycled 3 % of kvangardsnes2009's throttle-step energy for nothing.
+        if self.trip_left_s > 0.0
+            && !self.esd
+            && z_raw < -allowance
+            && z < 0.0
+            && d_margin > rate_noise
+        {
+            self.trip_left_s = 0.0;
+            // the PI takes over from where the valve is, not from the command: a valve
+            // stroking towards a slam's step is still opening when the point turns (the
+            // opening it has reached already suffices), and its command would carry it on
+            // (kvangardsnes2009: command 0.35, stem 0.25 and rising, the point 20 % right
+            // of its line and moving away)
+            // Only a stem that has moved up, by more than 1 % of travel, from where it stood
+            // when the trip started is on its way: one held there by a second master or a
+            // stuck positioner is not, and taking over from it would hide the mismatch the
+            // core watches for.
+            let pos = m.recycle_position;
+            if pos.is_finite() && pos < self.u_last && pos > self.trip_stem0 + 0.01 {
+                self.u_last = pos.max(self.limits().0);
+                self.close_env = self.u_last;
+                self.integ = self.u_last - self.kp_z * z;
+            }
+        }
         let mut event = None;
         // a level trip (past the trip line) escalates a held, smaller rate trip: the rate
         // trip's proportional step must not block the full step when the point gets there
@@ -928,7 +1045,10 @@ impl SurgeLaw for RecyclePi {
             // `trip_step` there recycled 3 % of a matrix's energy for nothing)
             let level = margin_t < trip_margin - allowance;
             let depth = if trip_margin > 0.0 {
-                let d = (trip_margin - predicted) / trip_margin;
+                // (the penetration past the threshold that fired: the noise allowance
+                // delays a trip, and counting it in the depth as well stepped 12 % of valve
+                // on hemchi2016's noisy closure where the clean one steps 1 %)
+                let d = (trip_margin - allowance - predicted) / trip_margin;
                 if level {
                     d.max(1.0)
                 } else {
@@ -949,6 +1069,10 @@ impl SurgeLaw for RecyclePi {
             let raised_only = follow_onset && !escalate;
             // a raised onset trip steps from where its trip started (the valve command has
             // followed the held level since: stepping from it would ratchet)
+            if self.trip_left_s <= 0.0 {
+                // a fresh trip: where the stem stood when it started
+                self.trip_stem0 = m.recycle_position;
+            }
             if !raised_only {
                 self.trip_base = self.u_last;
             }
@@ -991,7 +1115,7 @@ impl SurgeLaw for RecyclePi {
         let rate = self.closing_rate(q, r);
         if self.resume_unwind
             && (z >= 0.0
-                || self.distance_factor(q, r) <= 2.0
+                || self.distance_factor(q, r) <= 1.5
                 || self.trip_left_s > 0.0
                 || self.u_last <= lo)
         {
@@ -1014,8 +1138,17 @@ impl SurgeLaw for RecyclePi {
         // fast opening, rate-limited closing ([15]): the valve follows the demand up at once and
         // down at most at the closing rate; the PI keeps its own demand meanwhile. The rate
         // grows with the distance right of the control line: far from it the valve closes
-        // fast (less recycle after a trip or a fail-safe), near it slowly.
-        let follow = demand.max(self.u_last - rate * dt);
+        // fast (less recycle after a trip or a fail-safe), near it slowly. The limit acts
+        // beyond the demand's noise band: the envelope falls at the closing rate, and the
+        // valve follows the demand down to the envelope less the band (`noise_band`).
+        let band = self.noise_band(r);
+        let env_last = if self.close_env.is_finite() {
+            self.close_env.max(self.u_last)
+        } else {
+            self.u_last
+        };
+        let env = demand.max(env_last - rate * dt);
+        let follow = demand.max(env - band).min(env).max(lo);
         let mut u = follow;
         // trip hold: at least the tripped opening
         if self.trip_left_s > 0.0 {
@@ -1045,6 +1178,7 @@ impl SurgeLaw for RecyclePi {
             integ_next
         };
         self.u_last = u;
+        self.close_env = env.max(u);
         self.closing = u > demand;
 
         if event.is_none() && self.shift_pending {
