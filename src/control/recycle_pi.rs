@@ -26,15 +26,26 @@
 //!   demand cannot dive below the valve, and noise cannot ratchet the valve open the way
 //!   instantaneous tracking of a rate-limited output does);
 //! - fast opening, rate-limited closing ([15]): the command never falls faster than
-//!   `closing_rate_per_s`; it rises as fast as the PI asks;
+//!   `closing_rate_per_s` beyond the demand's noise band (`trip_noise_factor` × the standard
+//!   deviation the measured noise leaves in the demand); it rises as fast as the PI asks.
+//!   Inside the band the valve follows the demand both ways: an asymmetric limiter turns
+//!   symmetric noise into a one-way opening;
 //! - a minimum opening (`min_opening`);
 //! - the recycle trip ([11], [13]): an open-loop step of `trip_step` when the operating point
 //!   crosses the trip line (surge margin below `trip_margin_pct`, between surge line and SCL)
 //!   or, at or left of the control line (z ≥ 0), approaches it too fast: the filtered rate of
 //!   approach −d(margin)/dt exceeds (margin − trip margin)/`trip_lead_time_s`, i.e. the trip line
-//!   would be crossed within the lead time. (Armed only at z ≥ 0: the valve closing back towards
-//!   the line after a trip is an approach too, and must not re-trip.) The step is held for
-//!   `trip_hold_s` (the integrator tracks the held opening), then the PI takes over from it;
+//!   would be crossed within the lead time. The rate judged is the filtered rate beyond
+//!   `trip_noise_factor` × its own noise (σ √(T ω³/4) for margin noise σ sampled every T
+//!   through the two-pole filter at ω), and the step grows with the penetration past the
+//!   threshold that fired, so noise neither fires the trip nor enlarges its step. (Armed
+//!   only at z ≥ 0: the valve closing back towards the line after a trip is an approach too,
+//!   and must not re-trip.) The step is held for
+//!   `trip_hold_s` (the integrator tracks the held opening), then the PI takes over from it.
+//!   The hold ends early once the point lies right of the control line and moves away from
+//!   it; the PI then takes over from the measured stem position if the stem, still stroking
+//!   towards the step, has risen from where the trip found it (the opening it has reached
+//!   already suffices);
 //! - the onset trip: the same prediction from the *raw* margin's rate over the last
 //!   `trip_confirm_samples` distinct samples, when they fell strictly and in total by more than
 //!   2 × `trip_noise_factor` × their measured noise (agreement over several samples, thresholds
