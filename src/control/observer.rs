@@ -243,8 +243,12 @@ impl MassFlowObserver {
         } else {
             base
         };
+        // each pass evaluates Ψ̂ at the iterate (its residual, kept if the best so far) and
+        // once more beside it (a forward difference for the slope): a step that has
+        // converged costs three evaluations, as the one-step update did
         let mut best = (f64::INFINITY, base);
-        for _ in 0..NEWTON_ITERATIONS {
+        let mut converged = false;
+        for pass in 0..=NEWTON_ITERATIONS {
             let psi_m = psi(m);
             let g = residual(m, psi_m);
             if !g.is_finite() {
@@ -253,20 +257,17 @@ impl MassFlowObserver {
             if g.abs() < best.0 {
                 best = (g.abs(), m);
             }
+            if converged || pass == NEWTON_ITERATIONS {
+                break;
+            }
             let dm = 1e-6 * m.abs().max(1e-3);
-            let slope = (psi(m + dm) - psi(m - dm)) / (2.0 * dm);
+            let slope = (psi(m + dm) - psi_m) / dm;
             // ∂g/∂m = 1 + h (c2 − p_in ∂Ψ̂/∂m), kept ≥ 1 (a rising characteristic steeper
             // than the gain condition allows must not turn the step around)
             let dg = 1.0 + h * (self.c2 - p_in * slope).max(0.0);
             let step = g / dg;
             m -= step;
-            if step.abs() <= 1e-9 * m.abs().max(1e-3) {
-                break;
-            }
-        }
-        let g_last = residual(m, psi(m));
-        if g_last.is_finite() && g_last.abs() < best.0 {
-            best = (g_last.abs(), m);
+            converged = step.abs() <= 1e-7 * m.abs().max(1e-3);
         }
         let m_new = best.1;
         let z_new = m_new - self.k_z * p;
