@@ -26,10 +26,7 @@
 //!   demand cannot dive below the valve, and noise cannot ratchet the valve open the way
 //!   instantaneous tracking of a rate-limited output does);
 //! - fast opening, rate-limited closing ([15]): the command never falls faster than
-//!   `closing_rate_per_s` beyond the demand's noise band (`trip_noise_factor` × the standard
-//!   deviation the measured noise leaves in the demand); it rises as fast as the PI asks.
-//!   Inside the band the valve follows the demand both ways: an asymmetric limiter turns
-//!   symmetric noise into a one-way opening;
+//!   `closing_rate_per_s`; it rises as fast as the PI asks;
 //! - a minimum opening (`min_opening`);
 //! - the recycle trip ([11], [13]): an open-loop step of `trip_step` when the operating point
 //!   crosses the trip line (surge margin below `trip_margin_pct`, between surge line and SCL)
@@ -356,10 +353,6 @@ pub struct RecyclePi {
     /// Mean time between distinct margins, s (the input's sample period: a poll slower
     /// than the cycle holds each value for several cycles).
     sample_dt_s: f64,
-    /// The PI demand's closing-rate-limited envelope, fraction: it follows the demand up at
-    /// once and down at most at the closing rate; the valve follows the demand down to the
-    /// envelope less the noise band (see `update`).
-    close_env: f64,
     /// Whether the held trip came from the onset detector (it may raise its own level).
     onset_tripped: bool,
     /// The command when the held trip started, fraction.
@@ -509,7 +502,6 @@ impl RecyclePi {
             hist_fallback: false,
             onset_noise: 0.0,
             sample_dt_s: f64::NAN,
-            close_env: f64::NAN,
             onset_tripped: false,
             trip_base: 0.0,
             trip_stem0: f64::NAN,
@@ -610,7 +602,6 @@ impl RecyclePi {
         self.hist_fallback = old.hist_fallback;
         self.onset_noise = old.onset_noise;
         self.sample_dt_s = old.sample_dt_s;
-        self.close_env = old.close_env;
         self.shift_pending = old.shift_pending;
         self.started = true;
         true
@@ -761,38 +752,6 @@ impl RecyclePi {
         }
     }
 
-    /// The noise band of the PI's demand, valve fraction: `trip_noise_factor` × the standard
-    /// deviation the measured margin noise leaves in the demand, K_p × (∂z/∂margin) × σ ×
-    /// √(a/(2 − a)), a = 1 − exp(−2π f_z T) the z filter's gain per input sample of period T
-    /// (the variance a first-order filter passes of white noise sampled at T; 1 without the
-    /// filter). ∂z/∂margin = (∂z/∂q on the line) × j, j the surge-line flow (margin =
-    /// (q − j)/j). The closing-rate limit acts beyond this band only: inside it the valve
-    /// follows the demand both ways, so noise cannot ratchet it open (an asymmetric
-    /// limiter, fast up and slow down, turns symmetric noise into a one-way opening:
-    /// hemchi2016 with 1 % pressure and 2 % Δp noise crept from 12 % to 16 % open and 10 %
-    /// beyond its control line in 10 s).
-    fn noise_band(&self, ratio: f64) -> f64 {
-        let t = self.sample_dt_s;
-        if !(t.is_finite() && self.onset_noise.is_finite() && self.onset_noise > 0.0) {
-            return 0.0;
-        }
-        let filter = if self.cfg.z_filter_hz > 0.0 {
-            let a = 1.0 - (-2.0 * std::f64::consts::PI * self.cfg.z_filter_hz * t).exp();
-            (a / (2.0 - a)).sqrt()
-        } else {
-            1.0
-        };
-        let c = self.scl.flow_at_ratio(ratio);
-        let j = self.scl.surge_line().flow_at_ratio(ratio);
-        let dz_dmargin = (self.cfg.control_variable.slope_on_line(c) * j).abs();
-        let band = self.cfg.trip_noise_factor * self.kp_z * dz_dmargin * self.onset_noise * filter;
-        if band.is_finite() {
-            band
-        } else {
-            0.0
-        }
-    }
-
     /// Standard deviation of the filtered rate of approach that margin noise of standard
     /// deviation `noise` (fraction of surge-line flow) leaves, 1/s: σ √(T ω³/4), T the input's
     /// sample period (`dt_s` until one is measured), ω = 2π `approach_filter_hz`.
@@ -858,7 +817,6 @@ impl SurgeLaw for RecyclePi {
         // bumpless: the first PI output equals the applied opening
         let z0 = self.z_at(m.flow_map, m.pressure_ratio);
         self.u_last = u0;
-        self.close_env = u0;
         self.z_f = z0;
         self.integ = if z0.is_finite() {
             u0 - self.kp_z * z0
@@ -1029,7 +987,6 @@ impl SurgeLaw for RecyclePi {
             let pos = m.recycle_position;
             if pos.is_finite() && pos < self.u_last && pos > self.trip_stem0 + 0.01 {
                 self.u_last = pos.max(self.limits().0);
-                self.close_env = self.u_last;
                 self.integ = self.u_last - self.kp_z * z;
             }
         }
@@ -1149,17 +1106,8 @@ impl SurgeLaw for RecyclePi {
         // fast opening, rate-limited closing ([15]): the valve follows the demand up at once and
         // down at most at the closing rate; the PI keeps its own demand meanwhile. The rate
         // grows with the distance right of the control line: far from it the valve closes
-        // fast (less recycle after a trip or a fail-safe), near it slowly. The limit acts
-        // beyond the demand's noise band: the envelope falls at the closing rate, and the
-        // valve follows the demand down to the envelope less the band (`noise_band`).
-        let band = self.noise_band(r);
-        let env_last = if self.close_env.is_finite() {
-            self.close_env.max(self.u_last)
-        } else {
-            self.u_last
-        };
-        let env = demand.max(env_last - rate * dt);
-        let follow = demand.max(env - band).min(env).max(lo);
+        // fast (less recycle after a trip or a fail-safe), near it slowly.
+        let follow = demand.max(self.u_last - rate * dt);
         let mut u = follow;
         // trip hold: at least the tripped opening
         if self.trip_left_s > 0.0 {
@@ -1189,7 +1137,6 @@ impl SurgeLaw for RecyclePi {
             integ_next
         };
         self.u_last = u;
-        self.close_env = env.max(u);
         self.closing = u > demand;
 
         if event.is_none() && self.shift_pending {
