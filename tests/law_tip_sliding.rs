@@ -416,13 +416,7 @@ fn pressure_noise_of_5000_pa_does_not_surge() {
     let s = &res.summary;
     assert!(!s.flow_reversal && s.surge_cycles == 0, "{s:?}");
     assert!(s.min_flow_kg_s > 0.24);
-    let tail: Vec<f64> = res
-        .trace
-        .iter()
-        .filter(|r| r.t_s >= 12.0)
-        .map(|r| r.m_kg_s)
-        .collect();
-    let mean = tail.iter().sum::<f64>() / tail.len() as f64;
+    let mean = common::mean_from(&res.trace, 12.0, |r| r.m_kg_s);
     assert!((mean - 0.2855).abs() < 0.005, "mean flow {mean}");
     assert!(s.actuator_peaks.tip_clearance_cmd_m <= limit + 1e-12);
     assert!(s.actuator_peaks.thrust_force_n < 0.2 * s.actuator_peaks.thrust_force_rating_n);

@@ -132,13 +132,7 @@ fn with_noise_the_machine_sits_on_its_control_line_not_right_of_it() {
         for margin_pct in [10.0, 5.0] {
             let (r, sim) = run_case_traced(&p, &sc, case, LawId::RecyclePi, margin_pct).unwrap();
             assert_eq!(r.surge_cycles, 0, "{stem} @ {margin_pct} %");
-            let tail: Vec<f64> = sim
-                .trace
-                .iter()
-                .filter(|row| row.t_s >= 12.0)
-                .map(|row| row.surge_margin)
-                .collect();
-            let mean = tail.iter().sum::<f64>() / tail.len() as f64;
+            let mean = common::mean_from(&sim.trace, 12.0, |row| row.surge_margin);
             let off = mean - 0.01 * margin_pct;
             assert!(
                 off.abs() < 0.015,

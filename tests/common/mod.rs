@@ -70,3 +70,20 @@ pub mod counting_alloc;
 pub mod daemon;
 pub mod faults;
 pub mod node;
+
+/// Mean of one trace column over the rows from `t0_s` on (a settled tail), NaN if none.
+pub fn mean_from(
+    trace: &[antisurge::sim::trace::TraceRow],
+    t0_s: f64,
+    column: impl Fn(&antisurge::sim::trace::TraceRow) -> f64,
+) -> f64 {
+    let (sum, n) = trace
+        .iter()
+        .filter(|row| row.t_s >= t0_s)
+        .fold((0.0, 0usize), |(s, n), row| (s + column(row), n + 1));
+    if n == 0 {
+        f64::NAN
+    } else {
+        sum / n as f64
+    }
+}
