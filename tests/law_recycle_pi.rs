@@ -981,9 +981,25 @@ fn first_trip(
     let op = operator();
     let m0 = measurements(q(0), ratio);
     start_at_20pct(law, &m0, &op, model);
+    first_trip_step(law, model, ratio, n, 0.2, q).map(|(k, _)| k)
+}
+
+/// [`first_trip`] on a started law, the valve standing at `u0`, with the trip's step: the
+/// opening it commands less the command of the cycle before, valve fraction.
+fn first_trip_step(
+    law: &mut RecyclePi,
+    model: &ControlModel,
+    ratio: f64,
+    n: usize,
+    u0: f64,
+    q: impl Fn(usize) -> f64,
+) -> Option<(usize, f64)> {
+    let op = operator();
+    let mut u_before = u0;
     for k in 0..n {
         let mut m = measurements(q(k), ratio);
         m.t_s = k as f64 * 1e-3;
+        m.recycle_position = u0;
         let inputs = LawInputs {
             m: &m,
             op: &op,
@@ -991,9 +1007,10 @@ fn first_trip(
             history: &antisurge::control::law::LoopHistory::EMPTY,
         };
         let out = law.update(&inputs, 1e-3);
-        if matches!(out.event, Some(LawEvent::RecycleTrip { .. })) {
-            return Some(k);
+        if let Some(LawEvent::RecycleTrip { opening }) = out.event {
+            return Some((k, opening - u_before));
         }
+        u_before = out.commands.get(ActuatorId::RecycleValve);
     }
     None
 }
@@ -1035,5 +1052,65 @@ fn onset_trip_catches_a_clean_slam_within_its_window_and_noise_never_fires_it() 
         let noisy = |k: usize| q_line * (1.0 + 0.02 * noise[k / hold * hold]);
         let k = first_trip(&mut law, &model, ratio, noise.len(), noisy);
         assert_eq!(k, None, "noise (held {hold} samples) fired a trip");
+    }
+}
+
+/// A steady approach under noise trips with about the step the same approach trips with
+/// clean: the step is sized on the shallowest prediction of the samples that agreed, not on
+/// the last one, whose filtered rate carries the noise (hemchi2016's noisy closure stepped
+/// 4.3 % of valve where the clean one stepped 0.8 %, and recycled more than baseline-pi).
+#[test]
+fn noise_does_not_enlarge_the_trip_step_of_a_steady_approach() {
+    for plant in [KV, HE] {
+        let desc = common::plant(plant);
+        let model = antisurge::sim::control_model(&desc);
+        let cfg = RecyclePiConfig::default();
+        let ratio = 2.0;
+        let q_line = RecyclePi::new(&cfg, &model)
+            .expect("law")
+            .control_line()
+            .flow_at_ratio(ratio);
+        // 3 s 30 % right of the control line (the noise estimates settle), then towards it
+        // at 45 % of its flow per second (hemchi2016's 2-s throttle closure approaches its
+        // line at about that rate)
+        let ramp = |k: usize| q_line * (1.3 - 0.45e-3 * k.saturating_sub(3000) as f64);
+        let closed = |q: f64| {
+            let mut law = RecyclePi::new(&cfg, &model).expect("law");
+            let (m, op) = (measurements(q, ratio), operator());
+            let inputs = LawInputs {
+                m: &m,
+                op: &op,
+                model: &model,
+                history: &antisurge::control::law::LoopHistory::EMPTY,
+            };
+            let mut cur = antisurge::signals::ActuatorCommands::default();
+            cur.set(ActuatorId::RecycleValve, 0.0);
+            law.start(&inputs, &cur);
+            law
+        };
+        let mut law = closed(ramp(0));
+        let (_, clean) =
+            first_trip_step(&mut law, &model, ratio, 5000, 0.0, ramp).expect("the approach trips");
+        for seed in 1..=8u64 {
+            let mut state = 0x9E37_79B9_7F4A_7C15u64 ^ seed.wrapping_mul(0xD1B5_4A32_D192_ED03);
+            let mut law = closed(ramp(0));
+            // ±4 % of the line's flow, uniform (σ ≈ 2.3 %): noise fed through `noisy` in order
+            let noise: Vec<f64> = (0..5000)
+                .map(|_| {
+                    state ^= state >> 12;
+                    state ^= state << 25;
+                    state ^= state >> 27;
+                    let r = state.wrapping_mul(0x2545_F491_4F6C_DD1D);
+                    (r >> 11) as f64 / (1u64 << 53) as f64 * 2.0 - 1.0
+                })
+                .collect();
+            let noisy = |k: usize| ramp(k) + 0.04 * q_line * noise[k];
+            let (k, step) = first_trip_step(&mut law, &model, ratio, 5000, 0.0, noisy)
+                .expect("the noisy approach trips too");
+            assert!(
+                step <= clean + 0.01,
+                "{plant} seed {seed}: noisy step {step:.4} at sample {k}, clean step {clean:.4}"
+            );
+        }
     }
 }

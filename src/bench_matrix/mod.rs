@@ -1303,9 +1303,16 @@ pub fn markdown(rows: &[CaseResult]) -> String {
         };
         let _ = writeln!(
             s,
-            "- {p}: recycle-pi @ 10 % {r10:.3} MJ ≤ baseline-pi @ 10 % {b10:.3} MJ {}; recycle-pi @ 5 % {r5:.3} MJ ≤ 0.9 × {b10:.3} = {lim:.3} MJ {}. Oracle along recycle-pi's runs: {:.3} MJ @ 10 %, {:.3} MJ @ 5 % ({:.3} × baseline-pi @ 10 %); along baseline-pi's: {:.3} MJ @ 10 %, {:.3} MJ @ 5 % ({:.3} ×): {feasible}.",
+            "- {p}: recycle-pi @ 10 % {} MJ ≤ baseline-pi @ 10 % {} MJ {} (ratio {:.4}); recycle-pi @ 5 % {} MJ ≤ 0.9 × {} = {} MJ {} (ratio to baseline-pi @ 10 % {:.4}). Oracle along recycle-pi's runs: {:.3} MJ @ 10 %, {:.3} MJ @ 5 % ({:.3} × baseline-pi @ 10 %); along baseline-pi's: {:.3} MJ @ 10 %, {:.3} MJ @ 5 % ({:.3} ×): {feasible}.",
+            mj5(r10),
+            mj5(b10),
             holds(r10 <= b10),
+            r10 / b10,
+            mj5(r5),
+            mj5(b10),
+            mj5(lim),
             holds(r5 <= lim),
+            r5 / b10,
             o(10.0),
             o(5.0),
             o(5.0) / b10,
@@ -1315,6 +1322,17 @@ pub fn markdown(rows: &[CaseResult]) -> String {
         );
     }
     s
+}
+
+/// An energy in MJ to five significant digits (at least three decimals): the verdicts compare
+/// totals that differ in the fourth digit.
+fn mj5(x: f64) -> String {
+    let digits = if x.is_finite() && x.abs() > 0.0 {
+        (4 - x.abs().log10().floor() as i32).max(3) as usize
+    } else {
+        3
+    };
+    format!("{x:.digits$}")
 }
 
 /// Sum of the oracle recycle energy over the matrix for one plant, along one law's runs at

@@ -35,7 +35,10 @@
 //!   would be crossed within the lead time. The rate judged is the filtered rate beyond
 //!   `trip_noise_factor` × its own noise (σ √(T ω³/4) for margin noise σ sampled every T
 //!   through the two-pole filter at ω), and the step grows with the penetration past the
-//!   threshold that fired, so noise neither fires the trip nor enlarges its step. (Armed
+//!   threshold that fired, taken at the shallowest of the `trip_confirm_samples` samples
+//!   that agreed, so noise neither fires the trip nor enlarges its step. The noise estimates
+//!   start as plain means of their first samples, so a (re)started law judges noise from its
+//!   first samples, not from zero. (Armed
 //!   only at z ≥ 0: the valve closing back towards the line after a trip is an approach too,
 //!   and must not re-trip.) The step is held for
 //!   `trip_hold_s` (the integrator tracks the held opening), then the PI takes over from it.
@@ -194,7 +197,10 @@ pub struct RecyclePiConfig {
     pub trip_margin_pct: f64,
     /// Rate-of-approach trip: fires when the surge margin, extrapolated at its current
     /// (filtered) rate of approach over this horizon, falls below the trip line, s. 0 disables
-    /// the rate criterion. Default 0.5 s.
+    /// the rate criterion. Default 0.3 s: the linear extrapolation ignores the PI, already
+    /// opening, and at 0.5 s it tripped on 2-s throttle closures the PI held alone (both
+    /// recycle plants of the control benchmark; the onset trip, which catches a slam, looks
+    /// no further than the approach filter's lag, 0.16 s, either way).
     pub trip_lead_time_s: f64,
     /// Cut-off of the low-pass on the surge margin before differentiation, Hz (two
     /// cascaded stages). Default 2 Hz.
@@ -235,7 +241,7 @@ impl Default for RecyclePiConfig {
             closing_rate_per_s: 0.1,
             min_opening: 0.0,
             trip_margin_pct: 0.0,
-            trip_lead_time_s: 0.5,
+            trip_lead_time_s: 0.3,
             approach_filter_hz: 2.0,
             z_filter_hz: 1.0,
             trip_step: 0.15,
@@ -332,11 +338,18 @@ pub struct RecyclePi {
     trip_left_s: f64,
     /// Consecutive samples the trip condition held.
     trip_agree: u32,
+    /// The shallowest (largest) prediction over the present run of samples that agreed on a
+    /// trip, surge-margin fraction: a rate trip's step is sized on it, not on the last
+    /// sample's noise.
+    agree_pred_max: f64,
     /// Whether the closing-rate limit held the valve above the PI's demand last cycle (the
     /// law is closing the valve).
     closing: bool,
     /// Running mean absolute deviation of the surge margin from its filtered value (noise).
     margin_noise: f64,
+    /// Samples in `margin_noise` so far (saturating): until it has ≈ 1 s of them, the
+    /// estimate is their plain mean rather than a 1-s average that starts from zero.
+    margin_noise_n: u32,
     /// The two previous raw margins (for the noise estimate).
     margin_prev: [f64; 2],
     /// The last distinct raw margins, newest at `hist_at`, and the time each took since the
@@ -350,6 +363,8 @@ pub struct RecyclePi {
     hist_fallback: bool,
     /// Noise of the distinct margins (mean of half the absolute second difference).
     onset_noise: f64,
+    /// Distinct margins in `onset_noise` so far (saturating; as `margin_noise_n`).
+    onset_noise_n: u32,
     /// Mean time between distinct margins, s (the input's sample period: a poll slower
     /// than the cycle holds each value for several cycles).
     sample_dt_s: f64,
@@ -492,8 +507,10 @@ impl RecyclePi {
             margin_f2_last: f64::NAN,
             trip_left_s: 0.0,
             trip_agree: 0,
+            agree_pred_max: f64::NAN,
             closing: false,
             margin_noise: 0.0,
+            margin_noise_n: 0,
             margin_prev: [f64::NAN; 2],
             margin_hist: [f64::NAN; HIST_LEN],
             hist_dt_s: [f64::NAN; HIST_LEN],
@@ -501,6 +518,7 @@ impl RecyclePi {
             hist_t_s: f64::NAN,
             hist_fallback: false,
             onset_noise: 0.0,
+            onset_noise_n: 0,
             sample_dt_s: f64::NAN,
             onset_tripped: false,
             trip_base: 0.0,
@@ -601,6 +619,9 @@ impl RecyclePi {
         self.hist_t_s = old.hist_t_s;
         self.hist_fallback = old.hist_fallback;
         self.onset_noise = old.onset_noise;
+        self.onset_noise_n = old.onset_noise_n;
+        self.margin_noise = old.margin_noise;
+        self.margin_noise_n = old.margin_noise_n;
         self.sample_dt_s = old.sample_dt_s;
         self.shift_pending = old.shift_pending;
         self.started = true;
@@ -733,7 +754,8 @@ impl RecyclePi {
             self.margin_hist[(self.hist_at + HIST_LEN - 1) % HIST_LEN],
         );
         if p1.is_finite() && p2.is_finite() && age.is_finite() {
-            let a = age.clamp(0.0, 1.0);
+            self.onset_noise_n = self.onset_noise_n.saturating_add(1);
+            let a = noise_weight(age, self.onset_noise_n);
             let d2 = 0.5 * (margin - 2.0 * p1 + p2).abs();
             self.onset_noise += a * (d2 - self.onset_noise);
         }
@@ -906,7 +928,8 @@ impl SurgeLaw for RecyclePi {
         // ≈ 0 for a ramp, so a fast but clean approach does not raise the allowance)
         let [p1, p2] = self.margin_prev;
         if margin.is_finite() && p1.is_finite() && p2.is_finite() {
-            let a = (dt / 1.0).min(1.0);
+            self.margin_noise_n = self.margin_noise_n.saturating_add(1);
+            let a = noise_weight(dt, self.margin_noise_n);
             let d2 = 0.5 * (margin - 2.0 * p1 + p2).abs();
             self.margin_noise += a * (d2 - self.margin_noise);
         }
@@ -931,7 +954,7 @@ impl SurgeLaw for RecyclePi {
         // deviation σ, sampled every T, leaves σ √(T ω³/4) in the derivative of its two-pole
         // low-pass at ω = 2π `approach_filter_hz` (∫ w² |H(jw)|² dw/2π = ω³/4 for H =
         // ω²/(s + ω)²); at a 5 % margin with 1 % pressure noise that is ±0.08/s, which over
-        // the 0.5 s lead time alone crossed the trip line on noise (hemchi2016: four trips in
+        // the then 0.5 s lead time alone crossed the trip line on noise (hemchi2016: four trips in
         // 15 s, each 10-14 % of valve for nothing)
         let rate_noise = self.cfg.trip_noise_factor * self.rate_noise_per_s(noise, dt);
         let predicted = margin_t + self.cfg.trip_lead_time_s * (d_margin + rate_noise).min(0.0);
@@ -943,6 +966,11 @@ impl SurgeLaw for RecyclePi {
             self.trip_agree.saturating_add(1)
         } else {
             0
+        };
+        self.agree_pred_max = if self.trip_agree <= 1 {
+            predicted
+        } else {
+            self.agree_pred_max.max(predicted)
         };
         // onset detector: the raw margin's own rate over the agreement window, without the
         // approach filter's lag (≈ 0.15 s at 2 Hz, far too late for a throttle slam on a
@@ -961,7 +989,7 @@ impl SurgeLaw for RecyclePi {
         let predicted = if onset_now {
             predicted.min(onset_pred)
         } else {
-            predicted
+            self.agree_pred_max
         };
         self.trip_left_s -= dt;
         // the hold ends early once the trip has done its work: the point right of the control
@@ -1015,7 +1043,10 @@ impl SurgeLaw for RecyclePi {
             let depth = if trip_margin > 0.0 {
                 // (the penetration past the threshold that fired: the noise allowance
                 // delays a trip, and counting it in the depth as well stepped 12 % of valve
-                // on hemchi2016's noisy closure where the clean one steps 1 %)
+                // on hemchi2016's noisy closure where the clean one steps 1 %; and, for a
+                // rate trip, the shallowest prediction of the samples that agreed: the last
+                // one alone carries its filtered rate's noise × the lead time, and stepped
+                // 4.3 % there)
                 let d = (trip_margin - allowance - predicted) / trip_margin;
                 if level {
                     d.max(1.0)
@@ -1162,6 +1193,16 @@ impl SurgeLaw for RecyclePi {
             self.shift_pending = true;
         }
     }
+}
+
+/// Weight of a new sample, `age_s` after the one before, in a noise estimate that has
+/// `n` ≥ 1 samples with it: the 1-s running average's weight (the age in seconds), but at
+/// least 1/n, so the first samples make a plain mean instead of an average still near its
+/// starting zero. (From zero, a 1-s average had reached a fifth of ±4 % flow noise after
+/// 200 ms of a 1 kHz loop, and the onset trip fired a 30 % step on that noise, 20 % right
+/// of the control line.)
+fn noise_weight(age_s: f64, n: u32) -> f64 {
+    age_s.clamp(0.0, 1.0).max(1.0 / f64::from(n.max(1)))
 }
 
 /// The trip line at a pressure ratio, as a surge margin (fraction of surge-line flow):
