@@ -1037,8 +1037,19 @@ fn onset_trip_catches_a_clean_slam_within_its_window_and_noise_never_fires_it() 
     );
     // white noise of ±2 % of the line's flow on the line, every sample, then held for 10
     // samples (a 100 Hz poll under a 1 kHz loop): 20 s each without a trip
-    let mut state = 0x9E37_79B9_7F4A_7C15u64;
-    let noise: Vec<f64> = (0..20_000)
+    let noise = uniform_noise(0, 20_000);
+    for hold in [1usize, 10] {
+        let mut law = RecyclePi::new(&cfg, &model).expect("law");
+        let noisy = |k: usize| q_line * (1.0 + 0.02 * noise[k / hold * hold]);
+        let k = first_trip(&mut law, &model, ratio, noise.len(), noisy);
+        assert_eq!(k, None, "noise (held {hold} samples) fired a trip");
+    }
+}
+
+/// ±1 uniform samples (xorshift64*), `n` of them from `seed`.
+fn uniform_noise(seed: u64, n: usize) -> Vec<f64> {
+    let mut state = 0x9E37_79B9_7F4A_7C15u64 ^ seed.wrapping_mul(0xD1B5_4A32_D192_ED03);
+    (0..n)
         .map(|_| {
             state ^= state >> 12;
             state ^= state << 25;
@@ -1046,13 +1057,26 @@ fn onset_trip_catches_a_clean_slam_within_its_window_and_noise_never_fires_it() 
             let r = state.wrapping_mul(0x2545_F491_4F6C_DD1D);
             (r >> 11) as f64 / (1u64 << 53) as f64 * 2.0 - 1.0
         })
-        .collect();
-    for hold in [1usize, 10] {
-        let mut law = RecyclePi::new(&cfg, &model).expect("law");
-        let noisy = |k: usize| q_line * (1.0 + 0.02 * noise[k / hold * hold]);
-        let k = first_trip(&mut law, &model, ratio, noise.len(), noisy);
-        assert_eq!(k, None, "noise (held {hold} samples) fired a trip");
-    }
+        .collect()
+}
+
+/// recycle-pi with its defaults, started on a closed valve at flow `q` (map units) and
+/// pressure ratio `ratio`; with the control line's flow at that ratio.
+fn started_closed(model: &ControlModel, q: impl Fn(f64) -> f64, ratio: f64) -> (RecyclePi, f64) {
+    let cfg = RecyclePiConfig::default();
+    let mut law = RecyclePi::new(&cfg, model).expect("law");
+    let q_line = law.control_line().flow_at_ratio(ratio);
+    let (m, op) = (measurements(q(q_line), ratio), operator());
+    let inputs = LawInputs {
+        m: &m,
+        op: &op,
+        model,
+        history: &antisurge::control::law::LoopHistory::EMPTY,
+    };
+    let mut cur = antisurge::signals::ActuatorCommands::default();
+    cur.set(ActuatorId::RecycleValve, 0.0);
+    law.start(&inputs, &cur);
+    (law, q_line)
 }
 
 /// A steady approach under noise trips with about the step the same approach trips with
@@ -1062,54 +1086,47 @@ fn onset_trip_catches_a_clean_slam_within_its_window_and_noise_never_fires_it() 
 #[test]
 fn noise_does_not_enlarge_the_trip_step_of_a_steady_approach() {
     for plant in [KV, HE] {
-        let desc = common::plant(plant);
-        let model = antisurge::sim::control_model(&desc);
-        let cfg = RecyclePiConfig::default();
+        let model = antisurge::sim::control_model(&common::plant(plant));
         let ratio = 2.0;
-        let q_line = RecyclePi::new(&cfg, &model)
-            .expect("law")
-            .control_line()
-            .flow_at_ratio(ratio);
         // 3 s 30 % right of the control line (the noise estimates settle), then towards it
         // at 45 % of its flow per second (hemchi2016's 2-s throttle closure approaches its
         // line at about that rate)
-        let ramp = |k: usize| q_line * (1.3 - 0.45e-3 * k.saturating_sub(3000) as f64);
-        let closed = |q: f64| {
-            let mut law = RecyclePi::new(&cfg, &model).expect("law");
-            let (m, op) = (measurements(q, ratio), operator());
-            let inputs = LawInputs {
-                m: &m,
-                op: &op,
-                model: &model,
-                history: &antisurge::control::law::LoopHistory::EMPTY,
-            };
-            let mut cur = antisurge::signals::ActuatorCommands::default();
-            cur.set(ActuatorId::RecycleValve, 0.0);
-            law.start(&inputs, &cur);
-            law
-        };
-        let mut law = closed(ramp(0));
-        let (_, clean) =
-            first_trip_step(&mut law, &model, ratio, 5000, 0.0, ramp).expect("the approach trips");
+        let ramp = |q_line: f64, k: usize| q_line * (1.3 - 0.45e-3 * k.saturating_sub(3000) as f64);
+        let (mut law, q_line) = started_closed(&model, |q| ramp(q, 0), ratio);
+        let (_, clean) = first_trip_step(&mut law, &model, ratio, 5000, 0.0, |k| ramp(q_line, k))
+            .expect("the approach trips");
         for seed in 1..=8u64 {
-            let mut state = 0x9E37_79B9_7F4A_7C15u64 ^ seed.wrapping_mul(0xD1B5_4A32_D192_ED03);
-            let mut law = closed(ramp(0));
-            // ±4 % of the line's flow, uniform (σ ≈ 2.3 %): noise fed through `noisy` in order
-            let noise: Vec<f64> = (0..5000)
-                .map(|_| {
-                    state ^= state >> 12;
-                    state ^= state << 25;
-                    state ^= state >> 27;
-                    let r = state.wrapping_mul(0x2545_F491_4F6C_DD1D);
-                    (r >> 11) as f64 / (1u64 << 53) as f64 * 2.0 - 1.0
-                })
-                .collect();
-            let noisy = |k: usize| ramp(k) + 0.04 * q_line * noise[k];
+            let (mut law, _) = started_closed(&model, |q| ramp(q, 0), ratio);
+            // ±4 % of the line's flow, uniform (σ ≈ 2.3 %)
+            let noise = uniform_noise(seed, 5000);
+            let noisy = |k: usize| ramp(q_line, k) + 0.04 * q_line * noise[k];
             let (k, step) = first_trip_step(&mut law, &model, ratio, 5000, 0.0, noisy)
                 .expect("the noisy approach trips too");
             assert!(
                 step <= clean + 0.01,
                 "{plant} seed {seed}: noisy step {step:.4} at sample {k}, clean step {clean:.4}"
+            );
+        }
+    }
+}
+
+/// Noise from the first sample of a fresh start, the point 30 % right of the control line:
+/// no trip. The noise estimates start as a plain mean of their first samples; a 1-s average
+/// starting from zero had reached a fifth of this noise after 200 ms, and the onset trip
+/// fired a 30 % step on it then.
+#[test]
+fn noise_from_the_first_sample_after_a_start_fires_no_trip() {
+    for plant in [KV, HE] {
+        let model = antisurge::sim::control_model(&common::plant(plant));
+        let ratio = 2.0;
+        for seed in 1..=8u64 {
+            let (mut law, q_line) = started_closed(&model, |q| 1.3 * q, ratio);
+            let noise = uniform_noise(seed, 3000);
+            let noisy = |k: usize| q_line * (1.3 + 0.04 * noise[k]);
+            let trip = first_trip_step(&mut law, &model, ratio, noise.len(), 0.0, noisy);
+            assert_eq!(
+                trip, None,
+                "{plant} seed {seed}: (sample, step) of a trip on noise"
             );
         }
     }
