@@ -26,7 +26,10 @@
 //!   demand cannot dive below the valve, and noise cannot ratchet the valve open the way
 //!   instantaneous tracking of a rate-limited output does);
 //! - fast opening, rate-limited closing ([15]): the command never falls faster than
-//!   `closing_rate_per_s`; it rises as fast as the PI asks;
+//!   `closing_rate_per_s`; it rises as fast as the PI asks; a sustained closing (after a
+//!   restart or a trip) stops where the valve is once the point reaches the control line,
+//!   the PI taking over from there, and the approach it caused arms no approach trip for the
+//!   approach filter's lag after (its filtered rate still shows the closing);
 //! - a minimum opening (`min_opening`);
 //! - the recycle trip ([11], [13]): an open-loop step of `trip_step` when the operating point
 //!   crosses the trip line (surge margin below `trip_margin_pct`, between surge line and SCL)
@@ -345,6 +348,10 @@ pub struct RecyclePi {
     /// Whether the closing-rate limit held the valve above the PI's demand last cycle (the
     /// law is closing the valve).
     closing: bool,
+    /// Time left in which an approach counts as the closing's own (see `approach_armed`), s.
+    own_approach_left_s: f64,
+    /// How long the closing-rate limit has been closing the valve without a break, s.
+    closing_for_s: f64,
     /// Running mean absolute deviation of the surge margin from its filtered value (noise).
     margin_noise: f64,
     /// Samples in `margin_noise` so far (saturating): until it has ≈ 1 s of them, the
@@ -509,6 +516,8 @@ impl RecyclePi {
             trip_agree: 0,
             agree_pred_max: f64::NAN,
             closing: false,
+            own_approach_left_s: 0.0,
+            closing_for_s: 0.0,
             margin_noise: 0.0,
             margin_noise_n: 0,
             margin_prev: [f64::NAN; 2],
@@ -691,12 +700,25 @@ impl RecyclePi {
     /// far right (a throttle slam) must trip before the control line: seconds-long valve
     /// strokes cannot catch it there.
     ///
-    /// Never while the closing-rate limit is closing the valve: that approach is the law's
-    /// own doing (after a trip, a fail-safe resume or a load change); the PI stops closing as
-    /// soon as the point reaches the line, and the level trip stays armed throughout.
+    /// Never while the closing-rate limit is closing the valve, nor for the approach filter's
+    /// lag after a sustained closing (its filtered rate still shows the closing): that
+    /// approach is the law's own doing (after a trip, a fail-safe resume or a load change);
+    /// the PI stops closing as soon as the point reaches the line, and the level trip stays
+    /// armed throughout.
     fn approach_armed(&self, z: f64) -> bool {
         !self.closing
+            && self.own_approach_left_s <= 0.0
             && (z >= 0.0 || (self.trip_left_s <= 0.0 && self.u_last <= self.limits().0 + 1e-9))
+    }
+
+    /// Lag of the two-pole approach filter on a ramp, s: 2/ω, ω = 2π `approach_filter_hz`
+    /// (0 without the filter).
+    fn approach_lag_s(&self) -> f64 {
+        if self.cfg.approach_filter_hz > 0.0 {
+            2.0 / (2.0 * std::f64::consts::PI * self.cfg.approach_filter_hz)
+        } else {
+            0.0
+        }
     }
 
     /// The onset detector's prediction: the raw surge margin extrapolated over
@@ -727,7 +749,7 @@ impl RecyclePi {
         }
         // the horizon: the approach filter's lag (two poles), not the whole lead time
         let lag_s = if self.cfg.approach_filter_hz > 0.0 {
-            2.0 / (2.0 * std::f64::consts::PI * self.cfg.approach_filter_hz)
+            self.approach_lag_s()
         } else {
             self.cfg.trip_lead_time_s
         };
@@ -1138,7 +1160,21 @@ impl SurgeLaw for RecyclePi {
         // down at most at the closing rate; the PI keeps its own demand meanwhile. The rate
         // grows with the distance right of the control line: far from it the valve closes
         // fast (less recycle after a trip or a fail-safe), near it slowly.
-        let follow = demand.max(self.u_last - rate * dt);
+        let mut follow = demand.max(self.u_last - rate * dt);
+        // ... and a sustained closing (see below) stops at the control line: once the point
+        // has reached it (z ≥ 0) the valve stays where it is and the PI takes over from
+        // there. After a restart the demand may lie far below the valve (the PI unwound while
+        // the point still ran away from the line), and closing on until the demand met the
+        // valve carried kvangardsnes2009 past its control line at 0.35/s of margin
+        // (HIL link bounce, the seed-form tuning).
+        let lag_s = self.approach_lag_s();
+        let hold_at_line = z >= 0.0
+            && follow < self.u_last
+            && self.closing_for_s >= lag_s
+            && self.closing_for_s > 0.0;
+        if hold_at_line {
+            follow = self.u_last;
+        }
         let mut u = follow;
         // trip hold: at least the tripped opening
         if self.trip_left_s > 0.0 {
@@ -1162,13 +1198,30 @@ impl SurgeLaw for RecyclePi {
             } else {
                 integ_next
             }
+        } else if hold_at_line {
+            u - self.kp_z * z
         } else if u > demand && z < 0.0 {
             self.integ
         } else {
             integ_next
         };
         self.u_last = u;
-        self.closing = u > demand;
+        self.closing = u > demand && !hold_at_line;
+        // a sustained closing (longer than the approach filter's lag: after a restart or a
+        // trip, not a noisy demand dipping for a cycle) moves the point towards the line by
+        // the law's own doing, and its filtered rate still shows that for the filter's lag
+        // after it ends: the approach trips wait that long (kvangardsnes2009 on the HIL link
+        // bounce, the seed-form tuning: the closing after the resume ended with the point
+        // still approaching at 0.35/s of margin, which fired a 15 % trip at once)
+        if self.closing {
+            self.closing_for_s += dt;
+        } else {
+            if self.closing_for_s >= lag_s && lag_s > 0.0 {
+                self.own_approach_left_s = lag_s;
+            }
+            self.closing_for_s = 0.0;
+            self.own_approach_left_s -= dt;
+        }
 
         if event.is_none() && self.shift_pending {
             self.shift_pending = false;
