@@ -280,6 +280,9 @@ pub struct ControlCore {
     /// Whether fail-safe has taken the drive's reported torque as its held torque since the
     /// report became fresh.
     failsafe_torque_latched: bool,
+    /// The last finite torque fail-safe held, N·m (a resume without the drive's report
+    /// takes over from it while fail-safe leaves the torque uncommanded).
+    failsafe_held_torque_nm: f64,
     /// The law's own torque of the last computing cycle (repeated by a holding cycle), N·m.
     last_law_torque_nm: f64,
     /// The law was rebuilt by a reload while it ran (same law, new settings): its restart
@@ -335,6 +338,7 @@ impl ControlCore {
             healthy_since_s: f64::NAN,
             reported_torque_nm: f64::NAN,
             failsafe_torque_latched: false,
+            failsafe_held_torque_nm: f64::NAN,
             last_law_torque_nm: f64::NAN,
             reload_restart: false,
             dp_frozen: FrozenDpCheck::new(),
@@ -755,11 +759,26 @@ impl ControlCore {
         // own governor with a stale command), else the last command
         // (taken once per fresh report stretch: the drive then follows the held command, and
         // re-tracking its lagging report would make the command chatter)
+        // While the drive's report is bound but stale (the link is down: the skid hears nothing
+        // from the controller either, and its drive runs on its own governor) the torque is
+        // not commanded (NaN: "not available" on CAN, no write on Modbus): when the link comes
+        // back, the frames sent before the controller has read the drive's report would
+        // otherwise hand the drive a stale command (HIL link_bounce: steps of 400 N·m as the
+        // drive left its governor for it, and back).
+        let last_torque = self.last.get(ActuatorId::DriveTorque);
+        if last_torque.is_finite() {
+            self.failsafe_held_torque_nm = last_torque;
+        }
+        let report_stale = validity.fault[SensorId::DriveTorque.index()] == InputFault::Stale;
         let held = if self.reported_torque_nm.is_finite() && !self.failsafe_torque_latched {
             self.failsafe_torque_latched = true;
             self.reported_torque_nm
+        } else if report_stale {
+            f64::NAN
+        } else if last_torque.is_finite() {
+            last_torque
         } else {
-            self.last.get(ActuatorId::DriveTorque)
+            self.failsafe_held_torque_nm
         };
         cmd.set(ActuatorId::DriveTorque, held);
         self.history.push(cmd.get(ActuatorId::DriveTorque));
@@ -916,8 +935,10 @@ impl ControlCore {
             };
             let from = if actual.is_finite() {
                 actual
-            } else {
+            } else if self.last.get(ActuatorId::DriveTorque).is_finite() {
                 self.last.get(ActuatorId::DriveTorque)
+            } else {
+                self.failsafe_held_torque_nm
             };
             if from.is_finite() {
                 self.speed
@@ -1419,6 +1440,54 @@ mod tests {
             .commands
             .get(ActuatorId::DriveTorque);
         assert!((t - held).abs() < 5.0, "resumed at {t}, held {held}");
+    }
+
+    #[test]
+    fn with_the_link_down_fail_safe_leaves_the_torque_to_the_drive_and_resumes_from_its_report() {
+        // a link down: every reading stale (the last values kept, aged past their timeouts)
+        let (mut core, raw, op) = started(1.0);
+        let held = core
+            .cycle(0.0, &raw, &op)
+            .commands
+            .get(ActuatorId::DriveTorque);
+        assert!(held.is_finite());
+        for k in 1..=200 {
+            let out = core.cycle(k as f64 * 1e-3, &aged(&raw, k as f64 * 1e-3), &op);
+            if out.mode == Mode::FailSafe {
+                // not commanded: the drive keeps its own governor, and no stale command
+                // reaches it in the first frames after the link is back
+                assert!(
+                    out.commands.get(ActuatorId::DriveTorque).is_nan(),
+                    "torque {} commanded in fail-safe with the drive's report stale",
+                    out.commands.get(ActuatorId::DriveTorque)
+                );
+            }
+        }
+        // the link is back, the drive delivering 400 N·m more on its governor: fail-safe
+        // holds that, and the resume takes over from it
+        let mut back = raw;
+        back.values.set(SensorId::DriveTorque, held + 400.0);
+        let mut first = None;
+        for k in 201..=1500 {
+            let out = core.cycle(k as f64 * 1e-3, &back, &op);
+            let t = out.commands.get(ActuatorId::DriveTorque);
+            first.get_or_insert(t);
+            assert!(
+                (t - (held + 400.0)).abs() < 5.0,
+                "torque {t} at {} s ({:?}), the drive at {}",
+                k as f64 * 1e-3,
+                out.mode,
+                held + 400.0
+            );
+        }
+        assert!(first.is_some());
+        // a drive that does not report torque (its reading not available): fail-safe holds
+        // the last command, as before
+        let (mut core, raw, op) = started(1.0);
+        core.cycle(0.0, &raw, &op);
+        let out = core.cycle(0.001, &RawSensors::missing(), &op);
+        assert_eq!(out.mode, Mode::FailSafe);
+        assert_eq!(out.commands.get(ActuatorId::DriveTorque), held);
     }
 
     #[test]
