@@ -1403,16 +1403,22 @@ mod tests {
         );
     }
 
-    #[test]
-    fn resume_after_fail_safe_takes_over_from_the_reported_drive_torque() {
-        // the drive ran on its own governor during the fail-safe and now delivers 300 N·m
-        // more than the controller held: the speed loop restarts from what the drive reports
+    /// [`started`], one cycle run in auto: with the torque it commands, N·m.
+    fn started_holding_torque() -> (ControlCore, RawSensors, OperatorInputs, f64) {
         let (mut core, raw, op) = started(1.0);
         let held = core
             .cycle(0.0, &raw, &op)
             .commands
             .get(ActuatorId::DriveTorque);
         assert!(held.is_finite());
+        (core, raw, op, held)
+    }
+
+    #[test]
+    fn resume_after_fail_safe_takes_over_from_the_reported_drive_torque() {
+        // the drive ran on its own governor during the fail-safe and now delivers 300 N·m
+        // more than the controller held: the speed loop restarts from what the drive reports
+        let (mut core, raw, op, held) = started_holding_torque();
         for k in 1..=100 {
             let out = core.cycle(k as f64 * 1e-3, &RawSensors::missing(), &op);
             assert_eq!(out.mode, Mode::FailSafe);
@@ -1445,12 +1451,7 @@ mod tests {
     #[test]
     fn with_the_link_down_fail_safe_leaves_the_torque_to_the_drive_and_resumes_from_its_report() {
         // a link down: every reading stale (the last values kept, aged past their timeouts)
-        let (mut core, raw, op) = started(1.0);
-        let held = core
-            .cycle(0.0, &raw, &op)
-            .commands
-            .get(ActuatorId::DriveTorque);
-        assert!(held.is_finite());
+        let (mut core, raw, op, held) = started_holding_torque();
         for k in 1..=200 {
             let out = core.cycle(k as f64 * 1e-3, &aged(&raw, k as f64 * 1e-3), &op);
             if out.mode == Mode::FailSafe {
