@@ -91,7 +91,7 @@ scenario = "throttle-closure"
 
     // a different gain commands something else over the same inputs
     let mut other = rec.header.controller.clone();
-    other.recycle_pi.kp_per_map_flow *= 3.0;
+    other.recycle_pi.pi.kp_per_map_flow *= 3.0;
     let changed = replay::replay(&rec, setup(other)).expect("replay");
     assert!(
         changed.report.identical_cycles < changed.report.cycles,
@@ -142,7 +142,7 @@ scenario = "throttle-closure"
         .starts_with("t_s,mode_recorded,mode_replayed"));
 
     // with a changed gain (another config): the recorded commands beside the replayed ones
-    let kp = rec.header.controller.recycle_pi.kp_per_map_flow * 3.0;
+    let kp = rec.header.controller.recycle_pi.pi.kp_per_map_flow * 3.0;
     let cfg2 = dir.join("candidate.toml");
     let text1 = std::fs::read_to_string(&cfg).expect("config");
     std::fs::write(

@@ -90,10 +90,10 @@ fn conf_d_overrides_the_main_file_in_file_name_order() {
     assert_eq!(l.config.cycle.priority, Some(80));
     assert_eq!(l.law, LawId::RecyclePi);
     // controller overrides merge key by key across layers, over the plant file's values
-    assert_eq!(l.controller.recycle_pi.kp_per_map_flow, 10.0);
-    assert_eq!(l.controller.recycle_pi.ki_per_map_flow_s, 12.0);
+    assert_eq!(l.controller.recycle_pi.pi.kp_per_map_flow, 10.0);
+    assert_eq!(l.controller.recycle_pi.pi.ki_per_map_flow_s, 12.0);
     assert_eq!(
-        l.controller.recycle_pi.trip_margin_pct, 10.0,
+        l.controller.recycle_pi.trip.margin_pct, 10.0,
         "the plant file's value"
     );
     let layers: Vec<String> = l.layers.iter().map(|x| name(&x.path)).collect();

@@ -68,7 +68,7 @@ fn print_names_the_source_of_a_value_from_each_layer() {
         "{l}"
     );
     // the plant file's tuned [controller] table, with its line
-    let l = line("controller.recycle_pi.kp_per_map_flow");
+    let l = line("controller.recycle_pi.pi.kp_per_map_flow");
     let plant_text = std::fs::read_to_string(&plant).unwrap();
     let n = plant_text
         .lines()

@@ -154,7 +154,7 @@ kp_per_map_flow = KP
         .collect();
     assert_eq!(applied.len(), 1, "{ctx}");
     assert!(
-        applied[0].contains("controller.recycle_pi.kp_per_map_flow"),
+        applied[0].contains("controller.recycle_pi.pi.kp_per_map_flow"),
         "{ctx}"
     );
     assert!(applied[0].contains("16.0"), "{ctx}");

@@ -151,7 +151,7 @@ fn assert_settles_on_line(what: &str, p: &PlantCase, r: &SimResult, bound_s: f64
         .map(|row| row.law_diagnostic)
         .collect();
     let zmax = tail.iter().fold(0.0f64, |a, z| a.max(z.abs()));
-    let scale = match p.controller.recycle_pi.control_variable {
+    let scale = match p.controller.recycle_pi.pi.control_variable {
         ControlVariable::Strategy2 => 1.0,
         // z₁ = c² z₂: compare in strategy-2 units
         ControlVariable::Strategy1 => law.design_flow().powi(2),
@@ -171,7 +171,7 @@ fn assert_settles_on_line(what: &str, p: &PlantCase, r: &SimResult, bound_s: f64
 }
 
 fn with_strategy(stem: &str, cv: ControlVariable) -> PlantCase {
-    plant_with(stem, |c| c.control_variable = cv)
+    plant_with(stem, |c| c.pi.control_variable = cv)
 }
 
 const STRATEGIES: [ControlVariable; 2] = [ControlVariable::Strategy1, ControlVariable::Strategy2];
@@ -258,7 +258,7 @@ fn fine_step() -> Scenario {
 fn valve_never_closes_faster_than_its_closing_rate() {
     for stem in [KV, HE] {
         let p = common::plant(stem);
-        let rate = p.controller.recycle_pi.closing_rate_per_s;
+        let rate = p.controller.recycle_pi.closing.rate_per_s;
         let r = common::simulate(&p, &fine_step(), LawId::RecyclePi);
         let cmd: Vec<(f64, f64, f64)> = r
             .trace
@@ -316,7 +316,7 @@ fn throttle_step_is_caught_by_the_recycle_trip() {
         assert_settles_on_line(&format!("{stem}/throttle_step"), &p, &r, bound);
         // the trace's largest command jump between two consecutive 5 ms rows within 3 s of
         // the throttle step
-        let step = p.controller.recycle_pi.trip_step;
+        let step = p.controller.recycle_pi.trip.step;
         let rows: Vec<&TraceRow> = r
             .trace
             .iter()
@@ -326,7 +326,7 @@ fn throttle_step_is_caught_by_the_recycle_trip() {
             .windows(2)
             .map(|w| w[1].cmd_recycle_valve - w[0].cmd_recycle_valve)
             .fold(0.0f64, f64::max);
-        let no_trip = plant_with(stem, |c| c.trip_step = 0.0);
+        let no_trip = plant_with(stem, |c| c.trip.step = 0.0);
         let r = common::simulate(
             &no_trip,
             &common::scenario("throttle_step"),
@@ -346,10 +346,10 @@ fn throttle_step_is_caught_by_the_recycle_trip() {
     // the trip is what saves a slowly tuned PI: without it the step surges the machine
     let slow = |trip: bool| {
         plant_with(KV, move |c| {
-            c.kp_per_map_flow = 0.2;
-            c.ki_per_map_flow_s = 0.5;
+            c.pi.kp_per_map_flow = 0.2;
+            c.pi.ki_per_map_flow_s = 0.5;
             if !trip {
-                c.trip_step = 0.0;
+                c.trip.step = 0.0;
             }
         })
     };
@@ -563,8 +563,8 @@ fn safety_on_moves_the_line_one_step_per_surge_up_to_its_cap() {
     let desc = common::plant(KV);
     let model = antisurge::sim::control_model(&desc);
     let mut cfg = model.controller.recycle_pi.clone();
-    cfg.safety_on_step_pct = 5.0;
-    cfg.safety_on_max_pct = 12.0;
+    cfg.safety_on.step_pct = 5.0;
+    cfg.safety_on.max_pct = 12.0;
     let mut law = RecyclePi::new(&cfg, &model).expect("law");
     let op = operator();
     let r = 2.2;
@@ -603,9 +603,9 @@ fn safety_on_shifts_after_a_surge_in_closed_loop() {
     // detector reports it and the control line moves right; the machine then settles on the
     // shifted line
     let p = plant_with(KV, |c| {
-        c.kp_per_map_flow = 0.2;
-        c.ki_per_map_flow_s = 0.5;
-        c.trip_step = 0.0;
+        c.pi.kp_per_map_flow = 0.2;
+        c.pi.ki_per_map_flow_s = 0.5;
+        c.trip.step = 0.0;
     });
     let sc = common::scenario_text(
         "name='step-long'\ndescription='throttle_step, 40 s'\nduration_s=40\n\
@@ -613,7 +613,7 @@ fn safety_on_shifts_after_a_surge_in_closed_loop() {
     );
     let r = common::simulate(&p, &sc, LawId::RecyclePi);
     let ev = r.summary.law_events;
-    let step = 0.01 * p.controller.recycle_pi.safety_on_step_pct;
+    let step = 0.01 * p.controller.recycle_pi.safety_on.step_pct;
     assert!(r.summary.surge_cycles >= 1, "{:?}", r.summary);
     assert!(ev.safety_on_shifts >= 1, "{ev:?}");
     assert!(
@@ -722,7 +722,7 @@ fn control_line_left_of_the_trip_line_is_rejected() {
         margin_pct: 3.0,
         offset: 0.0,
     };
-    cfg.trip_margin_pct = 5.0;
+    cfg.trip.margin_pct = 5.0;
     let mut all = model.controller.clone();
     all.recycle_pi = cfg;
     let e = Law::new(LawId::RecyclePi, &all, &model).unwrap_err();
@@ -743,7 +743,7 @@ fn law_cycle_does_not_allocate() {
     };
     for cv in STRATEGIES {
         let mut cfg = model.controller.recycle_pi.clone();
-        cfg.control_variable = cv;
+        cfg.pi.control_variable = cv;
         let mut law = RecyclePi::new(&cfg, &model).expect("law");
         let mut cur = antisurge::signals::ActuatorCommands::default();
         cur.set(ActuatorId::RecycleValve, 0.2);
@@ -835,7 +835,7 @@ fn hot_retune_while_the_valve_closes_at_its_rate_limit_is_bumpless() {
     // the daemon's hot-reload case: K_p 10 → 16 while the trip-opened valve closes at its
     // closing rate and the PI demand lies below it
     let base = rate_limited_closure_with_switch(f64::INFINITY, |_| {});
-    let rate = common::plant(KV).controller.recycle_pi.closing_rate_per_s;
+    let rate = common::plant(KV).controller.recycle_pi.closing.rate_per_s;
     // a moment during the throttle closure where the valve has closed at exactly the rate
     // limit for the last 20 ms
     let rows = &base.trace;
@@ -851,7 +851,7 @@ fn hot_retune_while_the_valve_closes_at_its_rate_limit_is_bumpless() {
     let t_sw = rows[k_sw].t_s;
     let retune = |core: &mut antisurge::control::core::ControlCore| {
         let mut cfg = core.config().clone();
-        cfg.recycle_pi.kp_per_map_flow = 16.0;
+        cfg.recycle_pi.pi.kp_per_map_flow = 16.0;
         core.apply_config(cfg).expect("apply");
     };
     let r = rate_limited_closure_with_switch(t_sw, retune);
@@ -895,7 +895,7 @@ fn hot_reload_during_observer_fallback_stays_in_auto() {
     let r = common::simulate_with(&p, &sc, LawId::RecyclePi, &mut |t, core| {
         let mut cfg = core.config().clone();
         if (t - 6.0).abs() < 1e-9 {
-            cfg.recycle_pi.ki_per_map_flow_s *= 1.01;
+            cfg.recycle_pi.pi.ki_per_map_flow_s *= 1.01;
             core.apply_config(cfg).expect("apply");
         } else if (t - 7.0).abs() < 1e-9 {
             cfg.observer.c2_pa_s_kg = 1.5 * c2;
@@ -943,7 +943,7 @@ fn retune_keeps_safety_on_shifts_and_counters() {
     assert!(shift > 0.0);
 
     let mut cfg = model.controller.recycle_pi.clone();
-    cfg.kp_per_map_flow *= 2.0;
+    cfg.pi.kp_per_map_flow *= 2.0;
     let mut retuned = RecyclePi::new(&cfg, &model).expect("law");
     assert!(retuned.take_over_from(&law));
     assert_eq!(retuned.control_line().shift, shift);
@@ -1007,7 +1007,7 @@ fn first_trip_step(
             history: &antisurge::control::law::LoopHistory::EMPTY,
         };
         let out = law.update(&inputs, 1e-3);
-        if let Some(LawEvent::RecycleTrip { opening }) = out.event {
+        if let Some(LawEvent::RecycleTrip { opening, .. }) = out.event {
             return Some((k, opening - u_before));
         }
         u_before = out.commands.get(ActuatorId::RecycleValve);
@@ -1020,7 +1020,9 @@ fn onset_trip_catches_a_clean_slam_within_its_window_and_noise_never_fires_it() 
     let desc = common::plant(KV);
     let model = antisurge::sim::control_model(&desc);
     let cfg = RecyclePiConfig::default();
-    let confirm = cfg.trip_confirm_samples as usize;
+    // samples at 1 kHz within which the slam must trip: the confirmation (10 ms) and the
+    // few samples before the 20-ms slope predicts the crossing
+    let confirm = (1e3 * cfg.trip.confirm_s) as usize + 15;
     let ratio = 2.2;
     let q_line = RecyclePi::new(&cfg, &model)
         .expect("law")
@@ -1196,4 +1198,140 @@ fn the_closing_after_a_link_bounce_stops_at_the_control_line_without_a_trip() {
             "{stem}: {left:.4} of the line's flow left of it"
         );
     }
+}
+
+/// Seed 002's recycle plant (kvangardsnes2009), feed 12 → 7 kg/s over 1 s, closed through the
+/// same measurement path (the control core) by `law` or, with `law = None`, by the textbook
+/// PI of `textbook` below; returns the valve command trajectory (one value per 1-ms cycle)
+/// and the run's summary.
+fn feed_drop_12_to_7(
+    p: &PlantCase,
+    law: LawId,
+    mut textbook: Option<&mut dyn FnMut(f64, &Measurements) -> f64>,
+) -> (Vec<f64>, antisurge::sim::Summary) {
+    use antisurge::control::core::{ControlCore, CoreSettings};
+    use antisurge::sim::PlantRun;
+    let sc = common::scenario_text(
+        "name='feed-12-to-7'\ndescription='feed 12 -> 7 kg/s'\nduration_s=12\n\
+         [initial]\nfeed=1.7142857142857142\n\
+         [[event]]\nat_s=2\nramp={signal='feed', to=1.0, over_s=1.0}\n",
+    );
+    let model = antisurge::sim::control_model(p);
+    let settings = CoreSettings::defaults_for(&model);
+    let mut pr = PlantRun::new(p, &sc).expect("plant");
+    let t0_torque = pr.plant().truth().load_torque_nm;
+    let nominal = model.drive.nominal_speed_rad_s;
+    let config = model.controller.clone();
+    let mut core = ControlCore::new(model, config, settings, law, t0_torque).expect("core");
+    let dt = pr.dt_s();
+    let n = pr.n_steps();
+    let mut valve = Vec::with_capacity(n + 1);
+    for k in 0..=n {
+        let t = k as f64 * dt;
+        let (st, raw) = pr.sense(t);
+        let op = OperatorInputs {
+            speed_setpoint_rad_s: nominal * st.speed_setpoint,
+            throttle_demand: st.throttle,
+            flow_setpoint_kg_s: st.flow_setpoint_kg_s,
+            recycle_manual: st.recycle_manual,
+        };
+        let out = core.cycle(t, &raw, &op);
+        let mut cmd = out.commands;
+        if let Some(f) = textbook.as_mut() {
+            cmd.set(ActuatorId::RecycleValve, f(dt, &out.measurements));
+        }
+        valve.push(cmd.get(ActuatorId::RecycleValve));
+        let view = antisurge::sim::ControllerView::of(&out);
+        pr.record(k, t, dt, &raw, &cmd, &view);
+        if k == n {
+            break;
+        }
+        pr.advance(&st, &cmd, dt);
+    }
+    (valve, pr.finish(law.name()).summary)
+}
+
+/// With every extra off, recycle-pi *is* a textbook PI: seed 002's recycle plant with the
+/// seed's strategy-1 gains (K_p = 2, K_i = 10 on z₁ = c(R)² − q|q|, configured per map flow
+/// as 2·(2 q_ref) and 10·(2 q_ref)), feed 12 → 7 kg/s: it settles, and its valve trajectory
+/// matches an independent textbook PI with conditional integration, written here, on the
+/// same plant through the same measurements, within 1 % of travel.
+#[test]
+fn with_every_extra_off_recycle_pi_is_the_textbook_pi() {
+    let mut p = common::plant(KV);
+    let model = antisurge::sim::control_model(&p);
+    let q_ref = RecyclePi::new(&model.controller.recycle_pi, &model)
+        .expect("law")
+        .design_flow();
+    {
+        let c = &mut p.controller.recycle_pi;
+        c.pi.control_variable = ControlVariable::Strategy1;
+        c.pi.kp_per_map_flow = 2.0 * (2.0 * q_ref);
+        c.pi.ki_per_map_flow_s = 10.0 * (2.0 * q_ref);
+        c.pi.z_filter_hz = 0.0;
+        c.trip.enabled = false;
+        c.closing.enabled = false;
+        c.safety_on.step_pct = 0.0;
+        c.esd.decel_pct_per_s = 0.0;
+        c.min_opening = 0.0;
+    }
+    let law = law_of(&p);
+    let scl = *law.control_line();
+    let (ours, summary) = feed_drop_12_to_7(&p, LawId::RecyclePi, None);
+    assert_eq!(
+        summary.surge_cycles, 0,
+        "recycle-pi, every extra off: {summary:#?}"
+    );
+    assert!(
+        !summary.flow_reversal,
+        "recycle-pi, every extra off: {summary:#?}"
+    );
+    // the independent textbook PI: u = clamp(K_p e + I), İ = K_i e unless saturated with e
+    // pushing further; e = c(R)² − q|q| (seed 002 eq. 4.19)
+    let (kp, ki) = (2.0, 10.0);
+    let mut integ = f64::NAN;
+    let mut pi = |dt: f64, m: &Measurements| -> f64 {
+        let c = scl.flow_at_ratio(m.pressure_ratio);
+        let e = c * c - m.flow_map * m.flow_map.abs();
+        if integ.is_nan() {
+            // bumpless from the valve's measured position
+            integ = m.recycle_position - kp * e;
+        }
+        let raw = kp * e + integ;
+        let u = raw.clamp(0.0, 1.0);
+        if !((raw >= 1.0 && e > 0.0) || (raw <= 0.0 && e < 0.0)) {
+            integ += ki * e * dt;
+        }
+        u
+    };
+    let (theirs, their_summary) = feed_drop_12_to_7(&p, LawId::None, Some(&mut pi));
+    assert_eq!(their_summary.surge_cycles, 0, "the textbook PI settles too");
+    let worst = ours
+        .iter()
+        .zip(&theirs)
+        .enumerate()
+        .map(|(k, (a, b))| ((a - b).abs(), k))
+        .fold((0.0f64, 0), |w, x| if x.0 > w.0 { x } else { w });
+    let travel = theirs.iter().cloned().fold(f64::NEG_INFINITY, f64::max)
+        - theirs.iter().cloned().fold(f64::INFINITY, f64::min);
+    eprintln!(
+        "textbook PI: travel {travel:.4}, largest difference {:.5} at {:.3} s",
+        worst.0,
+        worst.1 as f64 * 1e-3
+    );
+    assert!(travel > 0.05, "the disturbance moves the valve: {travel}");
+    assert!(
+        worst.0 <= 0.01,
+        "differs by {:.4} at {:.3} s",
+        worst.0,
+        worst.1 as f64 * 1e-3
+    );
+    // and it settles: the last 2 s hold the valve within 0.5 % of travel
+    let tail = &ours[ours.len() - 2000..];
+    let (lo, hi) = tail
+        .iter()
+        .fold((f64::INFINITY, f64::NEG_INFINITY), |(l, h), u| {
+            (l.min(*u), h.max(*u))
+        });
+    assert!(hi - lo < 0.005, "still moving {lo:.4}..{hi:.4}");
 }

@@ -65,7 +65,7 @@ fn reloads_allocate_nothing_on_the_control_thread_for_every_law_and_plant() {
             // the other law for the switch: the next applicable one
             let other = laws[(laws.iter().position(|l| *l == law).expect("law") + 1) % laws.len()];
             let mut gains = cfg.clone();
-            gains.recycle_pi.kp_per_map_flow *= 1.5;
+            gains.recycle_pi.pi.kp_per_map_flow *= 1.5;
             gains.derivative_filter_hz *= 0.8;
             gains.detector = Default::default();
             let update = |c: &antisurge::control::ControllerConfig, l: LawId| ControlUpdate {

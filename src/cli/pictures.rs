@@ -48,7 +48,7 @@ pub fn draw_trace(
         recycle: desc
             .file
             .recycle_system
-            .map(|_| (rp.control_line, rp.trip_margin_pct)),
+            .map(|_| (rp.control_line, rp.trip.margin_pct)),
     };
     draw_run(dir, &machine, trace, title, events, None)
 }

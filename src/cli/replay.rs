@@ -132,7 +132,7 @@ pub fn run(args: &ReplayArgs) -> Result<std::process::ExitCode> {
             recycle: loaded
                 .model
                 .recycle_valve
-                .map(|_| (rp.control_line, rp.trip_margin_pct)),
+                .map(|_| (rp.control_line, rp.trip.margin_pct)),
         };
         no_map = machine.map.is_none();
         let title = format!(

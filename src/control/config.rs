@@ -68,8 +68,8 @@ fn default_derivative_hz() -> f64 {
 /// of [`ControllerConfig::default`], from the seeds): a value outside is refused by
 /// `check-config`, at start and on reload, before it can reach a running law.
 pub const BOUNDED_GAINS: &[&str] = &[
-    "recycle_pi.kp_per_map_flow",
-    "recycle_pi.ki_per_map_flow_s",
+    "recycle_pi.pi.kp_per_map_flow",
+    "recycle_pi.pi.ki_per_map_flow_s",
     "recycle_fl.k_flow_per_s2",
     "recycle_fl.k_flow_rate_per_s",
     "recycle_fl.k_integral_per_s3",
@@ -172,9 +172,20 @@ impl ControllerConfig {
                 out.push(p);
             }
         }
-        if self.recycle_pi.kp_per_map_flow == 0.0 && self.recycle_pi.ki_per_map_flow_s == 0.0 {
+        let pi = &self.recycle_pi.pi;
+        let (kp, ki, key) = match pi.control_variable {
+            crate::control::recycle_pi::ControlVariable::Deviation => {
+                (pi.kp, pi.ki_per_s, "recycle_pi.pi.kp")
+            }
+            _ => (
+                pi.kp_per_map_flow,
+                pi.ki_per_map_flow_s,
+                "recycle_pi.pi.kp_per_map_flow",
+            ),
+        };
+        if kp == 0.0 && ki == 0.0 {
             out.push((
-                "recycle_pi.kp_per_map_flow".into(),
+                key.into(),
                 "kp and ki are both 0: recycle-pi would never move the valve".into(),
             ));
         }
@@ -196,15 +207,15 @@ mod tests {
     #[test]
     fn absurd_and_zero_gains_are_refused() {
         let mut c = ControllerConfig::default();
-        c.recycle_pi.kp_per_map_flow = 1e308;
+        c.recycle_pi.pi.kp_per_map_flow = 1e308;
         let p = c.plausibility_problems();
         assert_eq!(p.len(), 1, "{p:?}");
-        assert_eq!(p[0].0, "recycle_pi.kp_per_map_flow");
+        assert_eq!(p[0].0, "recycle_pi.pi.kp_per_map_flow");
         assert!(p[0].1.contains("plausible range"), "{p:?}");
 
         let mut c = ControllerConfig::default();
-        c.recycle_pi.kp_per_map_flow = 0.0;
-        c.recycle_pi.ki_per_map_flow_s = 0.0;
+        c.recycle_pi.pi.kp = 0.0;
+        c.recycle_pi.pi.ki_per_s = 0.0;
         let p = c.plausibility_problems();
         assert!(p.iter().any(|(_, m)| m.contains("both 0")), "{p:?}");
 

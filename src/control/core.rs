@@ -527,7 +527,7 @@ impl ControlCore {
         match &self.law {
             Law::RecyclePi(l) => Some((
                 *l.control_line(),
-                0.01 * self.config.recycle_pi.trip_margin_pct,
+                0.01 * self.config.recycle_pi.trip.margin_pct,
             )),
             _ => None,
         }

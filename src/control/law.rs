@@ -437,6 +437,8 @@ pub enum LawEvent {
     RecycleTrip {
         /// Opening stepped to, fraction.
         opening: f64,
+        /// Which criterion fired.
+        cause: TripCause,
     },
     /// Safety-on: the control line moved right after a surge.
     SafetyOnShift {
@@ -445,6 +447,17 @@ pub enum LawEvent {
         /// Shifts so far.
         count: u32,
     },
+}
+
+/// Why a law's recycle trip fired.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum TripCause {
+    /// The operating point crossed the trip line.
+    TripLine,
+    /// The operating point was predicted to cross the trip line within the lead time.
+    PredictedCrossing,
+    /// The shaft decelerated like a drive trip (emergency shutdown).
+    SpeedDecay,
 }
 
 /// One law's state machine.

@@ -103,7 +103,7 @@ impl MapLines {
             surge,
             control,
             trip_margin: if has_control_line {
-                0.01 * cfg.recycle_pi.trip_margin_pct
+                0.01 * cfg.recycle_pi.trip.margin_pct
             } else {
                 f64::NAN
             },

@@ -83,7 +83,7 @@ mod tests {
 
     #[test]
     fn live_keys() {
-        assert!(is_live_key("controller.recycle_pi.kp"));
+        assert!(is_live_key("controller.recycle_pi.pi.kp"));
         assert!(is_live_key("control.law"));
         assert!(!is_live_key("cycle.rate_hz"));
         assert!(!is_live_key("bus"));

@@ -1,0 +1,160 @@
+//! The closing limiter (seed 002 §2.2.2, application note [15]: "the closing rate is
+//! limited. This allows the PID controller to be tuned for fast response, while at the same
+//! time avoiding that the valve is closed equally fast").
+//!
+//! Purpose: the valve opens as fast as any part asks, and closes
+//! - never faster than `rate_per_s`, and
+//! - never below the opening the operating point needs to stay on the control line, estimated
+//!   from the measured point and the measured valve position: closing the valve from u_pos to
+//!   u takes at most the recycle flow w_r(u_pos)(1 − f(u)/f(u_pos)) from the compressor
+//!   (f the valve's characteristic, the pressures held), and w_r(u_pos) is at most the
+//!   compressor flow q itself. So q stays at or right of the control-line flow c for every u
+//!   with f(u) ≥ f(u_pos) · c/q: a conservative floor that needs no valve capacity, only the
+//!   characteristic. At or left of the line (q ≤ c) it forbids any closing.
+//!
+//! After a trip, a fail-safe resume or a link restart the PI's demand may lie far below the
+//! valve; the limiter then closes the valve at its rate and stops it where the point reaches
+//! the control line, where the PI takes over (it follows the held output, see
+//! [`super::pi`]).
+
+use crate::physics::valve::Characteristic;
+use serde::{Deserialize, Serialize};
+
+/// Settings of the closing limiter (`[controller.recycle_pi.closing]`).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct ClosingConfig {
+    /// Whether the limiter acts. Default true.
+    pub enabled: bool,
+    /// Largest closing speed of the valve command, opening fraction per second. Default
+    /// 0.1/s: a full closing takes 10 s, five times the slowest stroke of the campaign's
+    /// valves (3 s) plus margin, and one control margin's worth of opening (≈ 0.1) takes
+    /// about one second, the period of the slowest surge: the pressures settle to each
+    /// closing step before the next is taken.
+    pub rate_per_s: f64,
+    /// Stop the closing at the opening the point needs to stay on the control line (see
+    /// the module doc). Default true.
+    pub stop_at_control_line: bool,
+}
+
+impl Default for ClosingConfig {
+    fn default() -> Self {
+        ClosingConfig {
+            enabled: true,
+            rate_per_s: 0.1,
+            stop_at_control_line: true,
+        }
+    }
+}
+
+/// The closing limiter (stateless beyond its settings).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct ClosingLimiter {
+    enabled: bool,
+    rate_per_s: f64,
+    stop_at_line: bool,
+    characteristic: Characteristic,
+}
+
+impl ClosingLimiter {
+    /// A limiter for a valve of this characteristic.
+    pub fn new(cfg: &ClosingConfig, characteristic: Characteristic) -> Self {
+        ClosingLimiter {
+            enabled: cfg.enabled,
+            rate_per_s: cfg.rate_per_s,
+            stop_at_line: cfg.stop_at_control_line,
+            characteristic,
+        }
+    }
+
+    /// The lowest opening the output may take this cycle, given the last output `u_last`,
+    /// the measured position `u_pos` (NaN: not measured, the last output stands in), the
+    /// compressor flow `q` and the control-line flow `c` (map units). −∞ when off. Never
+    /// above `u_last`: the limiter only holds a closing back, it never opens.
+    pub fn floor(&self, u_last: f64, u_pos: f64, q: f64, c: f64, dt_s: f64) -> f64 {
+        if !self.enabled || !u_last.is_finite() {
+            return f64::NEG_INFINITY;
+        }
+        let by_rate = u_last - self.rate_per_s * dt_s.max(0.0);
+        let by_line = if self.stop_at_line {
+            self.line_opening(if u_pos.is_finite() { u_pos } else { u_last }, q, c)
+        } else {
+            f64::NEG_INFINITY
+        };
+        by_rate.max(by_line).min(u_last)
+    }
+
+    /// The opening that keeps the point at or right of the control line (see the module
+    /// doc): f(u) = f(u_pos)·c/q; at or left of the line, u_pos itself. −∞ without a usable
+    /// point.
+    pub fn line_opening(&self, u_pos: f64, q: f64, c: f64) -> f64 {
+        if !(q.is_finite() && c.is_finite() && c > 0.0 && u_pos.is_finite()) {
+            return f64::NEG_INFINITY;
+        }
+        if q <= c {
+            return u_pos;
+        }
+        let f = self.characteristic.fraction(u_pos) * c / q;
+        self.characteristic.opening_for_fraction(f)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn limiter() -> ClosingLimiter {
+        ClosingLimiter::new(&ClosingConfig::default(), Characteristic::Linear)
+    }
+
+    #[test]
+    fn closing_is_rate_limited_and_opening_is_not() {
+        let l = limiter();
+        // far right of the line: the rate limits (0.1/s × 0.01 s)
+        let f = l.floor(0.5, 0.5, 3.0, 1.0, 0.01);
+        assert!((f - 0.499).abs() < 1e-12, "{f}");
+        // never above the last output: it cannot open
+        assert!(l.floor(0.5, 0.9, 0.5, 1.0, 0.01) <= 0.5);
+    }
+
+    #[test]
+    fn the_closing_stops_at_the_opening_the_control_line_needs() {
+        let l = limiter();
+        // 30 % right of the line with the valve at 0.99: the flow may fall by at most the
+        // recycle share, which is at most all of it: the valve stays above 0.99/1.3
+        let u_line = l.line_opening(0.99, 1.3, 1.0);
+        assert!((u_line - 0.99 / 1.3).abs() < 1e-12);
+        // a plant whose compressor flow is 0.5 of throughput plus the recycle, 1.3 at 0.99:
+        // the line (q = 1) needs 0.619; closing at the rate, the floor stops it there
+        let q = |u: f64| 0.5 + 0.8 * u / 0.99;
+        let need = 0.5 * 0.99 / 0.8;
+        let mut u = 0.99;
+        for _ in 0..100_000 {
+            u = l.floor(u, u, q(u), 1.0, 0.01).max(0.0);
+        }
+        assert!(u >= need - 1e-9 && u < need + 0.01, "{u} vs {need}");
+        // on or left of the line: no closing at all
+        assert_eq!(l.floor(0.4, 0.4, 0.95, 1.0, 0.01), 0.4);
+    }
+
+    #[test]
+    fn an_equal_percentage_valve_keeps_the_capacity_not_the_stroke() {
+        let l = ClosingLimiter::new(
+            &ClosingConfig::default(),
+            Characteristic::EqualPercentage { rangeability: 50.0 },
+        );
+        let u = l.line_opening(0.8, 2.0, 1.0);
+        let c = Characteristic::EqualPercentage { rangeability: 50.0 };
+        assert!((c.fraction(u) - 0.5 * c.fraction(0.8)).abs() < 1e-9);
+    }
+
+    #[test]
+    fn off_means_no_floor() {
+        let cfg = ClosingConfig {
+            enabled: false,
+            ..ClosingConfig::default()
+        };
+        let l = ClosingLimiter::new(&cfg, Characteristic::Linear);
+        assert_eq!(l.floor(0.5, 0.5, 1.0, 1.0, 0.01), f64::NEG_INFINITY);
+    }
+}

@@ -1,0 +1,539 @@
+//! The recycle trip (seed 002 §2.2.2, patents [11] and [13]): an open-loop step of the recycle
+//! valve when the operating point crosses the trip line (between the surge line and the
+//! control line), or is predicted to cross it within the lead time at its present rate of
+//! approach.
+//!
+//! Purpose: disturbances faster than the PI (a throttle slam reaches flow reversal in 40–400 ms
+//! on the machines of the robustness campaign) need the valve opened at once, by more than the
+//! PI's proportional action gives. The step is sized on the predicted penetration past the
+//! trip line, in units of the gap between the trip line and the control line; while the
+//! point stays past the line the step repeats once the valve had the time to travel it
+//! ([13]: the open-loop controller "increments its control output" while the distance is
+//! below the threshold).
+//!
+//! Every window is in seconds of *measurement* time and works on the distinct samples the
+//! bus delivers (a value held by a slower poll is one sample, not several), so the same
+//! settings hold from a 20 Hz to a 1 kHz loop:
+//! - the rate of approach is the slope over the last `rate_window_s` (at least one sample
+//!   interval);
+//! - a condition must hold over `confirm_s`, each sample covering its own period (at 100 Hz
+//!   one sample confirms a 10 ms window, at 1 kHz ten samples do);
+//! - the thresholds move by `noise_factor` times the measured noise of the margin (σ from
+//!   the second difference of the distinct samples, ≈ σ for white noise and ≈ 0 on a clean
+//!   ramp), and the rate by the noise that σ leaves in the slope over its window (√2 σ/T), so
+//!   transmitter noise neither fires the trip nor sizes its step.
+
+use serde::{Deserialize, Serialize};
+
+/// Settings of the recycle trip (`[controller.recycle_pi.trip]`).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct TripConfig {
+    /// Whether the trip acts. Default true.
+    pub enabled: bool,
+    /// Trip line: surge margin (q − j(R))/j(R), percent, below which the trip fires.
+    /// 0 (default): halfway between the surge line and the control line at every pressure
+    /// ratio, so the default fits every control margin.
+    pub margin_pct: f64,
+    /// Open-loop step, valve opening fraction added to the output, for an approach that just
+    /// reaches the trip line (a deeper predicted penetration steps proportionally more, up to
+    /// fully open). Default 0.15: 1.5 × the 10 % control margin's worth of flow on a valve
+    /// sized to pass the surge-line flow (the usual sizing), so one step returns the point
+    /// from the trip line past the control line. 0 disables the trip.
+    pub step: f64,
+    /// Prediction horizon, s: the trip fires when the margin, extrapolated at its rate of
+    /// approach over this time, falls below the trip line. 0 (default): the time the valve
+    /// needs to travel one step, `step` × the valve's stroke time from the machine data
+    /// (0.3 s for a 2-s valve): what the trip does now lands that much later.
+    pub lead_time_s: f64,
+    /// Window of the rate of approach, s. Default 0.02 s: half the shortest time from a
+    /// throttle step to flow reversal in the campaign's range (40 ms), so the slope is known
+    /// before the point can reach the surge line; at a slower poll, one sample interval.
+    pub rate_window_s: f64,
+    /// Confirmation, s: the condition must hold on the samples of this span (each sample
+    /// covering its own period). Default 0.01 s: a quarter of the shortest step-to-reversal
+    /// time; one sample at 100 Hz and below, ten at 1 kHz.
+    pub confirm_s: f64,
+    /// Hold, s: the tripped opening is held until this long after the condition last held,
+    /// then the PI and the closing limiter take over. Default 1 s: one period of the slowest
+    /// surge (1 Hz), so a point that bounces back within a surge period finds the valve open.
+    pub hold_s: f64,
+    /// Thresholds move by this many standard deviations of the measured margin noise.
+    /// Default 3 (a white-noise sample passes 3σ one-sidedly with probability 0.13 %).
+    pub noise_factor: f64,
+}
+
+impl Default for TripConfig {
+    fn default() -> Self {
+        TripConfig {
+            enabled: true,
+            margin_pct: 0.0,
+            step: 0.15,
+            lead_time_s: 0.0,
+            rate_window_s: 0.02,
+            confirm_s: 0.01,
+            hold_s: 1.0,
+            noise_factor: 3.0,
+        }
+    }
+}
+
+/// Which criterion fired.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum TripKind {
+    /// The margin is past the trip line.
+    Level,
+    /// The margin is predicted to pass the trip line within the lead time.
+    Predicted,
+}
+
+/// Length of the ring of distinct samples: a 20 ms window at 1 kHz needs 21.
+const RING: usize = 48;
+
+/// Time constant of the noise estimate, s: long against a surge period (≤ 1 s), so a surge's
+/// own swing, whose second difference is small at the sample rates used, hardly moves it.
+const NOISE_TAU_S: f64 = 1.0;
+
+/// Second differences in the noise estimate before the prediction arms: a plain mean of 8
+/// half second differences is within ±35 % of σ (two standard errors), which the 3σ
+/// allowance absorbs; fewer let a lucky low estimate fire the prediction on noise.
+const PREDICTION_ARMS_AFTER: u32 = 8;
+
+/// The recycle trip's state (fixed size).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct RecycleTrip {
+    enabled: bool,
+    step: f64,
+    lead_time_s: f64,
+    rate_window_s: f64,
+    confirm_s: f64,
+    hold_s: f64,
+    noise_factor: f64,
+    /// Time the valve needs to travel one step, s (repeat interval).
+    repeat_s: f64,
+    margins: [f64; RING],
+    times_s: [f64; RING],
+    at: usize,
+    len: usize,
+    /// Noise of the margin (σ), and the samples in it so far.
+    noise: f64,
+    noise_n: u32,
+    /// Mean interval between distinct samples, s (NaN: unknown).
+    sample_dt_s: f64,
+    /// Measurement time from which the condition has held (NaN: not holding).
+    since_s: f64,
+    /// Whether the condition holds (confirmed) at the newest sample, and its kind and depth.
+    firing: Option<(TripKind, f64)>,
+    /// Remaining hold, s (≤ 0: not tripped).
+    hold_left_s: f64,
+    /// Opening the trip holds.
+    level: f64,
+    kind: TripKind,
+    /// Loop time since the last step, s.
+    since_step_s: f64,
+    trips: u32,
+}
+
+impl RecycleTrip {
+    /// A trip with these settings; `stroke_time_s` is the valve's full-stroke time (NaN if
+    /// unknown: then 2 s, the middle of the 0.5–3 s range of anti-surge valves).
+    pub fn new(cfg: &TripConfig, stroke_time_s: f64) -> Self {
+        let stroke = if stroke_time_s.is_finite() && stroke_time_s > 0.0 {
+            stroke_time_s
+        } else {
+            2.0
+        };
+        let travel_s = cfg.step * stroke;
+        RecycleTrip {
+            enabled: cfg.enabled && cfg.step > 0.0,
+            step: cfg.step,
+            lead_time_s: if cfg.lead_time_s > 0.0 {
+                cfg.lead_time_s
+            } else {
+                travel_s
+            },
+            rate_window_s: cfg.rate_window_s.max(0.0),
+            confirm_s: cfg.confirm_s.max(0.0),
+            hold_s: cfg.hold_s.max(0.0),
+            noise_factor: cfg.noise_factor.max(0.0),
+            repeat_s: travel_s.max(cfg.rate_window_s),
+            margins: [f64::NAN; RING],
+            times_s: [f64::NAN; RING],
+            at: 0,
+            len: 0,
+            noise: 0.0,
+            noise_n: 0,
+            sample_dt_s: f64::NAN,
+            since_s: f64::NAN,
+            firing: None,
+            hold_left_s: 0.0,
+            level: 0.0,
+            kind: TripKind::Level,
+            since_step_s: f64::INFINITY,
+            trips: 0,
+        }
+    }
+
+    /// The prediction horizon in use, s.
+    pub fn lead_time_s(&self) -> f64 {
+        self.lead_time_s
+    }
+
+    /// Forget the samples and any held trip (a (re)start: the last samples are old). The
+    /// noise estimate is kept: the transmitters are the same.
+    pub fn restart(&mut self) {
+        self.len = 0;
+        self.since_s = f64::NAN;
+        self.firing = None;
+        self.hold_left_s = 0.0;
+        self.since_step_s = f64::INFINITY;
+    }
+
+    /// Forget the samples but keep a held trip (the flow source switched: the step between
+    /// two sources is no approach).
+    pub fn forget_samples(&mut self) {
+        self.len = 0;
+        self.since_s = f64::NAN;
+    }
+
+    /// Carry the running trip's state over (a change of settings).
+    pub fn take_over(&mut self, old: &RecycleTrip) {
+        let keep = *self;
+        *self = *old;
+        self.enabled = keep.enabled;
+        self.step = keep.step;
+        self.lead_time_s = keep.lead_time_s;
+        self.rate_window_s = keep.rate_window_s;
+        self.confirm_s = keep.confirm_s;
+        self.hold_s = keep.hold_s;
+        self.noise_factor = keep.noise_factor;
+        self.repeat_s = keep.repeat_s;
+    }
+
+    /// Trips so far.
+    pub fn count(&self) -> u32 {
+        self.trips
+    }
+
+    /// Whether the trip holds the valve now.
+    pub fn holding(&self) -> bool {
+        self.hold_left_s > 0.0
+    }
+
+    /// The measured noise of the margin (σ, fraction of surge-line flow).
+    pub fn noise(&self) -> f64 {
+        self.noise
+    }
+
+    fn sample(&self, back: usize) -> (f64, f64) {
+        let i = (self.at + RING - back) % RING;
+        (self.margins[i], self.times_s[i])
+    }
+
+    /// Record a margin sample taken at measurement time `t_s` when it is new (a later sample
+    /// time: a value held by a slower poll carries its old sample time); returns whether it
+    /// was.
+    fn push(&mut self, margin: f64, t_s: f64) -> bool {
+        if !(margin.is_finite() && t_s.is_finite()) {
+            return false;
+        }
+        if self.len > 0 {
+            let (m0, t0) = self.sample(0);
+            if t_s <= t0 + 1e-9 {
+                return false;
+            }
+            let dt = t_s - t0;
+            // (an outage is no sample period: at most 0.1 s counts)
+            let dt_c = dt.min(0.1);
+            self.sample_dt_s = if self.sample_dt_s.is_finite() {
+                self.sample_dt_s + (dt_c / NOISE_TAU_S).min(1.0) * (dt_c - self.sample_dt_s)
+            } else {
+                dt_c
+            };
+            if self.len > 1 {
+                let (m1, _) = self.sample(1);
+                // σ ≈ |m_k − 2 m_k−1 + m_k−2|/2 for white noise (E|·| = 1.95 σ), ≈ 0 on a ramp
+                let d2 = 0.5 * (margin - 2.0 * m0 + m1).abs();
+                self.noise_n = self.noise_n.saturating_add(1);
+                // a 1-s average, but a plain mean over its first samples (from zero a 1-s
+                // average reads no noise during the first second after a start)
+                let w = (dt / NOISE_TAU_S)
+                    .clamp(0.0, 1.0)
+                    .max(1.0 / f64::from(self.noise_n));
+                self.noise += w * (d2 - self.noise);
+            }
+        }
+        self.at = (self.at + 1) % RING;
+        self.margins[self.at] = margin;
+        self.times_s[self.at] = t_s;
+        self.len = (self.len + 1).min(RING);
+        true
+    }
+
+    /// Slope of the margin over the rate window, 1/s, and the window's span, s (NaN without
+    /// two samples).
+    fn slope(&self) -> (f64, f64) {
+        if self.len < 2 {
+            return (f64::NAN, f64::NAN);
+        }
+        let (m0, t0) = self.sample(0);
+        let mut k = 1;
+        while k + 1 < self.len && t0 - self.sample(k).1 < self.rate_window_s {
+            k += 1;
+        }
+        let (mk, tk) = self.sample(k);
+        let span = t0 - tk;
+        ((m0 - mk) / span, span)
+    }
+
+    /// One cycle. `margin` is the surge margin now (measured at `t_s`), `trip_line` the trip
+    /// line and `gap` the distance from the trip line to the control line (both fractions of
+    /// surge-line flow at the measured ratio); `u_now` the valve output of the last cycle.
+    /// Returns the opening the trip demands (NaN: none) and the kind of a step taken now.
+    pub fn update(
+        &mut self,
+        margin: f64,
+        t_s: f64,
+        trip_line: f64,
+        gap: f64,
+        u_now: f64,
+        dt_s: f64,
+    ) -> (f64, Option<TripKind>) {
+        if !self.enabled {
+            return (f64::NAN, None);
+        }
+        self.since_step_s += dt_s.max(0.0);
+        if self.push(margin, t_s) {
+            self.judge(trip_line);
+        }
+        let mut fired = None;
+        if let Some((kind, depth)) = self.firing {
+            // the hold counts from the last time the condition held
+            self.hold_left_s = self.hold_s.max(dt_s);
+            let fresh = self.level <= 0.0 || self.since_step_s.is_infinite();
+            let escalate = kind == TripKind::Level && self.kind == TripKind::Predicted;
+            let repeat = self.since_step_s >= self.repeat_s;
+            if fresh || escalate || repeat {
+                let base = if u_now.is_finite() { u_now } else { 0.0 };
+                let base = base.max(self.level);
+                let d = if gap > 0.0 { depth / gap } else { 1.0 };
+                let target = (base + self.step * d.max(1.0)).min(1.0);
+                if target > self.level + 1e-9 || fresh {
+                    self.level = target.max(self.level);
+                    self.kind = kind;
+                    self.since_step_s = 0.0;
+                    self.trips = self.trips.saturating_add(1);
+                    fired = Some(kind);
+                }
+            }
+        } else {
+            self.hold_left_s -= dt_s.max(0.0);
+        }
+        if self.hold_left_s > 0.0 {
+            (self.level, fired)
+        } else {
+            self.level = 0.0;
+            self.since_step_s = f64::INFINITY;
+            (f64::NAN, None)
+        }
+    }
+
+    /// Judge the newest sample: set `firing` when the level or predicted condition has held
+    /// over the confirmation span.
+    fn judge(&mut self, trip_line: f64) {
+        let (m0, t0) = self.sample(0);
+        let k = self.noise_factor;
+        // (capped: a very noisy margin must still trip before the surge line)
+        let allowance = (k * self.noise).min(0.5 * trip_line.max(0.0));
+        let threshold = trip_line - allowance;
+        let (slope, span) = self.slope();
+        let slope_noise = if span > 0.0 {
+            std::f64::consts::SQRT_2 * self.noise / span
+        } else {
+            0.0
+        };
+        // (the prediction needs the noise of its slope: armed once the noise estimate has
+        // PREDICTION_ARMS_AFTER samples; a fresh law judges only the level until then)
+        let predicted = if slope.is_finite() && self.noise_n >= PREDICTION_ARMS_AFTER {
+            m0 + self.lead_time_s * (slope + k * slope_noise).min(0.0)
+        } else {
+            m0
+        };
+        let cond = if m0 < threshold {
+            Some((TripKind::Level, threshold - predicted.min(m0)))
+        } else if predicted < threshold {
+            Some((TripKind::Predicted, threshold - predicted))
+        } else {
+            None
+        };
+        match cond {
+            Some(c) => {
+                if !self.since_s.is_finite() {
+                    self.since_s = t0;
+                }
+                let period = if self.sample_dt_s.is_finite() {
+                    self.sample_dt_s
+                } else {
+                    0.0
+                };
+                // each sample covers its own period
+                self.firing = if t0 - self.since_s + period >= self.confirm_s - 1e-9 {
+                    Some(c)
+                } else {
+                    None
+                };
+            }
+            None => {
+                self.since_s = f64::NAN;
+                self.firing = None;
+            }
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    const LINE: f64 = 0.05;
+    const GAP: f64 = 0.05;
+
+    /// Run a margin trajectory sampled at `rate_hz` (held between samples) through a trip in
+    /// a 1 kHz loop; returns the first step's time and opening.
+    fn first_step(rate_hz: f64, margin: impl Fn(f64) -> f64, t_end: f64) -> Option<(f64, f64)> {
+        let mut trip = RecycleTrip::new(&TripConfig::default(), 2.0);
+        let dt = 1e-3;
+        let period = 1.0 / rate_hz;
+        let mut u = 0.1;
+        let mut k = 0;
+        while (k as f64) * dt < t_end {
+            let t = k as f64 * dt;
+            let t_sample = (t / period).floor() * period;
+            let (d, fired) = trip.update(margin(t_sample), t_sample, LINE, GAP, u, dt);
+            if fired.is_some() {
+                return Some((t, d));
+            }
+            if d.is_finite() {
+                u = d;
+            }
+            k += 1;
+        }
+        None
+    }
+
+    fn noise(seed: u64, t: f64) -> f64 {
+        // deterministic uniform noise in ±1 from the sample time
+        let mut x = seed ^ ((t * 1e6).round() as u64).wrapping_mul(0x9E37_79B9_7F4A_7C15);
+        x ^= x >> 33;
+        x = x.wrapping_mul(0xff51_afd7_ed55_8ccd);
+        x ^= x >> 33;
+        (x as f64 / u64::MAX as f64) * 2.0 - 1.0
+    }
+
+    #[test]
+    fn a_step_towards_surge_trips_within_the_same_time_at_every_rate() {
+        // margin falls from 10 % at 1.7/s after t = 0.5 s (reversal ≈ 60 ms later)
+        let m = |t: f64| {
+            if t < 0.5 {
+                0.10
+            } else {
+                0.10 - 1.7 * (t - 0.5)
+            }
+        };
+        for rate in [20.0, 50.0, 100.0, 1000.0] {
+            let (t, d) = first_step(rate, m, 1.0).expect("trips");
+            // at most two sample periods (the slope needs two samples) after the step
+            let late = t - 0.5;
+            assert!(late <= 2.0 / rate + 0.011, "{rate} Hz: {late} s");
+            // a fast approach steps more than the base step
+            assert!(d > 0.1 + 0.15, "{rate} Hz: {d}");
+        }
+    }
+
+    #[test]
+    fn noise_on_the_control_line_fires_no_trip_at_any_rate() {
+        for rate in [20.0, 50.0, 100.0, 1000.0] {
+            for seed in 1..6 {
+                // ±3 % uniform noise (σ 1.7 %) on a 10 % margin
+                let m = |t: f64| 0.10 + 0.03 * noise(seed, t);
+                assert_eq!(first_step(rate, m, 20.0), None, "{rate} Hz seed {seed}");
+            }
+        }
+    }
+
+    #[test]
+    fn without_the_noise_allowance_noise_does_fire_it() {
+        // the same noise with noise_factor 0 trips: the allowance is what holds it
+        let cfg = TripConfig {
+            noise_factor: 0.0,
+            ..TripConfig::default()
+        };
+        let mut trip = RecycleTrip::new(&cfg, 2.0);
+        let mut fired = false;
+        for k in 0..20_000 {
+            let t = k as f64 * 1e-3;
+            let (_, f) = trip.update(0.10 + 0.03 * noise(3, t), t, LINE, GAP, 0.1, 1e-3);
+            fired |= f.is_some();
+        }
+        assert!(fired);
+    }
+
+    #[test]
+    fn confirmation_is_in_seconds_not_samples() {
+        // one sample past the line at 1 kHz does not confirm 10 ms; at 50 Hz it does
+        let mut fast = RecycleTrip::new(&TripConfig::default(), 2.0);
+        let mut fired = None;
+        for k in 0..100 {
+            let t = k as f64 * 1e-3;
+            let m = if k == 50 {
+                0.0
+            } else {
+                0.10 + 1e-6 * (k % 2) as f64
+            };
+            fired = fired.or(fast.update(m, t, LINE, GAP, 0.1, 1e-3).1);
+        }
+        assert_eq!(fired, None);
+        let mut slow = RecycleTrip::new(&TripConfig::default(), 2.0);
+        for k in 0..10 {
+            let t = k as f64 * 0.02;
+            let m = if k == 5 {
+                0.0
+            } else {
+                0.10 + 1e-6 * (k % 2) as f64
+            };
+            fired = fired.or(slow.update(m, t, LINE, GAP, 0.1, 0.02).1);
+        }
+        assert_eq!(fired, Some(TripKind::Level));
+    }
+
+    #[test]
+    fn the_trip_repeats_while_the_point_stays_past_the_line_and_releases_after_its_hold() {
+        let mut trip = RecycleTrip::new(&TripConfig::default(), 1.0);
+        let (mut steps, mut last) = (0, 0.0);
+        let dt = 0.01;
+        for k in 0..300 {
+            let t = k as f64 * dt;
+            // 1 s past the trip line, then back on the control line
+            let m = if t < 1.0 {
+                0.02 + 1e-5 * (k % 2) as f64
+            } else {
+                0.10 + 1e-5 * (k % 2) as f64
+            };
+            let (d, f) = trip.update(m, t, LINE, GAP, last, dt);
+            if f.is_some() {
+                steps += 1;
+            }
+            if d.is_finite() {
+                last = d;
+            }
+            if t > 2.05 {
+                assert!(d.is_nan(), "released 1 s after the condition: {t}");
+            } else if t < 1.95 && t > 0.05 {
+                assert!(d.is_finite(), "held at {t}");
+            }
+        }
+        // 1 s at a 0.15 s repeat interval (0.15 × 1 s stroke): several steps, up to fully open
+        assert!(steps >= 4, "{steps}");
+        assert!((last - 1.0).abs() < 1e-9 || last > 0.6, "{last}");
+    }
+}
