@@ -311,8 +311,15 @@ fn throttle_step_is_caught_by_the_recycle_trip() {
         let p = common::plant(stem);
         let r = common::simulate(&p, &common::scenario("throttle_step"), LawId::RecyclePi);
         let ev = r.summary.law_events;
-        assert!(ev.recycle_trips >= 1, "{stem}: no trip: {ev:?}");
-        assert!(ev.recycle_trips <= 2, "{stem}: repeated trips: {ev:?}");
+        // kvangardsnes2009's step runs towards the trip line within the lead time and trips;
+        // on hemchi2016 the PI alone keeps the point 8.8 % right of the surge line, far from
+        // its 5 % trip line: a trip there would be a false one
+        if stem == KV {
+            assert!(ev.recycle_trips >= 1, "{stem}: no trip: {ev:?}");
+        } else {
+            assert_eq!(ev.recycle_trips, 0, "{stem}: a trip far from the line: {ev:?}");
+        }
+        assert!(ev.recycle_trips <= 3, "{stem}: repeated trips: {ev:?}");
         assert_settles_on_line(&format!("{stem}/throttle_step"), &p, &r, bound);
         // the trace's largest command jump between two consecutive 5 ms rows within 3 s of
         // the throttle step
@@ -763,7 +770,9 @@ fn law_cycle_does_not_allocate() {
         let before = allocations();
         let mut trips = 0;
         for k in 0..4000 {
-            let m = &ms[(k / 500) % 2];
+            let mut m = ms[(k / 500) % 2];
+            m.t_s = k as f64 * 1e-3;
+            let m = &m;
             if k % 1000 == 999 {
                 law.surge_detected();
             }
@@ -783,7 +792,8 @@ fn law_cycle_does_not_allocate() {
         assert_eq!(allocations() - before, 0, "{cv:?}: the law allocated");
         assert!(
             trips >= 1 && law.safety_on_count() >= 3,
-            "branches not exercised"
+            "branches not exercised: {trips} trips, {} shifts",
+            law.safety_on_count()
         );
     }
 }
@@ -836,12 +846,12 @@ fn hot_retune_while_the_valve_closes_at_its_rate_limit_is_bumpless() {
     // closing rate and the PI demand lies below it
     let base = rate_limited_closure_with_switch(f64::INFINITY, |_| {});
     let rate = common::plant(KV).controller.recycle_pi.closing.rate_per_s;
-    // a moment during the throttle closure where the valve has closed at exactly the rate
-    // limit for the last 20 ms
+    // a moment after the return to auto where the valve has closed at exactly the rate limit
+    // for the last 20 ms
     let rows = &base.trace;
     let k_sw = (20..rows.len())
         .find(|&k| {
-            rows[k].t_s > 5.5
+            rows[k].t_s > 3.1
                 && rows[k].t_s < 7.0
                 && ((rows[k - 20].cmd_recycle_valve - rows[k].cmd_recycle_valve) / 0.020 - rate)
                     .abs()
