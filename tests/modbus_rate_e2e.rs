@@ -54,7 +54,8 @@ const VALVE_HOLDING: u16 = 102;
 /// full stroke). Stepping the throttle 60 % → 10 % with the recycle valve held closed reverses
 /// the compressor flow ≈ 80 ms later (printed and asserted by the oracle test). The law
 /// settings are the controller's defaults (only the observer gain, a property of the machine,
-/// is kept): `{map}` is replaced by the absolute path of the shipped map table.
+/// `{map}` is replaced by the absolute path of the shipped map table. The device integrates
+/// this file; the daemon is told the machine by [`MACHINE_FOR_THE_DAEMON`].
 const MACHINE: &str = r#"
 name = "fast_hemchi"
 description = "hemchi2016 recycle system made fast (issue 22 Modbus-rate test)"
@@ -132,17 +133,38 @@ feed = 1.0
 method = "rosenbrock"
 rtol = 1e-4
 substeps = 1
+"#;
 
-[controller]
-flow_source = "orifice_with_observer_fallback"
-
-[controller.observer]
-c2_pa_s_kg = 40000.0               # hemchi2016's (seed 000 eq. 17 needs > 2.2e4 here)
+/// What the daemon is told about the machine: a vendor-style machine file (README
+/// "Commissioning from vendor data"), as on a foreign skid: the speed-line map, the flow
+/// element, the design suction conditions (`{p_s}`: the device's steady suction pressure),
+/// the recycle valve, and a drive on its own governor (the device's). No law settings.
+const MACHINE_FOR_THE_DAEMON: &str = r#"
+name = "fast_skid"
+[gas]
+molar_mass_kg_mol = 0.02897
+heat_capacity_ratio = 1.4
+polytropic_exponent = 0.3
+[speed_line_map]
+file = "{map}"
+[flow_element]
+flow_coefficient = 0.6
+bore_diameter_m = 0.09
+[design]
+suction_pressure_pa = {p_s}
+suction_temperature_k = 293.15
+speed_rad_s = 3140.0
+[recycle_valve]
+stroke_time_s = 0.05
+cv_max_m2 = 3.6e-3
+[drive]
+owned_by_controller = false
 "#;
 
 /// The device's register map (the shipped `config/signals_modbus.toml` layout, sensors in SI
 /// units, f32 high word first): input registers 0–10, the valve command at holding 102. The
-/// drive has its own speed governor in the device: the daemon writes no torque.
+/// drive has its own speed governor in the device (the machine file says so): the daemon
+/// writes no torque.
 const SIGNAL_MAP: &str = r#"
 [sensors]
 p_suction = { modbus = { unit_id = 1, table = "input", address = 0, data_type = "f32" } }
@@ -189,14 +211,30 @@ impl Rng {
     }
 }
 
-/// Write the machine file (into `dir`) and load it.
+/// Write the device's plant file and the daemon's machine file (into `dir`); returns the
+/// machine file's path and the loaded plant.
 fn machine(dir: &Path) -> (PathBuf, PlantDescription) {
     let map = common::root().join("config/maps/hemchi2016_vortech.csv");
-    let text = MACHINE.replace("{map}", &map.display().to_string());
-    let path = dir.join("fast_machine.toml");
-    std::fs::write(&path, text).expect("write machine file");
-    let desc = PlantDescription::load(&path).unwrap_or_else(|e| panic!("{e}"));
-    (path, desc)
+    let map = map.display().to_string();
+    let plant_path = dir.join("fast_plant.toml");
+    std::fs::write(&plant_path, MACHINE.replace("{map}", &map)).expect("write plant file");
+    let desc = PlantDescription::load(&plant_path).unwrap_or_else(|e| panic!("{e}"));
+    let p_s = PlantLoop::new(
+        &desc,
+        Throttle::Step {
+            at_s: 0.0,
+            to: THROTTLE_START,
+        },
+    )
+    .plant
+    .truth()
+    .p_suction_pa;
+    let machine_path = dir.join("fast_skid_machine.toml");
+    let text = MACHINE_FOR_THE_DAEMON
+        .replace("{map}", &map)
+        .replace("{p_s}", &format!("{p_s:.1}"));
+    std::fs::write(&machine_path, text).expect("write machine file");
+    (machine_path, desc)
 }
 
 /// The throttle opening the process demands, against plant time.
@@ -621,7 +659,9 @@ struct Outcome {
 }
 
 /// The daemon's config: defaults except what the skid needs (bus and map, the machine,
-/// margin 10 %, the poll rate and the control rate with it, input freshness for that poll).
+/// margin 10 %, the poll rate and the control rate with it, input freshness for that poll),
+/// and the status socket in the test's directory with the metrics and HMI listeners off (they
+/// bind fixed ports by default).
 fn daemon_config(dir: &Path, machine: &Path, map: &Path, port: u16, poll_hz: f64) -> PathBuf {
     // freshness: the device answers in up to 20 ms, one request after another, so a value
     // can be 2 poll periods + 2 latencies old; 200 ms as the project's other Modbus tests
@@ -638,7 +678,7 @@ fn daemon_config(dir: &Path, machine: &Path, map: &Path, port: u16, poll_hz: f64
     .collect::<String>();
     let cfg = format!(
         r#"
-[plant]
+[machine]
 file = "{machine}"
 [control]
 law = "recycle-pi"
@@ -659,10 +699,14 @@ control_line = {{ margin = {{ margin_pct = 10.0 }} }}
 path = "{events}"
 [status]
 log_interval_s = 5.0
+socket = "{socket}"
+metrics_listen = ""
+hmi_listen = ""
 "#,
         machine = machine.display(),
         map = map.display(),
         events = dir.join("events.jsonl").display(),
+        socket = dir.join("status.sock").display(),
     );
     let path = dir.join("antisurge.toml");
     std::fs::write(&path, cfg).expect("write config");
@@ -1003,16 +1047,17 @@ fn noisy_closure_with_dp_frozen_for_1_s_at_100_hz_does_not_surge_over_10_seeds()
 #[ignore = "issue 22: fails on the current recycle-pi; un-ignore after the rebuild"]
 fn after_a_3_s_link_outage_the_first_valve_command_matches_the_measured_position() {
     let _rt = real_time();
-    // a partial closure the law holds with the valve part open, then the outage
+    // a slow partial closure the law holds with the valve part open, then the outage (the
+    // device keeps its last setpoint: no device watchdog in this map)
     let mut case = Case::new(
         "3-s link outage",
         100.0,
         Throttle::Ramp {
             at_s: DISTURBANCE_AT_S,
-            over_s: 2.0,
-            to: 0.3,
+            over_s: 3.0,
+            to: 0.2,
         },
-        DISTURBANCE_AT_S + 11.0,
+        DISTURBANCE_AT_S + 10.5,
     );
     let (down, up) = (DISTURBANCE_AT_S + 4.0, DISTURBANCE_AT_S + 7.0);
     case.outage = Some((down, up));
@@ -1044,5 +1089,4 @@ fn after_a_3_s_link_outage_the_first_valve_command_matches_the_measured_position
         100.0 * w.reported_pos,
         logs(o.dir.path())
     );
-    assert_eq!(o.figures.surge_cycles, 0, "{}", o.figures);
 }
