@@ -1,0 +1,1101 @@
+//! Issue 22, deliverable 4: `antisurge run` over Modbus TCP at 50 and 100 Hz polling against a
+//! device written here, not against the project's own plant node. The device answers every
+//! request after 5–20 ms (a deterministic pseudo-random sequence per seed, requests of one
+//! connection served one after the other, like a gateway) and integrates a fast machine in
+//! its own thread (1 ms steps, paced by the wall clock). The test owns the disturbances:
+//! throttle step, a throttle closure with Δp noise and the Δp register frozen for 1 s, and a
+//! 3-s link outage (listener and connections closed). Every verdict is on the plant's TRUE
+//! flow in the device (surge cycles by `antisurge::surge::SurgeDetector`), in plant time.
+//!
+//! The machine (hemchi2016's recycle system made fast: [`MACHINE`]) is chosen so that the
+//! feasibility oracle holds: the same plant in process, with the recycle valve slammed fully
+//! open two 50-Hz sample periods plus 20 ms latency (60 ms) after the throttle step, does not
+//! surge, while with the valve held it reverses its flow within ≈ 80 ms.
+//!
+//! The real-time cases take one lock (`REAL_TIME`), so they run one after the other even under
+//! the default parallel test threads: two daemons and two 1-kHz plants on a 2-core machine
+//! would disturb each other's timing.
+
+mod common;
+
+use antisurge::control::speed_loop::SpeedLoop;
+use antisurge::plant::file::PlantDescription;
+use antisurge::plant::{PlantInputs, SimPlant};
+use antisurge::signals::{ActuatorId, SensorId};
+use antisurge::surge::{DetectorConfig, SurgeDetector};
+use common::daemon::{logs, signal, spawn, wait};
+use std::future::Future;
+use std::net::SocketAddr;
+use std::path::{Path, PathBuf};
+use std::pin::Pin;
+use std::sync::{Arc, Mutex, MutexGuard};
+use std::time::{Duration, Instant};
+use tokio_modbus::{ExceptionCode, Request, Response, SlaveRequest};
+
+/// The device's plant step, s.
+const PLANT_STEP_S: f64 = 1e-3;
+/// Steady throttle opening before the disturbances, fraction.
+const THROTTLE_START: f64 = 0.6;
+/// Throttle opening after the step / at the end of the closure, fraction.
+const THROTTLE_END: f64 = 0.1;
+/// Plant time of the disturbance (step, start of the closure), s: the daemon has been in
+/// automatic for a few seconds by then (startup grace 1 s).
+const DISTURBANCE_AT_S: f64 = 4.0;
+/// The request latency range of the device, s.
+const LATENCY_MIN_S: f64 = 0.005;
+const LATENCY_MAX_S: f64 = 0.020;
+/// Register addresses of the device (input table, then the valve's holding register).
+const INPUT_WORDS: usize = 11;
+const VALVE_HOLDING: u16 = 102;
+
+/// The fast machine: hemchi2016_recycle.toml (seed 001's supercharger recycle system) with a
+/// smaller discharge volume (0.25 m³ for 0.3), a throttle that strokes in 20 ms (a block valve
+/// slamming: the step is a step), and a larger, faster anti-surge valve (3× the area, 50 ms
+/// full stroke). Stepping the throttle 60 % → 10 % with the recycle valve held closed reverses
+/// the compressor flow ≈ 80 ms later (printed and asserted by the oracle test). The law
+/// settings are the controller's defaults (only the observer gain, a property of the machine,
+/// `{map}` is replaced by the absolute path of the shipped map table. The device integrates
+/// this file; the daemon is told the machine by [`MACHINE_FOR_THE_DAEMON`].
+const MACHINE: &str = r#"
+name = "fast_hemchi"
+description = "hemchi2016 recycle system made fast (issue 22 Modbus-rate test)"
+source = "config/plants/hemchi2016_recycle.toml, volumes and valves changed by tests/modbus_rate_e2e.rs"
+model = "recycle_system"
+
+[gas]
+molar_mass_kg_mol = 0.02897
+heat_capacity_ratio = 1.4
+polytropic_exponent = 0.3
+
+[map.table]
+file = "{map}"
+
+[shaft]
+inertia_kg_m2 = 0.01
+impeller_radius_m = 0.05
+slip_factor = 0.9
+
+[drive]
+rated_torque_nm = 40.0
+min_torque_nm = 0.0
+nominal_speed_rad_s = 3140.0
+speed_kp_nm_s_rad = 2.0
+speed_ki_nm_rad = 10.0
+
+[orifice]
+flow_coefficient = 0.6
+bore_diameter_m = 0.09
+
+[recycle_system]
+suction_volume_m3 = 0.5
+discharge_volume_m3 = 0.25         # 0.3 in hemchi2016: a faster machine
+suction_sonic_velocity_m_s = 340.0
+discharge_sonic_velocity_m_s = 350.0
+suction_temperature_k = 293.15
+discharge_temperature_k = 320.0
+compressor_duct_area_m2 = 0.0045
+compressor_duct_length_m = 1.0
+recycle_duct_area_m2 = 0.002
+recycle_duct_length_m = 2.0
+discharge_duct_area_m2 = 0.0045
+discharge_duct_length_m = 2.0
+downstream_pressure_pa = 100000.0
+check_valve = false
+
+[recycle_system.feed.valve]
+upstream_pressure_pa = 100000.0
+density_kg_m3 = 1.2
+[recycle_system.feed.valve.valve]
+cv_max_m2 = 1.6e-3
+characteristic = "linear"
+stroke_time_s = 4.0
+positioner_lag_s = 0.05
+
+[recycle_system.recycle_valve]
+cv_max_m2 = 3.6e-3                 # 1.2e-3 in hemchi2016
+characteristic = "linear"
+min_opening = 1e-3
+stroke_time_s = 0.05               # 1.0 in hemchi2016: a slam-open anti-surge valve
+positioner_lag_s = 0.005           # 0.02 in hemchi2016
+
+[recycle_system.throttle]
+cv_max_m2 = 2.0e-3
+characteristic = "linear"
+stroke_time_s = 0.02               # 4.0 in hemchi2016: the throttle step is a step
+positioner_lag_s = 0.005           # 0.05 in hemchi2016
+
+[initial]
+throttle = 0.6
+recycle_valve = 0.0
+feed = 1.0
+
+[integration]
+method = "rosenbrock"
+rtol = 1e-4
+substeps = 1
+"#;
+
+/// What the daemon is told about the machine: a vendor-style machine file (README
+/// "Commissioning from vendor data"), as on a foreign skid: the speed-line map, the flow
+/// element, the design suction conditions (`{p_s}`: the device's steady suction pressure),
+/// the recycle valve, and a drive on its own governor (the device's). No law settings.
+const MACHINE_FOR_THE_DAEMON: &str = r#"
+name = "fast_skid"
+[gas]
+molar_mass_kg_mol = 0.02897
+heat_capacity_ratio = 1.4
+polytropic_exponent = 0.3
+[speed_line_map]
+file = "{map}"
+[flow_element]
+flow_coefficient = 0.6
+bore_diameter_m = 0.09
+[design]
+suction_pressure_pa = {p_s}
+suction_temperature_k = 293.15
+speed_rad_s = 3140.0
+[recycle_valve]
+stroke_time_s = 0.05
+cv_max_m2 = 3.6e-3
+[drive]
+owned_by_controller = false
+"#;
+
+/// The device's register map (the shipped `config/signals_modbus.toml` layout, sensors in SI
+/// units, f32 high word first): input registers 0–10, the valve command at holding 102. The
+/// drive has its own speed governor in the device (the machine file says so): the daemon
+/// writes no torque.
+const SIGNAL_MAP: &str = r#"
+[sensors]
+p_suction = { modbus = { unit_id = 1, table = "input", address = 0, data_type = "f32" } }
+p_discharge = { modbus = { unit_id = 1, table = "input", address = 2, data_type = "f32" } }
+shaft_speed = { modbus = { unit_id = 1, table = "input", address = 4, data_type = "f32" } }
+orifice_dp = { modbus = { unit_id = 1, table = "input", address = 6, data_type = "f32" } }
+t_suction = { modbus = { unit_id = 1, table = "input", address = 8, data_type = "i16", scale = 0.01, offset = 273.15 } }
+recycle_valve_position = { modbus = { unit_id = 1, table = "input", address = 9, data_type = "u16", scale = 1e-4 } }
+throttle_position = { modbus = { unit_id = 1, table = "input", address = 10, data_type = "u16", scale = 1e-4 } }
+
+[actuators]
+recycle_valve = { modbus = { unit_id = 1, table = "holding", address = 102, data_type = "u16", scale = 1e-4 } }
+"#;
+
+/// One real-time case at a time (see the module comment).
+static REAL_TIME: Mutex<()> = Mutex::new(());
+
+fn real_time() -> MutexGuard<'static, ()> {
+    REAL_TIME.lock().unwrap_or_else(|e| e.into_inner())
+}
+
+/// splitmix64: the deterministic pseudo-random sequences of latency and noise.
+#[derive(Debug, Clone)]
+struct Rng(u64);
+
+impl Rng {
+    fn new(seed: u64) -> Rng {
+        Rng(seed ^ 0x5DEE_CE66_D1CE_4E5B)
+    }
+    fn next_u64(&mut self) -> u64 {
+        self.0 = self.0.wrapping_add(0x9E37_79B9_7F4A_7C15);
+        let mut z = self.0;
+        z = (z ^ (z >> 30)).wrapping_mul(0xBF58_476D_1CE4_E5B9);
+        z = (z ^ (z >> 27)).wrapping_mul(0x94D0_49BB_1331_11EB);
+        z ^ (z >> 31)
+    }
+    /// Uniform in [0, 1).
+    fn unit(&mut self) -> f64 {
+        (self.next_u64() >> 11) as f64 / (1u64 << 53) as f64
+    }
+    /// Uniform in [-1, 1).
+    fn symmetric(&mut self) -> f64 {
+        2.0 * self.unit() - 1.0
+    }
+}
+
+/// Write the device's plant file and the daemon's machine file (into `dir`); returns the
+/// machine file's path and the loaded plant.
+fn machine(dir: &Path) -> (PathBuf, PlantDescription) {
+    let map = common::root().join("config/maps/hemchi2016_vortech.csv");
+    let map = map.display().to_string();
+    let plant_path = dir.join("fast_plant.toml");
+    std::fs::write(&plant_path, MACHINE.replace("{map}", &map)).expect("write plant file");
+    let desc = PlantDescription::load(&plant_path).unwrap_or_else(|e| panic!("{e}"));
+    let p_s = PlantLoop::new(
+        &desc,
+        Throttle::Step {
+            at_s: 0.0,
+            to: THROTTLE_START,
+        },
+    )
+    .plant
+    .truth()
+    .p_suction_pa;
+    let machine_path = dir.join("fast_skid_machine.toml");
+    let text = MACHINE_FOR_THE_DAEMON
+        .replace("{map}", &map)
+        .replace("{p_s}", &format!("{p_s:.1}"));
+    std::fs::write(&machine_path, text).expect("write machine file");
+    (machine_path, desc)
+}
+
+/// The throttle opening the process demands, against plant time.
+#[derive(Debug, Clone, Copy)]
+enum Throttle {
+    /// From `THROTTLE_START` to `to` at `at_s`.
+    Step { at_s: f64, to: f64 },
+    /// Linear from `THROTTLE_START` at `at_s` to `to` at `at_s + over_s`.
+    Ramp { at_s: f64, over_s: f64, to: f64 },
+}
+
+impl Throttle {
+    fn at(self, t_s: f64) -> f64 {
+        match self {
+            Throttle::Step { at_s, to } => {
+                if t_s >= at_s {
+                    to
+                } else {
+                    THROTTLE_START
+                }
+            }
+            Throttle::Ramp { at_s, over_s, to } => {
+                let f = ((t_s - at_s) / over_s).clamp(0.0, 1.0);
+                THROTTLE_START + f * (to - THROTTLE_START)
+            }
+        }
+    }
+    fn start_s(self) -> f64 {
+        match self {
+            Throttle::Step { at_s, .. } | Throttle::Ramp { at_s, .. } => at_s,
+        }
+    }
+}
+
+/// What the recycle valve does in the in-process oracle runs.
+#[derive(Debug, Clone, Copy)]
+enum OracleValve {
+    /// Held at its initial opening.
+    Held,
+    /// Commanded fully open this long after the throttle step, s.
+    OpenAfter(f64),
+}
+
+/// Figures of one run, on the plant's true state from the disturbance on.
+#[derive(Debug, Clone, Default)]
+struct Figures {
+    surge_cycles: u32,
+    reversals: u32,
+    /// Smallest true compressor flow, kg/s.
+    min_flow_kg_s: f64,
+    /// Smallest true surge margin (flow − surge-line flow at the pressure ratio, over the
+    /// latter), fraction.
+    min_margin: f64,
+    /// Time from the disturbance to the first flow below zero, s (NaN: none).
+    reversal_after_s: f64,
+    /// Largest valve command applied and largest stem position, fraction.
+    max_valve_cmd: f64,
+    max_valve_pos: f64,
+    /// Time from the disturbance until the stem first moved 5 % open, s (NaN: never).
+    valve_5pct_after_s: f64,
+    /// Final valve position and flow.
+    final_valve_pos: f64,
+    final_flow_kg_s: f64,
+}
+
+impl Figures {
+    fn new() -> Figures {
+        Figures {
+            min_flow_kg_s: f64::INFINITY,
+            min_margin: f64::INFINITY,
+            reversal_after_s: f64::NAN,
+            valve_5pct_after_s: f64::NAN,
+            ..Figures::default()
+        }
+    }
+}
+
+impl std::fmt::Display for Figures {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        write!(
+            f,
+            "surge cycles {} (reversals {}) · min flow {:.4} kg/s · closest approach {:+.1} % surge margin · first reversal {} · valve: cmd max {:.1} %, stem max {:.1} %, 5 % open after {}, final {:.1} % · final flow {:.4} kg/s",
+            self.surge_cycles,
+            self.reversals,
+            self.min_flow_kg_s,
+            100.0 * self.min_margin,
+            ms(self.reversal_after_s),
+            100.0 * self.max_valve_cmd,
+            100.0 * self.max_valve_pos,
+            ms(self.valve_5pct_after_s),
+            100.0 * self.final_valve_pos,
+            self.final_flow_kg_s,
+        )
+    }
+}
+
+fn ms(t_s: f64) -> String {
+    if t_s.is_finite() {
+        format!("{:.0} ms", t_s * 1e3)
+    } else {
+        "never".into()
+    }
+}
+
+/// The plant with its drive governor, surge detector and figures: shared by the oracle (in
+/// process) and the device (paced by the wall clock).
+struct PlantLoop<'a> {
+    desc: &'a PlantDescription,
+    plant: SimPlant,
+    inputs: PlantInputs,
+    governor: SpeedLoop,
+    detector: SurgeDetector,
+    figures: Figures,
+    throttle: Throttle,
+    k: u64,
+}
+
+impl<'a> PlantLoop<'a> {
+    fn new(desc: &'a PlantDescription, throttle: Throttle) -> PlantLoop<'a> {
+        let mut inputs = PlantInputs {
+            throttle_process: THROTTLE_START,
+            recycle_manual: desc.file.initial.recycle_valve,
+            ..PlantInputs::default()
+        };
+        inputs.feed = desc.file.initial.feed;
+        let plant = SimPlant::new(desc, &inputs).unwrap_or_else(|e| panic!("{e}"));
+        let d = desc.file.drive;
+        let governor = SpeedLoop::new(
+            d.speed_kp_nm_s_rad,
+            d.speed_ki_nm_rad,
+            (d.min_torque_nm, d.rated_torque_nm),
+            plant.truth().load_torque_nm,
+        );
+        PlantLoop {
+            desc,
+            plant,
+            inputs,
+            governor,
+            detector: SurgeDetector::new(DetectorConfig::default()),
+            figures: Figures::new(),
+            throttle,
+            k: 0,
+        }
+    }
+
+    fn t_s(&self) -> f64 {
+        self.k as f64 * PLANT_STEP_S
+    }
+
+    /// One step with the recycle valve commanded to `valve_cmd` (NaN: not commanded yet, the
+    /// valve stays at its initial opening).
+    fn step(&mut self, valve_cmd: f64) {
+        let t = self.t_s();
+        let nominal = self.desc.file.drive.nominal_speed_rad_s;
+        let omega = self.plant.truth().omega_rad_s;
+        let torque = self.governor.update(nominal, omega, 0.0, PLANT_STEP_S);
+        self.inputs.commands.set(ActuatorId::DriveTorque, torque);
+        self.inputs
+            .commands
+            .set(ActuatorId::RecycleValve, valve_cmd);
+        self.inputs.throttle_process = self.throttle.at(t);
+        self.plant.step(&self.inputs, PLANT_STEP_S);
+        self.k += 1;
+        let t = self.t_s();
+        let truth = self.plant.truth();
+        self.detector.update(t, PLANT_STEP_S, truth.m_kg_s);
+        let since = t - self.throttle.start_s();
+        if since >= 0.0 {
+            let fg = &mut self.figures;
+            fg.surge_cycles = self.detector.surge_cycles;
+            fg.reversals = self.detector.reversals;
+            fg.min_flow_kg_s = fg.min_flow_kg_s.min(truth.m_kg_s);
+            let surge = self
+                .desc
+                .map
+                .surge_line
+                .flow_at_ratio(truth.pressure_ratio());
+            fg.min_margin = fg.min_margin.min((truth.flow_map - surge) / surge);
+            if fg.reversal_after_s.is_nan() && truth.m_kg_s < 0.0 {
+                fg.reversal_after_s = since;
+            }
+            if valve_cmd.is_finite() {
+                fg.max_valve_cmd = fg.max_valve_cmd.max(valve_cmd);
+            }
+            fg.max_valve_pos = fg.max_valve_pos.max(truth.recycle_valve_position);
+            if fg.valve_5pct_after_s.is_nan()
+                && truth.recycle_valve_position >= self.desc.file.initial.recycle_valve + 0.05
+            {
+                fg.valve_5pct_after_s = since;
+            }
+            fg.final_valve_pos = truth.recycle_valve_position;
+            fg.final_flow_kg_s = truth.m_kg_s;
+        }
+    }
+}
+
+/// The oracle: the plant in process (no network), throttle stepped at 0.5 s, the valve held
+/// or slammed open, 3 s.
+fn oracle(desc: &PlantDescription, valve: OracleValve) -> Figures {
+    let step_at_s = 0.5;
+    let mut p = PlantLoop::new(
+        desc,
+        Throttle::Step {
+            at_s: step_at_s,
+            to: THROTTLE_END,
+        },
+    );
+    let n = (3.0 / PLANT_STEP_S).round() as u64;
+    for _ in 0..n {
+        let t = p.t_s();
+        let cmd = match valve {
+            OracleValve::OpenAfter(after_s) if t >= step_at_s + after_s - 1e-9 => 1.0,
+            _ => f64::NAN,
+        };
+        p.step(cmd);
+    }
+    p.figures
+}
+
+// ---------------------------------------------------------------------------------------------
+// The device
+
+/// One valve command the daemon wrote, as the device applied it.
+#[derive(Debug, Clone, Copy)]
+struct ValveWrite {
+    /// Plant time when it was applied, s.
+    t_s: f64,
+    /// Commanded opening, fraction.
+    cmd: f64,
+    /// The stem position the device last reported to the daemon (in the last read answered
+    /// before this write), fraction.
+    reported_pos: f64,
+    /// The stem position at the write, fraction.
+    pos_now: f64,
+}
+
+/// The device's state, shared by its plant thread and its Modbus service.
+#[derive(Debug)]
+struct DeviceState {
+    /// Input registers 0–10 as the plant last published them.
+    words: [u16; INPUT_WORDS],
+    /// The valve command last written, fraction (NaN: never).
+    valve_cmd: f64,
+    /// Every valve write.
+    writes: Vec<ValveWrite>,
+    /// Stem position in the last read answered, fraction.
+    reported_pos: f64,
+    /// Reads answered.
+    reads: u64,
+    /// Plant time, s.
+    t_s: f64,
+    /// Stem position now, fraction.
+    pos: f64,
+    /// Latency sequence.
+    latency: Rng,
+    /// When set, writes are not applied (the valve held: the sanity case).
+    ignore_writes: bool,
+}
+
+type Shared = Arc<Mutex<DeviceState>>;
+
+fn lock(s: &Shared) -> MutexGuard<'_, DeviceState> {
+    s.lock().unwrap_or_else(|e| e.into_inner())
+}
+
+fn f32_words(v: f64) -> [u16; 2] {
+    let b = (v as f32).to_bits();
+    [(b >> 16) as u16, b as u16]
+}
+
+fn fraction_word(v: f64) -> u16 {
+    (v * 1e4).round().clamp(0.0, 65535.0) as u16
+}
+
+/// The Modbus service of the device: every request answered (or applied) after the next
+/// latency of its sequence.
+#[derive(Clone)]
+struct DeviceService(Shared);
+
+type ServiceFuture = Pin<Box<dyn Future<Output = Result<Option<Response>, ExceptionCode>> + Send>>;
+
+impl tokio_modbus::server::Service for DeviceService {
+    type Request = SlaveRequest<'static>;
+    type Response = Option<Response>;
+    type Exception = ExceptionCode;
+    type Future = ServiceFuture;
+
+    fn call(&self, req: Self::Request) -> Self::Future {
+        let shared = Arc::clone(&self.0);
+        let delay = {
+            let mut s = lock(&shared);
+            let u = s.latency.unit();
+            Duration::from_secs_f64(LATENCY_MIN_S + u * (LATENCY_MAX_S - LATENCY_MIN_S))
+        };
+        if req.slave != 1 {
+            return Box::pin(std::future::ready(Err(ExceptionCode::GatewayTargetDevice)));
+        }
+        match req.request {
+            Request::ReadInputRegisters(addr, cnt) => {
+                let (a, n) = (usize::from(addr), usize::from(cnt));
+                if n == 0 || a + n > INPUT_WORDS {
+                    return Box::pin(std::future::ready(Err(ExceptionCode::IllegalDataAddress)));
+                }
+                // the values at the request's arrival, answered `delay` later
+                let (words, pos) = {
+                    let s = lock(&shared);
+                    (s.words[a..a + n].to_vec(), s.words[9])
+                };
+                Box::pin(async move {
+                    tokio::time::sleep(delay).await;
+                    let mut s = lock(&shared);
+                    if (a..a + n).contains(&9) {
+                        s.reported_pos = f64::from(pos) * 1e-4;
+                    }
+                    s.reads += 1;
+                    Ok(Some(Response::ReadInputRegisters(words)))
+                })
+            }
+            Request::WriteSingleRegister(addr, word) if addr == VALVE_HOLDING => {
+                Box::pin(async move {
+                    tokio::time::sleep(delay).await;
+                    apply_valve_write(&shared, word);
+                    Ok(Some(Response::WriteSingleRegister(addr, word)))
+                })
+            }
+            Request::WriteMultipleRegisters(addr, ref words)
+                if addr == VALVE_HOLDING && words.len() == 1 =>
+            {
+                let word = words[0];
+                Box::pin(async move {
+                    tokio::time::sleep(delay).await;
+                    apply_valve_write(&shared, word);
+                    Ok(Some(Response::WriteMultipleRegisters(addr, 1)))
+                })
+            }
+            Request::WriteSingleRegister(..) | Request::WriteMultipleRegisters(..) => {
+                Box::pin(std::future::ready(Err(ExceptionCode::IllegalDataAddress)))
+            }
+            _ => Box::pin(std::future::ready(Err(ExceptionCode::IllegalFunction))),
+        }
+    }
+}
+
+fn apply_valve_write(shared: &Shared, word: u16) {
+    let mut s = lock(shared);
+    let cmd = f64::from(word) * 1e-4;
+    let w = ValveWrite {
+        t_s: s.t_s,
+        cmd,
+        reported_pos: s.reported_pos,
+        pos_now: s.pos,
+    };
+    s.writes.push(w);
+    if !s.ignore_writes {
+        s.valve_cmd = cmd;
+    }
+}
+
+/// Serve the device on `listener` until the returned task is aborted (which closes the
+/// listener and every connection).
+fn serve(listener: tokio::net::TcpListener, shared: Shared) -> tokio::task::JoinHandle<()> {
+    tokio::spawn(async move {
+        let server = tokio_modbus::server::tcp::Server::new(listener);
+        let on_connected = move |stream: tokio::net::TcpStream, _peer: SocketAddr| {
+            let service = DeviceService(Arc::clone(&shared));
+            async move {
+                stream.set_nodelay(true)?;
+                Ok(Some((service, stream)))
+            }
+        };
+        let _ = server.serve(&on_connected, |_e| {}).await;
+    })
+}
+
+/// One real-time case.
+#[derive(Debug, Clone, Copy)]
+struct Case {
+    name: &'static str,
+    /// The daemon's poll (and control) rate, Hz.
+    poll_hz: f64,
+    throttle: Throttle,
+    /// Plant time at which the case ends, s.
+    end_s: f64,
+    /// Δp noise: uniform, ± this, Pa, a new value every plant step; and its seed.
+    dp_noise_pa: f64,
+    noise_seed: u64,
+    /// Latency sequence seed.
+    latency_seed: u64,
+    /// The Δp register frozen over [from, to), plant time, s.
+    dp_frozen: Option<(f64, f64)>,
+    /// The link dropped over [from, to), plant time, s.
+    outage: Option<(f64, f64)>,
+    /// No daemon; the valve held (the sanity case).
+    no_daemon: bool,
+}
+
+impl Case {
+    fn new(name: &'static str, poll_hz: f64, throttle: Throttle, end_s: f64) -> Case {
+        Case {
+            name,
+            poll_hz,
+            throttle,
+            end_s,
+            dp_noise_pa: 0.0,
+            noise_seed: 0,
+            latency_seed: 1,
+            dp_frozen: None,
+            outage: None,
+            no_daemon: false,
+        }
+    }
+}
+
+/// What a real-time case returns.
+struct Outcome {
+    figures: Figures,
+    writes: Vec<ValveWrite>,
+    reads: u64,
+    /// Plant time the plant lagged the wall clock by at most, s (printed, never asserted).
+    max_lag_s: f64,
+    dir: tempfile::TempDir,
+}
+
+/// The daemon's config: defaults except what the skid needs (bus and map, the machine,
+/// margin 10 %, the poll rate and the control rate with it, input freshness for that poll),
+/// and the status socket in the test's directory with the metrics and HMI listeners off (they
+/// bind fixed ports by default).
+fn daemon_config(dir: &Path, machine: &Path, map: &Path, port: u16, poll_hz: f64) -> PathBuf {
+    // freshness: the device answers in up to 20 ms, one request after another, so a value
+    // can be 2 poll periods + 2 latencies old; 200 ms as the project's other Modbus tests
+    let inputs = [
+        ("p_suction", 1.0e4, 1.0e6),
+        ("p_discharge", 1.0e4, 1.0e6),
+        ("shaft_speed", 0.0, 5000.0),
+        ("orifice_dp", -1.0e5, 1.0e5),
+        ("recycle_valve_position", -0.05, 1.05),
+        ("throttle_position", -0.05, 1.05),
+    ]
+    .iter()
+    .map(|(n, lo, hi)| format!("[inputs.{n}]\nmin = {lo:e}\nmax = {hi:e}\ntimeout_ms = 200.0\n"))
+    .collect::<String>();
+    let cfg = format!(
+        r#"
+[machine]
+file = "{machine}"
+[control]
+law = "recycle-pi"
+[cycle]
+rate_hz = {poll_hz:.1}
+lock_memory = false
+{inputs}
+[bus]
+transport = "field"
+signal_map = "{map}"
+[bus.modbus]
+poll_rate_hz = {poll_hz:.1}
+[bus.modbus.client]
+transport = {{ kind = "tcp", address = "127.0.0.1:{port}" }}
+[controller.recycle_pi]
+control_line = {{ margin = {{ margin_pct = 10.0 }} }}
+[event_log]
+path = "{events}"
+[status]
+log_interval_s = 5.0
+socket = "{socket}"
+metrics_listen = ""
+hmi_listen = ""
+"#,
+        machine = machine.display(),
+        map = map.display(),
+        events = dir.join("events.jsonl").display(),
+        socket = dir.join("status.sock").display(),
+    );
+    let path = dir.join("antisurge.toml");
+    std::fs::write(&path, cfg).expect("write config");
+    path
+}
+
+/// Run one case in real time: the device (plant thread + Modbus server), the daemon against
+/// it, the disturbances; returns the plant's figures and the valve writes.
+fn run_case(case: Case) -> Outcome {
+    let tmp = tempfile::tempdir().expect("tmp");
+    let dir = tmp.path().to_path_buf();
+    let (machine_path, desc) = machine(&dir);
+    let map_path = dir.join("signal_map.toml");
+    std::fs::write(&map_path, SIGNAL_MAP).expect("write map");
+
+    let shared: Shared = Arc::new(Mutex::new(DeviceState {
+        words: [0; INPUT_WORDS],
+        valve_cmd: f64::NAN,
+        writes: Vec::new(),
+        reported_pos: f64::NAN,
+        reads: 0,
+        t_s: 0.0,
+        pos: desc.file.initial.recycle_valve,
+        latency: Rng::new(case.latency_seed),
+        ignore_writes: case.no_daemon,
+    }));
+
+    // the Modbus side: its own runtime, one worker
+    let rt = tokio::runtime::Builder::new_multi_thread()
+        .worker_threads(1)
+        .enable_all()
+        .build()
+        .expect("runtime");
+    let listener = rt
+        .block_on(tokio::net::TcpListener::bind("127.0.0.1:0"))
+        .expect("bind port 0");
+    let port = listener.local_addr().expect("addr").port();
+    let server = Arc::new(Mutex::new(Some(rt.enter_and_serve(listener, &shared))));
+
+    let mut daemon = (!case.no_daemon).then(|| {
+        let cfg = daemon_config(&dir, &machine_path, &map_path, port, case.poll_hz);
+        spawn(
+            &dir,
+            "run",
+            &["run", "--config", &cfg.display().to_string()],
+        )
+    });
+
+    // the plant thread, paced by the wall clock; the link outage is switched from here
+    let (figures, max_lag_s) = {
+        let shared = Arc::clone(&shared);
+        let mut p = PlantLoop::new(&desc, case.throttle);
+        let mut noise = Rng::new(case.noise_seed);
+        let mut frozen_dp = f64::NAN;
+        let mut link_down = false;
+        let n = (case.end_s / PLANT_STEP_S).round() as u64;
+        let t0 = Instant::now();
+        let mut max_lag_s: f64 = 0.0;
+        for k in 0..n {
+            let due = Duration::from_secs_f64(k as f64 * PLANT_STEP_S);
+            let elapsed = t0.elapsed();
+            if let Some(wait) = due.checked_sub(elapsed) {
+                std::thread::sleep(wait);
+            } else {
+                max_lag_s = max_lag_s.max((elapsed - due).as_secs_f64());
+            }
+            let t = p.t_s();
+            if let Some((from, to)) = case.outage {
+                let down = t >= from && t < to;
+                if down && !link_down {
+                    // stop answering: listener and connections closed
+                    if let Some(h) = lock_server(&server).take() {
+                        h.abort();
+                        let _ = rt.block_on(h);
+                    }
+                } else if !down && link_down {
+                    let l = rt
+                        .block_on(tokio::net::TcpListener::bind(("127.0.0.1", port)))
+                        .expect("rebind the device's port");
+                    *lock_server(&server) = Some(rt.enter_and_serve(l, &shared));
+                }
+                link_down = down;
+            }
+            let cmd = lock(&shared).valve_cmd;
+            p.step(cmd);
+            // publish what the transmitters read
+            let s = p.plant.sensors();
+            let t = p.t_s();
+            let mut dp = s.get(SensorId::OrificeDp) + case.dp_noise_pa * noise.symmetric();
+            match case.dp_frozen {
+                Some((from, to)) if t >= from && t < to => {
+                    if frozen_dp.is_nan() {
+                        frozen_dp = dp;
+                    }
+                    dp = frozen_dp;
+                }
+                _ => frozen_dp = f64::NAN,
+            }
+            let mut w = [0u16; INPUT_WORDS];
+            w[0..2].copy_from_slice(&f32_words(s.get(SensorId::PSuction)));
+            w[2..4].copy_from_slice(&f32_words(s.get(SensorId::PDischarge)));
+            w[4..6].copy_from_slice(&f32_words(s.get(SensorId::ShaftSpeed)));
+            w[6..8].copy_from_slice(&f32_words(dp));
+            w[8] = ((s.get(SensorId::TSuction) - 273.15) * 100.0).round() as i16 as u16;
+            w[9] = fraction_word(s.get(SensorId::RecycleValvePosition));
+            w[10] = fraction_word(s.get(SensorId::ThrottlePosition));
+            let mut st = lock(&shared);
+            st.words = w;
+            st.t_s = t;
+            st.pos = s.get(SensorId::RecycleValvePosition);
+        }
+        (p.figures, max_lag_s)
+    };
+
+    if let Some(d) = daemon.as_mut() {
+        signal(d, libc::SIGTERM);
+        let _ = wait(d, Duration::from_secs(20), "controller", &dir);
+    }
+    if let Some(h) = lock_server(&server).take() {
+        h.abort();
+    }
+    drop(rt);
+    let st = lock(&shared);
+    Outcome {
+        figures,
+        writes: st.writes.clone(),
+        reads: st.reads,
+        max_lag_s,
+        dir: tmp,
+    }
+}
+
+fn lock_server(
+    s: &Mutex<Option<tokio::task::JoinHandle<()>>>,
+) -> MutexGuard<'_, Option<tokio::task::JoinHandle<()>>> {
+    s.lock().unwrap_or_else(|e| e.into_inner())
+}
+
+trait ServeOn {
+    fn enter_and_serve(
+        &self,
+        listener: tokio::net::TcpListener,
+        shared: &Shared,
+    ) -> tokio::task::JoinHandle<()>;
+}
+
+impl ServeOn for tokio::runtime::Runtime {
+    fn enter_and_serve(
+        &self,
+        listener: tokio::net::TcpListener,
+        shared: &Shared,
+    ) -> tokio::task::JoinHandle<()> {
+        let _g = self.enter();
+        serve(listener, Arc::clone(shared))
+    }
+}
+
+/// Print a case's figures and the daemon's writes (count, first after the disturbance).
+fn report(case: &Case, o: &Outcome) {
+    let start = case.throttle.start_s();
+    let before = o.writes.iter().filter(|w| w.t_s < start).count();
+    let first_after = o
+        .writes
+        .iter()
+        .find(|w| w.t_s >= start && w.cmd > 0.05)
+        .map_or("none".to_string(), |w| {
+            format!("{:.0} % at +{:.0} ms", 100.0 * w.cmd, 1e3 * (w.t_s - start))
+        });
+    eprintln!(
+        "[{}] {:.0} Hz: {} · writes {} ({} before the disturbance), reads {}, first command > 5 %: {} · plant lag behind the wall clock at most {:.1} ms",
+        case.name,
+        case.poll_hz,
+        o.figures,
+        o.writes.len(),
+        before,
+        o.reads,
+        first_after,
+        1e3 * o.max_lag_s
+    );
+}
+
+/// The daemon was in control before the disturbance: it wrote valve commands in the second
+/// before it (else the case says nothing about the law).
+fn assert_in_control(case: &Case, o: &Outcome) {
+    let start = case.throttle.start_s();
+    let n = o
+        .writes
+        .iter()
+        .filter(|w| w.t_s >= start - 1.0 && w.t_s < start)
+        .count();
+    assert!(
+        n >= 5,
+        "[{}] the daemon wrote {n} valve commands in the second before the disturbance: not in control\n{}",
+        case.name,
+        logs(o.dir.path())
+    );
+}
+
+// ---------------------------------------------------------------------------------------------
+// Case 1: the oracle, and the sanity of the counting
+
+/// The feasibility oracle's verdict, printed before the runs: the machine reverses its flow
+/// within ≈ 80 ms of the throttle step with the valve held (and surges), the valve slammed
+/// open 60 ms after the step (two 50-Hz periods + 20 ms latency) holds it, and so does 40 ms
+/// (100 Hz); opened 150 ms after the step it does not: the oracle can fail.
+#[test]
+fn feasibility_oracle_holds_with_the_valve_slammed_open_60_ms_after_the_step() {
+    let tmp = tempfile::tempdir().expect("tmp");
+    let (_, desc) = machine(tmp.path());
+    let held = oracle(&desc, OracleValve::Held);
+    let at_60 = oracle(&desc, OracleValve::OpenAfter(0.060));
+    let at_40 = oracle(&desc, OracleValve::OpenAfter(0.040));
+    let at_150 = oracle(&desc, OracleValve::OpenAfter(0.150));
+    eprintln!("oracle, valve held:            {held}");
+    eprintln!("oracle, valve open at +60 ms:  {at_60}");
+    eprintln!("oracle, valve open at +40 ms:  {at_40}");
+    eprintln!("oracle, valve open at +150 ms: {at_150}");
+    eprintln!(
+        "feasibility oracle verdict: {} (50 Hz: 2 × 20 ms + 20 ms = 60 ms → {} surge cycles, min flow {:.4} kg/s)",
+        if at_60.surge_cycles == 0 { "HOLDS" } else { "DOES NOT HOLD" },
+        at_60.surge_cycles,
+        at_60.min_flow_kg_s
+    );
+    // a fast machine: step to reversal with the valve held
+    assert!(
+        held.surge_cycles > 0 && (0.04..=0.1).contains(&held.reversal_after_s),
+        "valve held: {held}"
+    );
+    assert_eq!(at_60.surge_cycles, 0, "valve open at +60 ms: {at_60}");
+    assert!(at_60.min_flow_kg_s > 0.0, "{at_60}");
+    assert_eq!(at_40.surge_cycles, 0, "valve open at +40 ms: {at_40}");
+    assert!(at_150.surge_cycles > 0, "valve open at +150 ms: {at_150}");
+}
+
+/// The device's own counting through the whole real-time path: no daemon, the valve held,
+/// the throttle step surges the machine and the device counts it.
+#[test]
+fn the_device_counts_the_surge_of_a_held_valve() {
+    let _rt = real_time();
+    let mut case = Case::new(
+        "sanity: valve held, no daemon",
+        100.0,
+        Throttle::Step {
+            at_s: 1.0,
+            to: THROTTLE_END,
+        },
+        3.0,
+    );
+    case.no_daemon = true;
+    let o = run_case(case);
+    report(&case, &o);
+    assert!(o.figures.surge_cycles >= 3, "{}", o.figures);
+    assert!(o.figures.min_flow_kg_s < 0.0, "{}", o.figures);
+}
+
+// ---------------------------------------------------------------------------------------------
+// Case 2: the throttle step
+
+fn throttle_step(poll_hz: f64, name: &'static str) {
+    let _rt = real_time();
+    let case = Case::new(
+        name,
+        poll_hz,
+        Throttle::Step {
+            at_s: DISTURBANCE_AT_S,
+            to: THROTTLE_END,
+        },
+        DISTURBANCE_AT_S + 4.0,
+    );
+    let o = run_case(case);
+    report(&case, &o);
+    assert_in_control(&case, &o);
+    assert_eq!(
+        o.figures.surge_cycles,
+        0,
+        "[{name}] {}\n{}",
+        o.figures,
+        logs(o.dir.path())
+    );
+}
+
+/// First run (recycle-pi before the issue-22 rebuild): 8 and 10 surge cycles in two runs, the
+/// first command above 5 % 243–256 ms after the step (the oracle needs 60 ms).
+#[test]
+#[ignore = "issue 22: fails on the current recycle-pi; un-ignore after the rebuild"]
+fn throttle_step_at_100_hz_polling_does_not_surge() {
+    throttle_step(100.0, "throttle step");
+}
+
+/// First run: 11 surge cycles, the first command above 5 % 272 ms after the step.
+#[test]
+#[ignore = "issue 22: fails on the current recycle-pi; un-ignore after the rebuild"]
+fn throttle_step_at_50_hz_polling_does_not_surge() {
+    throttle_step(50.0, "throttle step");
+}
+
+// ---------------------------------------------------------------------------------------------
+// Case 3: noisy closure, Δp frozen for 1 s
+
+/// Δp noise amplitude, Pa: ± 5 % of the ≈ 5 kPa the flow element reads at the start.
+const DP_NOISE_PA: f64 = 250.0;
+
+/// The throttle closes 60 % → 10 % over 2 s with ± 250 Pa of Δp noise; the Δp register holds
+/// its value from 0.5 s to 1.5 s into the closure. First run: 10 of 10 seeds surged, 3–4 cycles
+/// each (the valve tripped fully open ≈ 0.9–1 s into the closure, then closed back into surge
+/// ≈ 3.1 s after its start).
+#[test]
+#[ignore = "issue 22: fails on the current recycle-pi; un-ignore after the rebuild"]
+fn noisy_closure_with_dp_frozen_for_1_s_at_100_hz_does_not_surge_over_10_seeds() {
+    let _rt = real_time();
+    let mut failed = Vec::new();
+    for seed in 1..=10u64 {
+        let mut case = Case::new(
+            "noisy closure, Δp frozen 1 s",
+            100.0,
+            Throttle::Ramp {
+                at_s: DISTURBANCE_AT_S,
+                over_s: 2.0,
+                to: THROTTLE_END,
+            },
+            DISTURBANCE_AT_S + 4.5,
+        );
+        case.dp_noise_pa = DP_NOISE_PA;
+        case.noise_seed = seed;
+        case.latency_seed = 100 + seed;
+        case.dp_frozen = Some((DISTURBANCE_AT_S + 0.5, DISTURBANCE_AT_S + 1.5));
+        let o = run_case(case);
+        eprint!("seed {seed}: ");
+        report(&case, &o);
+        assert_in_control(&case, &o);
+        if o.figures.surge_cycles > 0 {
+            failed.push((seed, o.figures.surge_cycles));
+        }
+    }
+    assert!(
+        failed.is_empty(),
+        "surged with (seed, cycles): {failed:?} of 10 seeds"
+    );
+}
+
+// ---------------------------------------------------------------------------------------------
+// Case 4: a 3-s link outage
+
+/// First run: the valve stood at 51.2 % when the link dropped; the first command after the
+/// resume was the fail-safe 100 %: a 48.8 % step.
+#[test]
+#[ignore = "issue 22: fails on the current recycle-pi; un-ignore after the rebuild"]
+fn after_a_3_s_link_outage_the_first_valve_command_matches_the_measured_position() {
+    let _rt = real_time();
+    // a slow partial closure the law holds with the valve part open, then the outage (the
+    // device keeps its last setpoint: no device watchdog in this map)
+    let mut case = Case::new(
+        "3-s link outage",
+        100.0,
+        Throttle::Ramp {
+            at_s: DISTURBANCE_AT_S,
+            over_s: 3.0,
+            to: 0.2,
+        },
+        DISTURBANCE_AT_S + 10.5,
+    );
+    let (down, up) = (DISTURBANCE_AT_S + 4.0, DISTURBANCE_AT_S + 7.0);
+    case.outage = Some((down, up));
+    let o = run_case(case);
+    report(&case, &o);
+    assert_in_control(&case, &o);
+    let last_before = o.writes.iter().rev().find(|w| w.t_s < down).copied();
+    let first_after = o.writes.iter().find(|w| w.t_s >= up).copied();
+    eprintln!(
+        "[{}] last write before the outage: {last_before:?}; first write after the resume: {first_after:?}",
+        case.name
+    );
+    let w = first_after
+        .unwrap_or_else(|| panic!("no valve write after the resume\n{}", logs(o.dir.path())));
+    let step = (w.cmd - w.reported_pos).abs();
+    eprintln!(
+        "[{}] resume: first command {:.2} % at +{:.0} ms after the link came back, measured position reported {:.2} % (stem then {:.2} %): step {:.2} % of travel",
+        case.name,
+        100.0 * w.cmd,
+        1e3 * (w.t_s - up),
+        100.0 * w.reported_pos,
+        100.0 * w.pos_now,
+        100.0 * step
+    );
+    assert!(
+        step <= 0.02,
+        "first command after the resume {:.2} % vs reported position {:.2} %\n{}",
+        100.0 * w.cmd,
+        100.0 * w.reported_pos,
+        logs(o.dir.path())
+    );
+}
