@@ -91,6 +91,9 @@ pub struct CampaignOptions {
     pub only_case: Option<usize>,
     /// Threads.
     pub threads: usize,
+    /// Run every case at this loop rate instead of its own, Hz (to compare one case across
+    /// rates).
+    pub rate_hz: Option<f64>,
 }
 
 impl Default for CampaignOptions {
@@ -101,6 +104,7 @@ impl Default for CampaignOptions {
             margin_pct: DEFAULT_MARGIN_PCT,
             only_case: None,
             threads: 1,
+            rate_hz: None,
         }
     }
 }
@@ -160,6 +164,8 @@ pub struct Campaign {
     pub margin_pct: f64,
     /// Whether it is the reduced campaign.
     pub reduced: bool,
+    /// The loop rate every case ran at instead of its own, Hz (None: their own).
+    pub rate_hz: Option<f64>,
     /// Cases, by case number.
     pub cases: Vec<CaseResult>,
 }
@@ -186,15 +192,25 @@ pub fn classify(oracle: &RunResult, late: &RunResult) -> Feasibility {
     }
 }
 
-/// Run case `k`: draw its skid and run every controller on it.
+/// Run case `k`: draw its skid (at the loop rate `rate_hz` instead of its own, if given) and
+/// run every controller on it.
 pub fn run_case(
     bases: &[PlantCase],
     seed: u64,
     k: usize,
     margin_pct: f64,
+    rate_hz: Option<f64>,
 ) -> Result<CaseResult, CampaignError> {
-    let s = skid::draw_skid(bases, seed, k)?;
-    let r = |c: Controller| runner::run(&s, c, margin_pct);
+    let mut s = skid::draw_skid(bases, seed, k)?;
+    if let Some(r) = rate_hz {
+        s.params.rate_hz = r;
+    }
+    run_skid(&s, margin_pct)
+}
+
+/// Run every controller on a skid.
+pub fn run_skid(s: &skid::Skid, margin_pct: f64) -> Result<CaseResult, CampaignError> {
+    let r = |c: Controller| runner::run(s, c, margin_pct);
     let recycle_pi = r(Controller::Law(LawId::RecyclePi))?;
     let baseline_pi = r(Controller::Law(LawId::BaselinePi))?;
     let oracle = r(Controller::Oracle { late_periods: 0 })?;
@@ -203,10 +219,10 @@ pub fn run_case(
     })?;
     let held = r(Controller::Held)?;
     Ok(CaseResult {
-        case: k,
+        case: s.index,
         seed: s.seed,
         class: classify(&oracle, &late_oracle),
-        skid: s.params,
+        skid: s.params.clone(),
         recycle_pi,
         baseline_pi,
         oracle,
@@ -215,14 +231,13 @@ pub fn run_case(
     })
 }
 
-/// Run the cases `indices` on up to `threads` threads, in case order.
+/// Run the cases `indices` of `opts.seed` on up to `opts.threads` threads, in case order.
 pub fn run_cases(
     bases: &[PlantCase],
-    seed: u64,
+    opts: &CampaignOptions,
     indices: &[usize],
-    margin_pct: f64,
-    threads: usize,
 ) -> Result<Vec<CaseResult>, CampaignError> {
+    let threads = opts.threads;
     let next = std::sync::atomic::AtomicUsize::new(0);
     type Slot = (usize, Result<CaseResult, CampaignError>);
     let results: std::sync::Mutex<Vec<Slot>> = std::sync::Mutex::new(Vec::new());
@@ -233,7 +248,7 @@ pub fn run_cases(
                 let Some(&k) = indices.get(i) else {
                     break;
                 };
-                let r = run_case(bases, seed, k, margin_pct);
+                let r = run_case(bases, opts.seed, k, opts.margin_pct, opts.rate_hz);
                 if let Ok(mut g) = results.lock() {
                     g.push((i, r));
                 }
@@ -255,11 +270,12 @@ pub fn run_campaign(
         Some(k) => vec![k],
         None => (0..opts.cases).collect(),
     };
-    let cases = run_cases(bases, opts.seed, &indices, opts.margin_pct, opts.threads)?;
+    let cases = run_cases(bases, opts, &indices)?;
     Ok(Campaign {
         seed: opts.seed,
         margin_pct: opts.margin_pct,
         reduced,
+        rate_hz: opts.rate_hz,
         cases,
     })
 }

@@ -182,6 +182,9 @@ pub fn reproduce(campaign: &Campaign, c: &CaseResult) -> String {
     if campaign.seed != super::DEFAULT_SEED {
         let _ = write!(s, " --seed {}", campaign.seed);
     }
+    if let Some(r) = campaign.rate_hz {
+        let _ = write!(s, " --rate-hz {r}");
+    }
     if campaign.margin_pct != super::DEFAULT_MARGIN_PCT {
         let _ = write!(s, " --margin-pct {}", campaign.margin_pct);
     }

@@ -25,6 +25,10 @@ pub struct CampaignArgs {
     /// Run only case K (to reproduce a failing case) and print it in detail.
     #[arg(long, value_name = "K")]
     pub case: Option<usize>,
+    /// Run the case(s) at this loop rate instead of their own, Hz (e.g. `--case 5 --rate-hz
+    /// 1000`: the same skid and disturbance at 1 kHz).
+    #[arg(long)]
+    pub rate_hz: Option<f64>,
     /// Also write the results as JSON to this file.
     #[arg(long)]
     pub json: Option<PathBuf>,
@@ -63,6 +67,7 @@ pub fn run(args: &CampaignArgs) -> Result<()> {
         margin_pct: args.margin_pct,
         only_case: args.case,
         threads,
+        rate_hz: args.rate_hz,
     };
     let result =
         campaign::run_campaign(&bases, &opts, args.reduced).context("running the campaign")?;
@@ -75,7 +80,10 @@ pub fn run(args: &CampaignArgs) -> Result<()> {
             print!("{}", report::case_detail(&result, c));
         }
         if let Some(dir) = &args.trace {
-            let skid = campaign::skid::draw_skid(&bases, args.seed, k)?;
+            let mut skid = campaign::skid::draw_skid(&bases, args.seed, k)?;
+            if let Some(r) = args.rate_hz {
+                skid.params.rate_hz = r;
+            }
             for c in campaign::runner::CONTROLLERS {
                 let (_, sim) = campaign::runner::run_traced(&skid, c, args.margin_pct, 0.005)?;
                 let out = dir.join(c.name().replace([' ', '+'], ""));
