@@ -524,7 +524,8 @@ pub fn draw_skid(bases: &[PlantCase], campaign_seed: u64, k: usize) -> Result<Sk
             continue;
         }
         let margin0 = initial_margin(&plant);
-        if !(margin0 >= MIN_INITIAL_MARGIN) {
+        // NaN (no steady state) is rejected too
+        if margin0.is_nan() || margin0 < MIN_INITIAL_MARGIN {
             continue;
         }
         let Some(t_rev) = step_to_reversal_s(&plant, STEP_TO_REVERSAL_S.1 + PLANT_STEP_S) else {
