@@ -41,7 +41,8 @@ pub enum Controller {
     /// The feasibility oracle: the valve commanded fully open at the first instant the
     /// transmitters could show the disturbance (disturbance time + bus latency + one sample
     /// period), `late_periods` sample periods later still; the command travels to the valve
-    /// like any other (bus latency, dead time, stroke). Before that the valve holds its
+    /// like any other (bus latency, dead time, stroke), without jitter (the oracle's best
+    /// case: the latency drawn for the skid, no extra). Before that the valve holds its
     /// initial opening. Not a law of the daemon: no control core runs.
     Oracle {
         /// Extra delay, sample periods.
