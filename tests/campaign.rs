@@ -273,3 +273,38 @@ fn one_case_reruns_and_writes_json() {
     let text = String::from_utf8(out.stdout).expect("utf-8");
     assert!(text.contains("case 5"), "{text}");
 }
+
+/// The oracle's open command reaches the valve when the runner says: issued one latency and
+/// one sample period after the disturbance (two periods more for the late oracle), delivered
+/// one latency plus the valve's dead time later; the valve does not move before.
+#[test]
+fn the_oracle_moves_the_valve_one_latency_period_latency_and_dead_time_after_the_disturbance() {
+    let b = bases();
+    for k in [0, 5, 10, 15] {
+        let s = skid::draw_skid(&b, cmp::DEFAULT_SEED, k).expect("skid");
+        let p = &s.params;
+        for late in [0, runner::LATE_ORACLE_PERIODS] {
+            let c = Controller::Oracle { late_periods: late };
+            let (_, sim) = runner::run_traced(&s, c, 10.0, skid::PLANT_STEP_S).expect("run");
+            let dt = skid::PLANT_STEP_S;
+            let period = (1.0 / p.rate_hz / dt).round() * dt;
+            let issue = ((skid::EVENT_AT_S + p.latency_s + period * (1.0 + f64::from(late))) / dt
+                - 1e-9)
+                .ceil()
+                * dt;
+            let arrive =
+                issue + (p.latency_s / dt).round() * dt + (p.valve_dead_time_s / dt).round() * dt;
+            let x0 = sim.trace[0].recycle_valve_position;
+            let moved = sim
+                .trace
+                .iter()
+                .find(|r| r.recycle_valve_position > x0 + 1e-9)
+                .map(|r| r.t_s)
+                .expect("the valve opens");
+            assert!(
+                moved > arrive - 1e-9 && moved <= arrive + 2.0 * dt + 1e-9,
+                "case {k}, late {late}: valve moved at {moved} s, command due at {arrive} s"
+            );
+        }
+    }
+}
