@@ -289,3 +289,43 @@ pub fn case_detail(campaign: &Campaign, c: &CaseResult) -> String {
     let _ = writeln!(s, "  reproduce: {}", reproduce(campaign, c));
     s
 }
+
+/// Every case in one table row: class, per controller surge cycles and closest approach,
+/// recycle energy of both laws, whether recycle-pi stayed in automatic mode.
+pub fn per_case_markdown(campaign: &Campaign) -> String {
+    let mut s = String::from(
+        "| case | base | rate | disturbance | class | recycle-pi cycles / closest / MJ | baseline-pi cycles / closest / MJ | oracle | late oracle | valve held | recycle-pi auto |\n|---|---|---|---|---|---|---|---|---|---|---|\n",
+    );
+    for c in &campaign.cases {
+        let law = |r: &super::runner::RunResult| {
+            format!(
+                "{} / {} / {}",
+                r.surge_cycles,
+                pct(r.min_margin),
+                mj(r.recycle_energy_j)
+            )
+        };
+        let oracle =
+            |r: &super::runner::RunResult| format!("{} / {}", r.surge_cycles, pct(r.min_margin));
+        let _ = writeln!(
+            s,
+            "| {} | {} | {:.0} Hz | {} | {} | {} | {} | {} | {} | {} | {} |",
+            c.case,
+            c.skid.base,
+            c.skid.rate_hz,
+            c.skid.disturbance.describe(),
+            c.class.name(),
+            law(&c.recycle_pi),
+            law(&c.baseline_pi),
+            oracle(&c.oracle),
+            oracle(&c.late_oracle),
+            c.held.surge_cycles,
+            if c.recycle_pi.stayed_auto {
+                "yes"
+            } else {
+                "no"
+            },
+        );
+    }
+    s
+}

@@ -40,6 +40,9 @@ pub struct CampaignArgs {
     /// `summary.json`, a row every 5 ms) under this directory, one folder per controller.
     #[arg(long, requires = "case")]
     pub trace: Option<PathBuf>,
+    /// Also print every case in a table after the summary.
+    #[arg(long, conflicts_with = "readme")]
+    pub per_case: bool,
     /// Configuration directory (the base plants are read from its `plants/`).
     #[arg(long)]
     pub config_dir: Option<PathBuf>,
@@ -99,6 +102,9 @@ pub fn run(args: &CampaignArgs) -> Result<()> {
         print!("<!-- campaign:begin -->\n{md}<!-- campaign:end -->\n");
     } else {
         print!("{md}");
+    }
+    if args.per_case {
+        print!("\nEvery case:\n\n{}", report::per_case_markdown(&result));
     }
     Ok(())
 }
