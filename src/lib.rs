@@ -12,6 +12,7 @@
 
 pub mod bench_matrix;
 pub mod blackbox;
+pub mod campaign;
 pub mod config;
 pub mod control;
 pub mod daemon;

@@ -27,6 +27,9 @@ enum Command {
     Table(cli::table::TableArgs),
     /// Print the control benchmark matrix (recycle-pi against baseline-pi) that README.md shows.
     BenchMatrix(cli::bench_matrix::BenchMatrixArgs),
+    /// Run the robustness campaign: random skids at field-bus loop rates, recycle-pi against
+    /// baseline-pi and the feasibility oracle (`--case K` reruns one case).
+    Campaign(cli::campaign::CampaignArgs),
     /// Run the controller service (SocketCAN / Modbus, or the in-process simulated plant).
     Run(cli::daemon::RunArgs),
     /// Run the simulated skid as a node on the field buses (hardware-in-the-loop).
@@ -64,6 +67,7 @@ fn main() -> std::process::ExitCode {
         Some(Command::Sim(args)) => cli::sim::run(&args),
         Some(Command::Table(args)) => cli::table::run(&args),
         Some(Command::BenchMatrix(args)) => cli::bench_matrix::run(&args),
+        Some(Command::Campaign(args)) => cli::campaign::run(&args),
         Some(Command::Run(args)) => cli::daemon::run(&args),
         Some(Command::Plant(args)) => cli::daemon::plant(&args),
         Some(Command::CheckConfig(args)) => match cli::daemon::check(&args) {

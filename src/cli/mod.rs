@@ -1,6 +1,7 @@
 //! Command-line front end.
 
 pub mod bench_matrix;
+pub mod campaign;
 pub mod daemon;
 pub mod locate;
 pub mod pictures;

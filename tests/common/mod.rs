@@ -66,6 +66,7 @@ pub fn simulate_with(
     .unwrap_or_else(|e| panic!("{e}"))
 }
 
+pub mod campaign;
 pub mod counting_alloc;
 pub mod daemon;
 pub mod faults;

@@ -1,0 +1,310 @@
+//! The robustness campaign (issue 22): the skid generator keeps to its documented ranges and
+//! repeats with its seed, the oracle separates feasible from infeasible cases, the reduced
+//! campaign's safety lines (recycle-pi against the late oracle and against baseline-pi), the
+//! same case at 50 Hz and 1 kHz, and README.md's campaign block.
+//!
+//! The reduced campaign (32 cases) runs once per test binary ([`common::campaign::reduced`]).
+
+mod common;
+
+use antisurge::campaign::runner::{self, Controller};
+use antisurge::campaign::skid::{self, DisturbanceKind};
+use antisurge::campaign::{self as cmp, Feasibility};
+use antisurge::control::LawId;
+use common::campaign::{bases, case_line, reduced};
+use std::process::Command;
+
+fn within(x: f64, r: (f64, f64)) -> bool {
+    x >= r.0 && x <= r.1
+}
+
+/// Every drawn skid lies in the documented ranges: its surge frequency and step-to-reversal
+/// time recomputed from the plant it carries (not only the numbers it reports), and every
+/// other drawn quantity.
+#[test]
+fn every_drawn_skid_lies_in_the_documented_ranges() {
+    let b = bases();
+    let mut rates = Vec::new();
+    let mut kinds = Vec::new();
+    for k in 0..48 {
+        let s = skid::draw_skid(&b, cmp::DEFAULT_SEED, k).expect("skid");
+        let p = &s.params;
+        let rs = s.plant.file.recycle_system.expect("recycle plant");
+        let f = skid::helmholtz_hz(&rs);
+        assert!(within(f, skid::SURGE_FREQUENCY_HZ), "case {k}: {f} Hz");
+        assert_eq!(f, p.surge_frequency_hz, "case {k}");
+        let t = skid::step_to_reversal_s(&s.plant, 1.0).expect("reverses");
+        assert!(within(t, skid::STEP_TO_REVERSAL_S), "case {k}: {t} s");
+        assert_eq!(t, p.step_to_reversal_s, "case {k}");
+        assert!(p.initial_margin >= skid::MIN_INITIAL_MARGIN, "case {k}");
+        assert!(within(p.recycle_stroke_time_s, skid::RECYCLE_STROKE_S));
+        assert_eq!(rs.recycle_valve.stroke_time_s, p.recycle_stroke_time_s);
+        assert!(within(p.valve_dead_time_s, skid::VALVE_DEAD_TIME_S));
+        assert!(within(p.throttle_stroke_time_s, skid::THROTTLE_STROKE_S));
+        assert!(within(p.latency_s, skid::LATENCY_S));
+        assert!(p.jitter_s >= 0.0 && p.jitter_s <= skid::JITTER_FRACTION.1 * p.latency_s);
+        assert!(within(p.map_flow_factor, skid::MAP_FLOW_FACTOR));
+        assert!(within(p.map_rise_factor, skid::MAP_RISE_FACTOR));
+        assert!(within(p.pressure_noise_pct_span, skid::PRESSURE_NOISE_PCT));
+        assert!(within(p.dp_noise_pct_span, skid::DP_NOISE_PCT));
+        assert!(
+            (skid::QUANTISATION_BITS.0..=skid::QUANTISATION_BITS.1).contains(&p.quantisation_bits)
+        );
+        assert!(skid::LOOP_RATES_HZ.contains(&p.rate_hz));
+        rates.push(p.rate_hz);
+        kinds.push(p.disturbance.kind());
+    }
+    for r in skid::LOOP_RATES_HZ {
+        assert_eq!(rates.iter().filter(|x| **x == r).count(), 12, "{r} Hz");
+    }
+    for d in DisturbanceKind::ALL {
+        assert_eq!(kinds.iter().filter(|x| **x == d).count(), 12, "{d:?}");
+    }
+}
+
+/// A fixed seed draws the same skids (case by case, in any order); another seed draws others.
+#[test]
+fn a_fixed_seed_draws_the_same_skids() {
+    let b = bases();
+    let first: Vec<_> = (0..8)
+        .map(|k| skid::draw_skid(&b, 7, k).expect("skid").params)
+        .collect();
+    let again: Vec<_> = (0..8)
+        .rev()
+        .map(|k| skid::draw_skid(&b, 7, k).expect("skid").params)
+        .collect();
+    let again: Vec<_> = again.into_iter().rev().collect();
+    assert_eq!(first, again);
+    let other: Vec<_> = (0..8)
+        .map(|k| skid::draw_skid(&b, 8, k).expect("skid").params)
+        .collect();
+    for (a, o) in first.iter().zip(&other) {
+        assert_ne!(a, o);
+    }
+}
+
+/// The reduced campaign spans every loop rate and every disturbance, the disturbances
+/// challenge the machines (the held valve surges in some cases), and the oracle holds some
+/// cases and fails others: it separates, it is not a constant.
+#[test]
+fn the_reduced_campaign_spans_every_rate_and_disturbance_and_the_oracle_separates() {
+    let c = reduced();
+    assert!(c.cases.len() >= 30);
+    for r in skid::LOOP_RATES_HZ {
+        for d in DisturbanceKind::ALL {
+            assert!(
+                c.cases
+                    .iter()
+                    .any(|x| x.skid.rate_hz == r && x.skid.disturbance.kind() == d),
+                "no {r} Hz × {d:?} case"
+            );
+        }
+    }
+    let held = c.cases.iter().filter(|x| x.held.surge_cycles > 0).count();
+    let holds = c
+        .cases
+        .iter()
+        .filter(|x| x.oracle.surge_cycles == 0)
+        .count();
+    let fails = c.cases.len() - holds;
+    println!("valve held surges in {held}, oracle holds {holds}, fails {fails}");
+    assert!(held > 0, "no case challenges the machine");
+    assert!(holds > 0, "the oracle holds no case");
+    assert!(fails > 0, "the oracle holds every case");
+    // the oracle acts no later than the late oracle: where it surges, so does the late one
+    for x in &c.cases {
+        if x.class == Feasibility::Infeasible {
+            assert!(x.late_oracle.surge_cycles > 0, "case {}", x.case);
+        }
+    }
+}
+
+/// The safety lines of issue 22 on the reduced campaign: recycle-pi has zero surge cycles in
+/// every case the late oracle holds, and in every case no more surge cycles than baseline-pi.
+/// Every failing case is listed with the command that reruns it.
+#[test]
+#[ignore = "fails on the current recycle-pi (issue 22: the law is being rebuilt in /work/main): 13 of 32 reduced cases fail — recycle-pi surges in 13 of the 28 cases the late oracle holds (63 cycles; baseline-pi 13 cases, 74 cycles) and surges more than baseline-pi in 3; un-ignore after the rebuild"]
+fn recycle_pi_holds_every_case_the_late_oracle_holds_and_never_surges_more_than_baseline_pi() {
+    let c = reduced();
+    let mut failures = Vec::new();
+    for r in &c.cases {
+        let rp = r.recycle_pi.surge_cycles;
+        let bp = r.baseline_pi.surge_cycles;
+        if r.class == Feasibility::FeasibleWithMargin && rp > 0 {
+            failures.push(case_line(
+                c,
+                r,
+                &format!("{rp} surge cycles where the late oracle holds"),
+            ));
+        }
+        if rp > bp {
+            failures.push(case_line(
+                c,
+                r,
+                &format!("{rp} surge cycles, more than baseline-pi's {bp}"),
+            ));
+        }
+    }
+    assert!(
+        failures.is_empty(),
+        "{} safety-line failures:\n{}",
+        failures.len(),
+        failures.join("\n")
+    );
+}
+
+/// Tolerance on the closest approach between the same case at 50 Hz and at 1 kHz, fraction of
+/// surge-line flow: half the default control-line margin (10 %). A difference below it does
+/// not decide whether the margin the control line keeps suffices; a larger one means the loop
+/// rate, not the machine, decides how close the machine comes.
+const SAME_OUTCOME_TOLERANCE: f64 = 0.5 * cmp::DEFAULT_MARGIN_PCT / 100.0;
+
+/// The same case at 50 Hz and at 1 kHz gives recycle-pi the same protection outcome: it
+/// surges at both rates or at neither, and where it surges at neither its closest approach
+/// differs by less than [`SAME_OUTCOME_TOLERANCE`]. The cases: every reduced case the oracle
+/// holds (an infeasible case surges whatever the rate).
+#[test]
+#[ignore = "fails on the current recycle-pi (issue 22: being rebuilt in /work/main): 6 of the 28 reduced cases the oracle holds differ — 4 surge at one rate only (cases 2, 8, 11, 19), 2 hold at both but their closest approach differs by more than 5 % of surge-line flow (case 0: +7.0 % at 50 Hz, +18.6 % at 1 kHz; case 4: -7.5 %, +2.8 %); un-ignore after the rebuild"]
+fn the_same_case_at_50_hz_and_1_khz_gives_recycle_pi_the_same_outcome() {
+    let c = reduced();
+    let b = bases();
+    let mut failures = Vec::new();
+    for r in c
+        .cases
+        .iter()
+        .filter(|r| r.class != Feasibility::Infeasible)
+    {
+        let mut s = skid::draw_skid(&b, c.seed, r.case).expect("skid");
+        let mut at = |hz: f64| {
+            s.params.rate_hz = hz;
+            runner::run(&s, Controller::Law(LawId::RecyclePi), c.margin_pct).expect("run")
+        };
+        let slow = at(50.0);
+        let fast = at(1000.0);
+        let what = format!(
+            "50 Hz: {} surge cycles, closest {:+.1} %; 1 kHz: {} surge cycles, closest {:+.1} %",
+            slow.surge_cycles,
+            100.0 * slow.min_margin,
+            fast.surge_cycles,
+            100.0 * fast.min_margin
+        );
+        let same_surge = (slow.surge_cycles > 0) == (fast.surge_cycles > 0);
+        let close = slow.surge_cycles > 0
+            || (slow.min_margin - fast.min_margin).abs() < SAME_OUTCOME_TOLERANCE;
+        if !(same_surge && close) {
+            failures.push(format!(
+                "{} (rerun at each rate: antisurge campaign --case {} --rate-hz 50, --rate-hz 1000)",
+                case_line(c, r, &what),
+                r.case
+            ));
+        }
+    }
+    assert!(
+        failures.is_empty(),
+        "{} cases differ between 50 Hz and 1 kHz:\n{}",
+        failures.len(),
+        failures.join("\n")
+    );
+}
+
+/// README.md's campaign block is the output of `antisurge campaign --reduced --readme`.
+#[test]
+fn readme_campaign_is_the_output_of_antisurge_campaign_reduced() {
+    let readme = std::fs::read_to_string(common::root().join("README.md")).expect("README.md");
+    let begin = "<!-- campaign:begin -->\n";
+    let end = "<!-- campaign:end -->\n";
+    let start = readme
+        .find(begin)
+        .expect("README.md lacks <!-- campaign:begin -->");
+    let stop = readme[start..]
+        .find(end)
+        .expect("README.md lacks <!-- campaign:end -->")
+        + start
+        + end.len();
+    let out = Command::new(env!("CARGO_BIN_EXE_antisurge"))
+        .args(["campaign", "--reduced", "--readme", "--threads", "2"])
+        .arg("--config-dir")
+        .arg(common::root().join("config"))
+        .output()
+        .expect("run antisurge campaign");
+    assert!(
+        out.status.success(),
+        "campaign failed: {}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let fresh = String::from_utf8(out.stdout).expect("utf-8");
+    assert_eq!(
+        &readme[start..stop],
+        fresh,
+        "README.md's campaign block differs from `antisurge campaign --reduced --readme`: rerun it and paste its output over the block"
+    );
+    // and the binary's table is the library's on the same campaign
+    assert!(fresh.contains(&antisurge::campaign::report::markdown(reduced())));
+}
+
+/// `--case K --json` reruns one case and writes it as JSON.
+#[test]
+fn one_case_reruns_and_writes_json() {
+    let dir = tempfile::tempdir().expect("tempdir");
+    let json = dir.path().join("case.json");
+    let out = Command::new(env!("CARGO_BIN_EXE_antisurge"))
+        .args(["campaign", "--case", "5", "--json"])
+        .arg(&json)
+        .arg("--config-dir")
+        .arg(common::root().join("config"))
+        .output()
+        .expect("run antisurge campaign");
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let v: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(&json).expect("json")).expect("parse");
+    let cases = v["cases"].as_array().expect("cases");
+    assert_eq!(cases.len(), 1);
+    assert_eq!(cases[0]["case"], 5);
+    // the rerun is the campaign's case 5
+    let r = &reduced().cases[5];
+    assert_eq!(
+        cases[0]["recycle_pi"]["surge_cycles"].as_u64(),
+        Some(u64::from(r.recycle_pi.surge_cycles))
+    );
+    let text = String::from_utf8(out.stdout).expect("utf-8");
+    assert!(text.contains("case 5"), "{text}");
+}
+
+/// The oracle's open command reaches the valve when the runner says: issued one latency and
+/// one sample period after the disturbance (two periods more for the late oracle), delivered
+/// one latency plus the valve's dead time later; the valve does not move before.
+#[test]
+fn the_oracle_moves_the_valve_one_latency_period_latency_and_dead_time_after_the_disturbance() {
+    let b = bases();
+    for k in [0, 5, 10, 15] {
+        let s = skid::draw_skid(&b, cmp::DEFAULT_SEED, k).expect("skid");
+        let p = &s.params;
+        for late in [0, runner::LATE_ORACLE_PERIODS] {
+            let c = Controller::Oracle { late_periods: late };
+            let (_, sim) = runner::run_traced(&s, c, 10.0, skid::PLANT_STEP_S).expect("run");
+            let dt = skid::PLANT_STEP_S;
+            let period = (1.0 / p.rate_hz / dt).round() * dt;
+            let issue = ((skid::EVENT_AT_S + p.latency_s + period * (1.0 + f64::from(late))) / dt
+                - 1e-9)
+                .ceil()
+                * dt;
+            let arrive =
+                issue + (p.latency_s / dt).round() * dt + (p.valve_dead_time_s / dt).round() * dt;
+            let x0 = sim.trace[0].recycle_valve_position;
+            let moved = sim
+                .trace
+                .iter()
+                .find(|r| r.recycle_valve_position > x0 + 1e-9)
+                .map(|r| r.t_s)
+                .expect("the valve opens");
+            assert!(
+                moved > arrive - 1e-9 && moved <= arrive + 2.0 * dt + 1e-9,
+                "case {k}, late {late}: valve moved at {moved} s, command due at {arrive} s"
+            );
+        }
+    }
+}
