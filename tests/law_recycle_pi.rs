@@ -317,7 +317,10 @@ fn throttle_step_is_caught_by_the_recycle_trip() {
         if stem == KV {
             assert!(ev.recycle_trips >= 1, "{stem}: no trip: {ev:?}");
         } else {
-            assert_eq!(ev.recycle_trips, 0, "{stem}: a trip far from the line: {ev:?}");
+            assert_eq!(
+                ev.recycle_trips, 0,
+                "{stem}: a trip far from the line: {ev:?}"
+            );
         }
         assert!(ev.recycle_trips <= 3, "{stem}: repeated trips: {ev:?}");
         assert_settles_on_line(&format!("{stem}/throttle_step"), &p, &r, bound);

@@ -457,7 +457,7 @@ impl SurgeLaw for RecyclePi {
             };
         let (trip_demand, trip_fired) =
             self.trip
-                .update(margin, t_sample_s, trip_line, gap, self.u_last, dt);
+                .update(margin, t_sample_s, trip_line, gap, self.u_last, age_s, dt);
 
         // ESD detection on the shaft speed
         let esd_started =

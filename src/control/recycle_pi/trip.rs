@@ -41,10 +41,13 @@ pub struct TripConfig {
     /// sized to pass the surge-line flow (the usual sizing), so one step returns the point
     /// from the trip line past the control line. 0 disables the trip.
     pub step: f64,
-    /// Prediction horizon, s: the trip fires when the margin, extrapolated at its rate of
-    /// approach over this time, falls below the trip line. 0 (default): the time the valve
-    /// needs to travel one step, `step` × the valve's stroke time from the machine data
-    /// (0.3 s for a 2-s valve): what the trip does now lands that much later.
+    /// Prediction horizon of the valve, s: the trip fires when the margin, extrapolated at
+    /// its rate of approach over this time plus the loop's own delay, falls below the trip
+    /// line. 0 (default): the time the valve needs to travel one step, `step` × the valve's
+    /// stroke time from the machine data (0.3 s for a 2-s valve). The loop's delay is always
+    /// added, measured, not set: the sample's age when the law sees it twice (the command
+    /// travels back as the sample came) and one sample period; what the trip does now lands
+    /// that much later.
     pub lead_time_s: f64,
     /// Window of the rate of approach, s. Default 0.02 s: half the shortest time from a
     /// throttle step to flow reversal in the campaign's range (40 ms), so the slope is known
@@ -183,9 +186,26 @@ impl RecycleTrip {
         }
     }
 
-    /// The prediction horizon in use, s.
+    /// The valve's part of the prediction horizon, s (the loop's measured delay comes on
+    /// top).
     pub fn lead_time_s(&self) -> f64 {
         self.lead_time_s
+    }
+
+    /// The prediction horizon with the loop's delay: the valve's lead, twice the sample age
+    /// `age_s` and one sample period.
+    fn horizon_s(&self, age_s: f64) -> f64 {
+        let period = if self.sample_dt_s.is_finite() {
+            self.sample_dt_s
+        } else {
+            0.0
+        };
+        let age = if age_s.is_finite() {
+            age_s.max(0.0)
+        } else {
+            0.0
+        };
+        self.lead_time_s + 2.0 * age + period
     }
 
     /// Forget the samples and any held trip (a (re)start: the last samples are old). The
@@ -300,7 +320,8 @@ impl RecycleTrip {
 
     /// One cycle. `margin` is the surge margin now (measured at `t_s`), `trip_line` the trip
     /// line and `gap` the distance from the trip line to the control line (both fractions of
-    /// surge-line flow at the measured ratio); `u_now` the valve output of the last cycle.
+    /// surge-line flow at the measured ratio); `u_now` the valve output of the last cycle;
+    /// `age_s` how old the sample was when the law got it (bus latency, 0 in process).
     /// Returns the opening the trip demands (NaN: none) and the kind of a step taken now.
     pub fn update(
         &mut self,
@@ -309,6 +330,7 @@ impl RecycleTrip {
         trip_line: f64,
         gap: f64,
         u_now: f64,
+        age_s: f64,
         dt_s: f64,
     ) -> (f64, Option<TripKind>) {
         if !self.enabled {
@@ -318,7 +340,7 @@ impl RecycleTrip {
         self.since_sample_s += dt_s.max(0.0);
         if self.push(margin, t_s) {
             self.since_sample_s = 0.0;
-            self.judge(trip_line);
+            self.judge(trip_line, age_s);
         } else if let (Some((TripKind::Predicted, _)), true) =
             (self.firing, self.since_sample_s > self.repeat_s)
         {
@@ -367,7 +389,7 @@ impl RecycleTrip {
 
     /// Judge the newest sample: set `firing` when the level or predicted condition has held
     /// over the confirmation span.
-    fn judge(&mut self, trip_line: f64) {
+    fn judge(&mut self, trip_line: f64, age_s: f64) {
         let (m0, t0) = self.sample(0);
         let k = self.noise_factor;
         // (capped: a very noisy margin must still trip before the surge line)
@@ -382,7 +404,7 @@ impl RecycleTrip {
         // (the prediction needs the noise of its slope: armed once the noise estimate has
         // PREDICTION_ARMS_AFTER samples; a fresh law judges only the level until then)
         let predicted = if slope.is_finite() && self.noise_n >= PREDICTION_ARMS_AFTER {
-            m0 + self.lead_time_s * (slope + k * slope_noise).min(0.0)
+            m0 + self.horizon_s(age_s) * (slope + k * slope_noise).min(0.0)
         } else {
             m0
         };
@@ -442,7 +464,7 @@ mod tests {
         while (k as f64) * dt < t_end {
             let t = k as f64 * dt;
             let t_sample = (t / period).floor() * period;
-            let (d, fired) = trip.update(margin(t_sample), t_sample, LINE, GAP, u, dt);
+            let (d, fired) = trip.update(margin(t_sample), t_sample, LINE, GAP, u, 0.0, dt);
             if fired.is_some() {
                 return Some((t, d));
             }
@@ -507,7 +529,7 @@ mod tests {
         let mut fired = false;
         for k in 0..20_000 {
             let t = k as f64 * 1e-3;
-            let (_, f) = trip.update(0.10 + 0.03 * noise(3, t), t, LINE, GAP, 0.1, 1e-3);
+            let (_, f) = trip.update(0.10 + 0.03 * noise(3, t), t, LINE, GAP, 0.1, 0.0, 1e-3);
             fired |= f.is_some();
         }
         assert!(fired);
@@ -525,7 +547,7 @@ mod tests {
             } else {
                 0.10 + 1e-6 * (k % 2) as f64
             };
-            fired = fired.or(fast.update(m, t, LINE, GAP, 0.1, 1e-3).1);
+            fired = fired.or(fast.update(m, t, LINE, GAP, 0.1, 0.0, 1e-3).1);
         }
         assert_eq!(fired, None);
         let mut slow = RecycleTrip::new(&TripConfig::default(), 2.0);
@@ -536,7 +558,7 @@ mod tests {
             } else {
                 0.10 + 1e-6 * (k % 2) as f64
             };
-            fired = fired.or(slow.update(m, t, LINE, GAP, 0.1, 0.02).1);
+            fired = fired.or(slow.update(m, t, LINE, GAP, 0.1, 0.0, 0.02).1);
         }
         assert_eq!(fired, Some(TripKind::Level));
     }
@@ -554,7 +576,7 @@ mod tests {
             } else {
                 0.10 + 1e-5 * (k % 2) as f64
             };
-            let (d, f) = trip.update(m, t, LINE, GAP, last, dt);
+            let (d, f) = trip.update(m, t, LINE, GAP, last, 0.0, dt);
             if f.is_some() {
                 steps += 1;
             }
