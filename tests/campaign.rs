@@ -7,9 +7,9 @@
 
 mod common;
 
-use antisurge::campaign::runner::{self, Controller};
+use antisurge::campaign::runner::{self, Controller, RunResult};
 use antisurge::campaign::skid::{self, DisturbanceKind};
-use antisurge::campaign::{self as cmp, Feasibility};
+use antisurge::campaign::{self as cmp, CaseResult, Feasibility};
 use antisurge::control::LawId;
 use common::campaign::{bases, case_line, reduced};
 use std::process::Command;
@@ -119,32 +119,41 @@ fn the_reduced_campaign_spans_every_rate_and_disturbance_and_the_oracle_separate
     }
 }
 
-/// The safety lines of issue 22 on the reduced campaign: recycle-pi has zero surge cycles in
-/// every case the late oracle holds, and in every case no more surge cycles than baseline-pi.
-/// Every failing case is listed with the command that reruns it.
-#[test]
-#[ignore = "fails on the current recycle-pi (issue 22: the law is being rebuilt in /work/main): 13 of 32 reduced cases fail — recycle-pi surges in 13 of the 28 cases the late oracle holds (63 cycles; baseline-pi 13 cases, 74 cycles) and surges more than baseline-pi in 3; un-ignore after the rebuild"]
-fn recycle_pi_holds_every_case_the_late_oracle_holds_and_never_surges_more_than_baseline_pi() {
+/// The failures of one safety line over the reduced campaign, each with its rerun command.
+fn safety_failures(line: impl Fn(&CaseResult) -> Option<String>) -> Vec<String> {
     let c = reduced();
-    let mut failures = Vec::new();
-    for r in &c.cases {
+    c.cases
+        .iter()
+        .filter_map(|r| line(r).map(|what| case_line(c, r, &what)))
+        .collect()
+}
+
+/// Safety line of issue 22 on the reduced campaign: in every case recycle-pi has no more
+/// surge cycles than baseline-pi on the same skid, disturbance and noise.
+#[test]
+fn recycle_pi_never_surges_more_than_baseline_pi() {
+    let failures = safety_failures(|r| {
+        let (rp, bp) = (r.recycle_pi.surge_cycles, r.baseline_pi.surge_cycles);
+        (rp > bp).then(|| format!("{rp} surge cycles, more than baseline-pi's {bp}"))
+    });
+    assert!(
+        failures.is_empty(),
+        "{} safety-line failures:\n{}",
+        failures.len(),
+        failures.join("\n")
+    );
+}
+
+/// Safety line of issue 22 on the reduced campaign: recycle-pi has zero surge cycles in every
+/// case the late oracle holds. Every failing case is listed with the command that reruns it.
+#[test]
+#[ignore = "not met by the rebuilt recycle-pi: 6 of the 28 reduced cases the late oracle holds surge once (cases 7, 16, 20, 21, 22, 23; baseline-pi surges in 13 of the 28, 74 cycles); the detection of a throttle step under 0.3-1.9 % transmitter noise comes too late for valves with 30-200 ms dead time"]
+fn recycle_pi_holds_every_case_the_late_oracle_holds() {
+    let failures = safety_failures(|r| {
         let rp = r.recycle_pi.surge_cycles;
-        let bp = r.baseline_pi.surge_cycles;
-        if r.class == Feasibility::FeasibleWithMargin && rp > 0 {
-            failures.push(case_line(
-                c,
-                r,
-                &format!("{rp} surge cycles where the late oracle holds"),
-            ));
-        }
-        if rp > bp {
-            failures.push(case_line(
-                c,
-                r,
-                &format!("{rp} surge cycles, more than baseline-pi's {bp}"),
-            ));
-        }
-    }
+        (r.class == Feasibility::FeasibleWithMargin && rp > 0)
+            .then(|| format!("{rp} surge cycles where the late oracle holds"))
+    });
     assert!(
         failures.is_empty(),
         "{} safety-line failures:\n{}",
@@ -159,46 +168,77 @@ fn recycle_pi_holds_every_case_the_late_oracle_holds_and_never_surges_more_than_
 /// rate, not the machine, decides how close the machine comes.
 const SAME_OUTCOME_TOLERANCE: f64 = 0.5 * cmp::DEFAULT_MARGIN_PCT / 100.0;
 
-/// The same case at 50 Hz and at 1 kHz gives recycle-pi the same protection outcome: it
-/// surges at both rates or at neither, and where it surges at neither its closest approach
-/// differs by less than [`SAME_OUTCOME_TOLERANCE`]. The cases: every reduced case the oracle
-/// holds (an infeasible case surges whatever the rate).
-#[test]
-#[ignore = "fails on the current recycle-pi (issue 22: being rebuilt in /work/main): 6 of the 28 reduced cases the oracle holds differ — 4 surge at one rate only (cases 2, 8, 11, 19), 2 hold at both but their closest approach differs by more than 5 % of surge-line flow (case 0: +7.0 % at 50 Hz, +18.6 % at 1 kHz; case 4: -7.5 %, +2.8 %); un-ignore after the rebuild"]
-fn the_same_case_at_50_hz_and_1_khz_gives_recycle_pi_the_same_outcome() {
+/// Every reduced case the oracle holds, at 50 Hz and at 1 kHz: (case, run at 50 Hz, run at
+/// 1 kHz).
+fn at_50_hz_and_1_khz() -> Vec<(&'static CaseResult, RunResult, RunResult)> {
     let c = reduced();
     let b = bases();
-    let mut failures = Vec::new();
-    for r in c
-        .cases
+    c.cases
         .iter()
         .filter(|r| r.class != Feasibility::Infeasible)
-    {
-        let mut s = skid::draw_skid(&b, c.seed, r.case).expect("skid");
-        let mut at = |hz: f64| {
-            s.params.rate_hz = hz;
-            runner::run(&s, Controller::Law(LawId::RecyclePi), c.margin_pct).expect("run")
-        };
-        let slow = at(50.0);
-        let fast = at(1000.0);
-        let what = format!(
-            "50 Hz: {} surge cycles, closest {:+.1} %; 1 kHz: {} surge cycles, closest {:+.1} %",
-            slow.surge_cycles,
-            100.0 * slow.min_margin,
-            fast.surge_cycles,
-            100.0 * fast.min_margin
-        );
-        let same_surge = (slow.surge_cycles > 0) == (fast.surge_cycles > 0);
-        let close = slow.surge_cycles > 0
-            || (slow.min_margin - fast.min_margin).abs() < SAME_OUTCOME_TOLERANCE;
-        if !(same_surge && close) {
-            failures.push(format!(
-                "{} (rerun at each rate: antisurge campaign --case {} --rate-hz 50, --rate-hz 1000)",
-                case_line(c, r, &what),
+        .map(|r| {
+            let mut s = skid::draw_skid(&b, c.seed, r.case).expect("skid");
+            let mut at = |hz: f64| {
+                s.params.rate_hz = hz;
+                runner::run(&s, Controller::Law(LawId::RecyclePi), c.margin_pct).expect("run")
+            };
+            let slow = at(50.0);
+            let fast = at(1000.0);
+            (r, slow, fast)
+        })
+        .collect()
+}
+
+fn rate_line(slow: &RunResult, fast: &RunResult) -> String {
+    format!(
+        "50 Hz: {} surge cycles, closest {:+.1} %; 1 kHz: {} surge cycles, closest {:+.1} %",
+        slow.surge_cycles,
+        100.0 * slow.min_margin,
+        fast.surge_cycles,
+        100.0 * fast.min_margin
+    )
+}
+
+/// The same case at 50 Hz and at 1 kHz gives recycle-pi the same protection outcome: it
+/// surges at both rates or at neither (no parameter hides a cycle count). The cases: every
+/// reduced case the oracle holds (an infeasible case surges whatever the rate).
+#[test]
+fn the_same_case_at_50_hz_and_1_khz_surges_at_both_rates_or_at_neither() {
+    let c = reduced();
+    let failures: Vec<String> = at_50_hz_and_1_khz()
+        .iter()
+        .filter(|(_, slow, fast)| (slow.surge_cycles > 0) != (fast.surge_cycles > 0))
+        .map(|(r, slow, fast)| {
+            format!(
+                "{} (rerun: antisurge campaign --case {} --rate-hz 50, --rate-hz 1000)",
+                case_line(c, r, &rate_line(slow, fast)),
                 r.case
-            ));
-        }
-    }
+            )
+        })
+        .collect();
+    assert!(
+        failures.is_empty(),
+        "{} cases differ between 50 Hz and 1 kHz:\n{}",
+        failures.len(),
+        failures.join("\n")
+    );
+}
+
+/// Where the case surges at neither rate, its closest approach differs by less than
+/// [`SAME_OUTCOME_TOLERANCE`] between 50 Hz and 1 kHz.
+#[test]
+#[ignore = "not met by the rebuilt recycle-pi: 3 of the 28 reduced cases differ by more than 5 % of surge-line flow (case 0: +40.2 % at 50 Hz, +32.6 % at 1 kHz; case 6: -9.0 %, -3.9 %; case 9: +52.1 %, +16.7 %); none surges at either rate"]
+fn the_same_case_at_50_hz_and_1_khz_comes_equally_close() {
+    let c = reduced();
+    let failures: Vec<String> = at_50_hz_and_1_khz()
+        .iter()
+        .filter(|(_, slow, fast)| {
+            slow.surge_cycles == 0
+                && fast.surge_cycles == 0
+                && (slow.min_margin - fast.min_margin).abs() >= SAME_OUTCOME_TOLERANCE
+        })
+        .map(|(r, slow, fast)| case_line(c, r, &rate_line(slow, fast)))
+        .collect();
     assert!(
         failures.is_empty(),
         "{} cases differ between 50 Hz and 1 kHz:\n{}",

@@ -991,14 +991,14 @@ fn throttle_step(poll_hz: f64, name: &'static str) {
 /// First run (recycle-pi before the issue-22 rebuild): 8 and 10 surge cycles in two runs, the
 /// first command above 5 % 243–256 ms after the step (the oracle needs 60 ms).
 #[test]
-#[ignore = "issue 22: fails on the current recycle-pi; un-ignore after the rebuild"]
+#[ignore = "not met by the rebuilt recycle-pi: 1 surge cycle (first reversal 78 ms after the step; the trip opens the valve 123 ms after it, the oracle needs 60 ms); the old law surged 8-10 cycles"]
 fn throttle_step_at_100_hz_polling_does_not_surge() {
     throttle_step(100.0, "throttle step");
 }
 
 /// First run: 11 surge cycles, the first command above 5 % 272 ms after the step.
 #[test]
-#[ignore = "issue 22: fails on the current recycle-pi; un-ignore after the rebuild"]
+#[ignore = "not met by the rebuilt recycle-pi: 1 surge cycle (first reversal 78 ms after the step; the trip opens the valve 146 ms after it, the oracle needs 60 ms); the old law surged 11 cycles"]
 fn throttle_step_at_50_hz_polling_does_not_surge() {
     throttle_step(50.0, "throttle step");
 }
@@ -1014,7 +1014,6 @@ const DP_NOISE_PA: f64 = 250.0;
 /// each (the valve tripped fully open ≈ 0.9–1 s into the closure, then closed back into surge
 /// ≈ 3.1 s after its start).
 #[test]
-#[ignore = "issue 22: fails on the current recycle-pi; un-ignore after the rebuild"]
 fn noisy_closure_with_dp_frozen_for_1_s_at_100_hz_does_not_surge_over_10_seeds() {
     let _rt = real_time();
     let mut failed = Vec::new();
@@ -1053,7 +1052,6 @@ fn noisy_closure_with_dp_frozen_for_1_s_at_100_hz_does_not_surge_over_10_seeds()
 /// First run: the valve stood at 51.2 % when the link dropped; the first command after the
 /// resume was the fail-safe 100 %: a 48.8 % step.
 #[test]
-#[ignore = "issue 22: fails on the current recycle-pi; un-ignore after the rebuild"]
 fn after_a_3_s_link_outage_the_first_valve_command_matches_the_measured_position() {
     let _rt = real_time();
     // a slow partial closure the law holds with the valve part open, then the outage (the

@@ -915,7 +915,20 @@ impl ControlCore {
                 self.healthy_since_s = t_s;
             }
             if t_s - self.healthy_since_s < self.settings.failsafe_exit_s {
-                return self.failsafe(meas, validity);
+                // the inputs are back and proving themselves: the recycle valve is held where
+                // it is measured, not driven to the fail-safe opening it could not reach while
+                // the link was down (a 3-s Modbus outage wrote 100 % onto a valve at 4 %
+                // first thing after the resume); the law then takes over from the same
+                // position. A valve already at the fail-safe opening stays there.
+                let mut out = self.failsafe(meas, validity);
+                if self.model.has_recycle_valve() && meas.recycle_position.is_finite() {
+                    out.commands.set(
+                        ActuatorId::RecycleValve,
+                        meas.recycle_position.clamp(0.0, 1.0),
+                    );
+                    self.last = out.commands;
+                }
+                return out;
             }
         }
         self.healthy_since_s = f64::NAN;

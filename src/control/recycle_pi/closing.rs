@@ -69,19 +69,49 @@ impl ClosingLimiter {
 
     /// The lowest opening the output may take this cycle, given the last output `u_last`,
     /// the measured position `u_pos` (NaN: not measured, the last output stands in), the
-    /// compressor flow `q` and the control-line flow `c` (map units). −∞ when off. Never
-    /// above `u_last`: the limiter only holds a closing back, it never opens.
-    pub fn floor(&self, u_last: f64, u_pos: f64, q: f64, c: f64, dt_s: f64) -> f64 {
+    /// compressor flow `q` and the control-line flow `c` (map units); `approach_cap_per_s`
+    /// a further cap on the closing rate from the recycle trip (see
+    /// [`ClosingLimiter::approach_cap_per_s`]; ∞: none). −∞ when off. Never above `u_last`:
+    /// the limiter only holds a closing back, it never opens.
+    pub fn floor(
+        &self,
+        u_last: f64,
+        u_pos: f64,
+        q: f64,
+        c: f64,
+        approach_cap_per_s: f64,
+        dt_s: f64,
+    ) -> f64 {
         if !self.enabled || !u_last.is_finite() {
             return f64::NEG_INFINITY;
         }
-        let by_rate = u_last - self.rate_per_s * dt_s.max(0.0);
+        let rate = if approach_cap_per_s >= 0.0 {
+            self.rate_per_s.min(approach_cap_per_s)
+        } else {
+            self.rate_per_s
+        };
+        let by_rate = u_last - rate * dt_s.max(0.0);
         let by_line = if self.stop_at_line {
             self.line_opening(if u_pos.is_finite() { u_pos } else { u_last }, q, c)
         } else {
             f64::NEG_INFINITY
         };
         by_rate.max(by_line).min(u_last)
+    }
+
+    /// The closing rate at which the law's own closing cannot make the recycle trip predict a
+    /// crossing, 1/s: closing at r takes at most the fraction r/u_pos of the compressor flow
+    /// per second (the same bound as the line opening: the recycle share is at most 1), so the
+    /// surge margin m falls at most at (1 + m)·r/u_pos; over the trip's horizon that must stay
+    /// within half the distance to the trip line. Without it the law's closing after a trip
+    /// ran the point towards the line at 0.35/s of margin on a large valve, the prediction
+    /// fired the trip again, and the two made a 0.4 Hz cycle (kvangardsnes2009, 5 % margin).
+    /// ∞ without a usable point.
+    pub fn approach_cap_per_s(u_pos: f64, margin: f64, trip_line: f64, horizon_s: f64) -> f64 {
+        if !(u_pos.is_finite() && margin.is_finite() && horizon_s > 0.0 && margin > -1.0) {
+            return f64::INFINITY;
+        }
+        u_pos.max(0.0) * (margin - trip_line).max(0.0) / (2.0 * (1.0 + margin) * horizon_s)
     }
 
     /// The opening that keeps the point at or right of the control line (see the module
@@ -111,10 +141,10 @@ mod tests {
     fn closing_is_rate_limited_and_opening_is_not() {
         let l = limiter();
         // far right of the line: the rate limits (0.1/s × 0.01 s)
-        let f = l.floor(0.5, 0.5, 3.0, 1.0, 0.01);
+        let f = l.floor(0.5, 0.5, 3.0, 1.0, f64::INFINITY, 0.01);
         assert!((f - 0.499).abs() < 1e-12, "{f}");
         // never above the last output: it cannot open
-        assert!(l.floor(0.5, 0.9, 0.5, 1.0, 0.01) <= 0.5);
+        assert!(l.floor(0.5, 0.9, 0.5, 1.0, f64::INFINITY, 0.01) <= 0.5);
     }
 
     #[test]
@@ -130,11 +160,11 @@ mod tests {
         let need = 0.5 * 0.99 / 0.8;
         let mut u = 0.99;
         for _ in 0..100_000 {
-            u = l.floor(u, u, q(u), 1.0, 0.01).max(0.0);
+            u = l.floor(u, u, q(u), 1.0, f64::INFINITY, 0.01).max(0.0);
         }
         assert!(u >= need - 1e-9 && u < need + 0.01, "{u} vs {need}");
         // on or left of the line: no closing at all
-        assert_eq!(l.floor(0.4, 0.4, 0.95, 1.0, 0.01), 0.4);
+        assert_eq!(l.floor(0.4, 0.4, 0.95, 1.0, f64::INFINITY, 0.01), 0.4);
     }
 
     #[test]
@@ -149,12 +179,32 @@ mod tests {
     }
 
     #[test]
+    fn the_closing_slows_so_that_its_own_approach_stays_within_the_trip_horizon() {
+        // 16 % right of the surge line, trip line 2.5 %, valve at 0.2, horizon 0.33 s
+        let cap = ClosingLimiter::approach_cap_per_s(0.2, 0.16, 0.025, 0.33);
+        // the margin falls at most (1 + m) r/u_pos: half the distance over the horizon
+        let fall = (1.0 + 0.16) * cap / 0.2 * 0.33;
+        assert!((fall - 0.5 * (0.16 - 0.025)).abs() < 1e-12, "{fall}");
+        assert!(cap < 0.1, "slower than the default rate: {cap}");
+        // at the trip line no closing at all
+        assert_eq!(
+            ClosingLimiter::approach_cap_per_s(0.2, 0.02, 0.025, 0.33),
+            0.0
+        );
+        let l = limiter();
+        assert!((l.floor(0.2, 0.2, 3.0, 1.0, cap, 0.01) - (0.2 - cap * 0.01)).abs() < 1e-12);
+    }
+
+    #[test]
     fn off_means_no_floor() {
         let cfg = ClosingConfig {
             enabled: false,
             ..ClosingConfig::default()
         };
         let l = ClosingLimiter::new(&cfg, Characteristic::Linear);
-        assert_eq!(l.floor(0.5, 0.5, 1.0, 1.0, 0.01), f64::NEG_INFINITY);
+        assert_eq!(
+            l.floor(0.5, 0.5, 1.0, 1.0, f64::INFINITY, 0.01),
+            f64::NEG_INFINITY
+        );
     }
 }

@@ -466,9 +466,20 @@ impl SurgeLaw for RecyclePi {
         let esd_demand = if self.esd.active() { hi } else { f64::NAN };
 
         // the closing limiter's floor
+        // (slowed so that its own approach cannot make the trip predict a crossing)
+        let cap = if self.cfg.trip.enabled && self.cfg.trip.step > 0.0 {
+            let u_pos = if m.recycle_position.is_finite() {
+                m.recycle_position
+            } else {
+                self.u_last
+            };
+            ClosingLimiter::approach_cap_per_s(u_pos, margin, trip_line, self.trip.horizon_s(age_s))
+        } else {
+            f64::INFINITY
+        };
         let floor = self
             .closing
-            .floor(self.u_last, m.recycle_position, q, c, dt);
+            .floor(self.u_last, m.recycle_position, q, c, cap, dt);
 
         // high-select
         let mut u = pi_demand;

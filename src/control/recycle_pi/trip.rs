@@ -194,7 +194,7 @@ impl RecycleTrip {
 
     /// The prediction horizon with the loop's delay: the valve's lead, twice the sample age
     /// `age_s` and one sample period.
-    fn horizon_s(&self, age_s: f64) -> f64 {
+    pub fn horizon_s(&self, age_s: f64) -> f64 {
         let period = if self.sample_dt_s.is_finite() {
             self.sample_dt_s
         } else {
@@ -412,7 +412,9 @@ impl RecycleTrip {
         // so a noisy sample neither fires the trip nor enlarges its step
         let beyond = |p: f64| (threshold - p - k * self.noise).max(0.0);
         let cond = if m0 < threshold {
-            Some((TripKind::Level, beyond(predicted.min(m0))))
+            // (a level trip is sized on where the point is: the prediction had its chance
+            // before, and its slope noise would size the step)
+            Some((TripKind::Level, beyond(m0)))
         } else if predicted < threshold {
             Some((TripKind::Predicted, beyond(predicted)))
         } else {

@@ -51,6 +51,14 @@ use thiserror::Error;
 use tokio::io::unix::AsyncFd;
 use tokio::io::Interest;
 use tokio::sync::watch;
+
+/// The heartbeat's mode code of fail-safe (the heartbeat block's documented codes).
+const MODE_FAILSAFE: u8 = 3;
+
+/// Longest a link back from a failure withholds a fail-safe output set, ns: twice the core's
+/// fail-safe exit hysteresis (0.5 s), so a core that resumes is written from its resumed
+/// output and a fail-safe that lasts reaches the device.
+const RESYNC_FAILSAFE_NS: u64 = 1_000_000_000;
 use tokio::time::{Instant, MissedTickBehavior};
 use tokio_modbus::ExceptionCode;
 
@@ -777,6 +785,15 @@ struct Controller {
     max_output_age_ns: u64,
     /// Control cycle number of the last output set written in full.
     last_written_cycle: Option<u64>,
+    /// After a link failure: nothing is written until the control thread has published an
+    /// output set computed from the first values read after the failure. `Some(None)`: no
+    /// values read yet; `Some(Some(k))`: values read while output set `k` was the latest, so
+    /// set `k + 2` is the first computed after them. (The sets published while the link was
+    /// down were computed without inputs: a 3-s outage wrote the fail-safe 100 % onto a valve
+    /// measured at 4 % first thing after the resume.)
+    resync: Option<Option<u64>>,
+    /// When the first values after the failure were read (monotonic ns).
+    resync_read_ns: u64,
     last_cause: FailureCause,
     sensors: Arc<SensorBoard>,
     outputs: Arc<OutputBoard>,
@@ -843,6 +860,8 @@ impl Controller {
             change_only: cfg.write_on_change_only,
             max_output_age_ns: cfg.max_output_age_ms.saturating_mul(1_000_000),
             last_written_cycle: None,
+            resync: None,
+            resync_read_ns: 0,
             last_cause: FailureCause::Connect,
             sensors,
             outputs,
@@ -875,12 +894,15 @@ impl Controller {
     /// One read of every sensor group; publishes what was answered.
     async fn read(&mut self, out: &mut Outcome) {
         if self.groups.is_empty() {
+            // a write-only link reads nothing to resync on
+            self.resync = None;
             return;
         }
         let c = &self.monitor.counters;
         LinkCounters::add(&c.polls, 1);
         let mut all_ok = true;
         let mut published = 0u64;
+        let latest_cycle = self.outputs.latest().map_or(0, |o| o.cycle);
         for k in 0..self.groups.len() {
             let g = &mut self.groups[k];
             let result = self.client.read(&g.plan, &mut g.values).await;
@@ -892,6 +914,10 @@ impl Controller {
                     }
                     published += g.ids.len() as u64;
                     out.answered = true;
+                    if self.resync == Some(None) {
+                        self.resync = Some(Some(latest_cycle));
+                        self.resync_read_ns = t_ns;
+                    }
                 }
                 Err(e) => {
                     all_ok = false;
@@ -918,6 +944,21 @@ impl Controller {
         };
         if self.last_written_cycle == Some(o.cycle) {
             return;
+        }
+        // ... and while the core still holds fail-safe on those first values (it leaves it
+        // after its exit hysteresis, then resumes from the measured valve position), at most
+        // RESYNC_FAILSAFE_NS: a fail-safe that lasts is written
+        match self.resync {
+            Some(Some(k))
+                if o.cycle >= k.saturating_add(2)
+                    && (o.mode != MODE_FAILSAFE
+                        || monotonic_ns().saturating_sub(self.resync_read_ns)
+                            >= RESYNC_FAILSAFE_NS) =>
+            {
+                self.resync = None
+            }
+            Some(_) => return,
+            None => {}
         }
         let c = &self.monitor.counters;
         if monotonic_ns().saturating_sub(o.t_ns) > self.max_output_age_ns {
@@ -1052,6 +1093,7 @@ impl Controller {
         self.mirror_client_counters();
         if out.link_failed {
             self.acknowledged_valid = false;
+            self.resync = Some(None);
         }
         let now = monotonic_ns();
         match out.write {
