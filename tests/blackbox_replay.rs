@@ -147,7 +147,7 @@ scenario = "throttle-closure"
     let text1 = std::fs::read_to_string(&cfg).expect("config");
     std::fs::write(
         &cfg2,
-        format!("{text1}[controller.recycle_pi]\nkp_per_map_flow = {kp:?}\n"),
+        format!("{text1}[controller.recycle_pi.pi]\nkp_per_map_flow = {kp:?}\n"),
     )
     .expect("write candidate");
     let pics2 = dir.join("replay-changed");

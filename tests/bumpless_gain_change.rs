@@ -39,15 +39,18 @@ fn scaled(config: &ControllerConfig, law: LawId, factor: f64) -> ControllerConfi
     let mut t = toml::Table::try_from(config).expect("config as a table");
     let mut n = 0;
     for key in BOUNDED_GAINS {
-        let Some((s, leaf)) = key.split_once('.') else {
-            continue;
-        };
-        if s != section {
+        // a dotted path below `[controller]`: section, sub-sections, then the gain
+        let parts: Vec<&str> = key.split('.').collect();
+        if parts.len() < 2 || parts[0] != section {
             continue;
         }
-        let table = t[s].as_table_mut().expect("section");
-        let v = table[leaf].as_float().expect("gain");
-        table.insert(leaf.into(), toml::Value::Float(v * factor));
+        let (leaf, path) = parts.split_last().expect("two parts");
+        let mut table = &mut t;
+        for p in path {
+            table = table[*p].as_table_mut().expect("section");
+        }
+        let v = table[*leaf].as_float().expect("gain");
+        table.insert((*leaf).into(), toml::Value::Float(v * factor));
         n += 1;
     }
     assert!(n > 0 || law == LawId::None, "{law}: no bounded gain");

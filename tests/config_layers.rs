@@ -33,7 +33,7 @@ fn setup(main: &str, conf_d: &[(&str, &str)]) -> (tempfile::TempDir, PathBuf) {
 
 fn main_file(plant_stem: &str, law: &str) -> String {
     format!(
-        "[plant]\nfile = \"{}\"\n\n[control]\nlaw = \"{law}\"\n\n[cycle]\nrate_hz = 1000.0\npriority = 80\n\n[controller.recycle_pi]\nkp_per_map_flow = 10.0\n",
+        "[plant]\nfile = \"{}\"\n\n[control]\nlaw = \"{law}\"\n\n[cycle]\nrate_hz = 1000.0\npriority = 80\n\n[controller.recycle_pi.pi]\nkp_per_map_flow = 10.0\n",
         plant(plant_stem)
     )
 }
@@ -78,7 +78,7 @@ fn conf_d_overrides_the_main_file_in_file_name_order() {
             ("50-site.toml", "[cycle]\nrate_hz = 500.0\n"),
             (
                 "10-tuning.toml",
-                "[cycle]\nrate_hz = 200.0\n\n[controller.recycle_pi]\nki_per_map_flow_s = 12.0\n",
+                "[cycle]\nrate_hz = 200.0\n\n[controller.recycle_pi.pi]\nki_per_map_flow_s = 12.0\n",
             ),
             // not a .toml file: ignored
             ("README.md", "rate_hz = \"not toml\"\n"),

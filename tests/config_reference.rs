@@ -36,7 +36,9 @@ fn populated() -> DaemonConfig {
     );
     let mut controller = toml::Table::new();
     let mut recycle_pi = toml::Table::new();
-    recycle_pi.insert("kp_per_map_flow".into(), toml::Value::Float(10.0));
+    let mut pi = toml::Table::new();
+    pi.insert("kp_per_map_flow".into(), toml::Value::Float(10.0));
+    recycle_pi.insert("pi".into(), toml::Value::Table(pi));
     controller.insert("recycle_pi".into(), toml::Value::Table(recycle_pi));
     let hb = HeartbeatRegister {
         unit_id: 1,

@@ -111,7 +111,7 @@ scenario = "throttle-closure"
 [reload]
 watch_files = true
 settle_ms = 300.0
-[controller.recycle_pi]
+[controller.recycle_pi.pi]
 kp_per_map_flow = KP
 "#,
         plant = shipped("plants/kvangardsnes2009_recycle.toml"),

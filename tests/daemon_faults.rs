@@ -93,7 +93,7 @@ fn bad_config_files_on_reload_never_starve_the_watchdog() {
 fn a_file_written_in_two_halves_is_never_applied_half() {
     let tmp = tempfile::tempdir().expect("tmp");
     let dir = tmp.path();
-    let gains = "[controller.recycle_pi]\nkp_per_map_flow = KP\nki_per_map_flow_s = 24.0\n";
+    let gains = "[controller.recycle_pi.pi]\nkp_per_map_flow = KP\nki_per_map_flow_s = 24.0\n";
     let (cfg, base) = config(
         dir,
         &format!(

@@ -99,7 +99,7 @@ fn a_valve_too_slow_for_an_esd_is_named_with_the_stroke_that_holds_from_the_spee
 fn at_a_5_pct_margin_the_check_says_the_trip_contact_must_be_wired_and_how_fast() {
     let err = check(
         "kvangardsnes2009_recycle",
-        "[controller.recycle_pi]\ncontrol_line = { margin = { margin_pct = 5.0 } }\ntrip_margin_pct = 2.5\n",
+        "[controller.recycle_pi]\ncontrol_line = { margin = { margin_pct = 5.0 } }\n[controller.recycle_pi.trip]\nmargin_pct = 2.5\n",
     );
     let line = stroke_warning(&err);
     assert!(line.contains("recycle-pi at a 5 % margin"), "{line}");
@@ -258,7 +258,7 @@ fn a_contact_bound_over_modbus_is_judged_with_its_poll_latency() {
                 "[plant]\nfile = \"{}\"\n[control]\nlaw = \"recycle-pi\"\n\
                  [controller.recycle_pi]\n\
                  control_line = {{ margin = {{ margin_pct = 5.0 }} }}\n\
-                 trip_margin_pct = 2.5\n[bus]\n\
+                 [controller.recycle_pi.trip]\nmargin_pct = 2.5\n[bus]\n\
                  transport = \"field\"\nsignal_map = \"{}\"\n[bus.modbus]\n\
                  poll_rate_hz = {poll_hz:.1}\n[bus.modbus.client]\n\
                  transport = {{ kind = \"tcp\", address = \"127.0.0.1:1502\" }}\n",

@@ -181,7 +181,7 @@ fn surge_counter_and_safety_on_survive_kill_9() {
          [[event]]\nat_s = 2.0\nramp = { signal = \"throttle\", to = 0.1, over_s = 1.0 }\n",
     )
     .expect("scenario");
-    let weak = "[controller.recycle_pi]\nkp_per_map_flow = 0.05\nki_per_map_flow_s = 0.02\ntrip_step = 0.0\n";
+    let weak = "[controller.recycle_pi.pi]\nkp_per_map_flow = 0.05\nki_per_map_flow_s = 0.02\n[controller.recycle_pi.trip]\nstep = 0.0\n";
     let cfg = config(dir, "closure.toml", weak);
     let mut seen = Vec::new();
     for run in 0..3u64 {

@@ -133,15 +133,17 @@ impl OutputPart {
     }
 }
 
-/// Start and resume: the opening a (re)started law takes over from, bumplessly: the
-/// *measured* valve position when there is one (after a link restart or a fail-safe exit the
-/// valve is where it is, not where the last command or the fail-safe wanted it), else the
-/// output applied now, else the minimum opening.
+/// Start and resume: the opening a (re)started law takes over from, bumplessly: the output
+/// applied now, which the core sets to the *measured* valve position at process start and at
+/// every fail-safe exit and link restart (the valve is where it is, not where the last command
+/// or the fail-safe wanted it: `ControlCore::cycle`), and leaves at the command after a switch
+/// from manual, another law or the ESD contact's opening (the valve is on its way there); else
+/// the measured position; else the minimum opening.
 pub fn start_opening(measured: f64, applied: f64, min_opening: f64) -> f64 {
-    if measured.is_finite() {
-        measured.clamp(0.0, 1.0)
-    } else if applied.is_finite() {
+    if applied.is_finite() {
         applied.clamp(0.0, 1.0)
+    } else if measured.is_finite() {
+        measured.clamp(0.0, 1.0)
     } else {
         min_opening
     }

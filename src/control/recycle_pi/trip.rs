@@ -412,9 +412,9 @@ impl RecycleTrip {
         // so a noisy sample neither fires the trip nor enlarges its step
         let beyond = |p: f64| (threshold - p - k * self.noise).max(0.0);
         let cond = if m0 < threshold {
-            // (a level trip is sized on where the point is: the prediction had its chance
-            // before, and its slope noise would size the step)
-            Some((TripKind::Level, beyond(m0)))
+            // (sized on the deeper of where the point is and where it is heading: at a slow
+            // poll the first sample after a slam is already past the line)
+            Some((TripKind::Level, beyond(predicted.min(m0))))
         } else if predicted < threshold {
             Some((TripKind::Predicted, beyond(predicted)))
         } else {
