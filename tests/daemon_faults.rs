@@ -109,7 +109,7 @@ fn a_file_written_in_two_halves_is_never_applied_half() {
     );
     std::thread::sleep(Duration::from_millis(2500));
     let full = base.replace("kp_per_map_flow = 10.0", "kp_per_map_flow = 12.0");
-    let cut = full.find("[controller.recycle_pi]").expect("section");
+    let cut = full.find("[controller.recycle_pi.pi]").expect("section");
     let mut f = std::fs::OpenOptions::new()
         .write(true)
         .truncate(true)
