@@ -1216,6 +1216,9 @@ fn the_closing_after_a_link_bounce_stops_at_the_control_line_without_a_trip() {
     }
 }
 
+/// A controller written in the test: (dt, measurements) → valve command.
+type TextbookPi<'a> = dyn FnMut(f64, &Measurements) -> f64 + 'a;
+
 /// Seed 002's recycle plant (kvangardsnes2009), feed 12 → 7 kg/s over 1 s, closed through the
 /// same measurement path (the control core) by `law` or, with `law = None`, by the textbook
 /// PI of `textbook` below; returns the valve command trajectory (one value per 1-ms cycle)
@@ -1223,7 +1226,7 @@ fn the_closing_after_a_link_bounce_stops_at_the_control_line_without_a_trip() {
 fn feed_drop_12_to_7(
     p: &PlantCase,
     law: LawId,
-    mut textbook: Option<&mut dyn FnMut(f64, &Measurements) -> f64>,
+    mut textbook: Option<&mut TextbookPi<'_>>,
 ) -> (Vec<f64>, antisurge::sim::Summary) {
     use antisurge::control::core::{ControlCore, CoreSettings};
     use antisurge::sim::PlantRun;

@@ -202,7 +202,7 @@ impl RecyclePi {
         non_negative("safety_on.max_pct", cfg.safety_on.max_pct)?;
         non_negative("esd.decel_pct_per_s", cfg.esd.decel_pct_per_s)?;
         non_negative("esd.release_s", cfg.esd.release_s)?;
-        if !(cfg.closing.rate_per_s > 0.0 && !cfg.closing.rate_per_s.is_nan()) {
+        if cfg.closing.rate_per_s <= 0.0 || cfg.closing.rate_per_s.is_nan() {
             return Err(err(
                 "closing.rate_per_s",
                 format!("must be positive, found {}", cfg.closing.rate_per_s),

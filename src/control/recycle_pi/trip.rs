@@ -323,6 +323,7 @@ impl RecycleTrip {
     /// surge-line flow at the measured ratio); `u_now` the valve output of the last cycle;
     /// `age_s` how old the sample was when the law got it (bus latency, 0 in process).
     /// Returns the opening the trip demands (NaN: none) and the kind of a step taken now.
+    #[allow(clippy::too_many_arguments)] // one cycle's inputs, each a named quantity
     pub fn update(
         &mut self,
         margin: f64,
