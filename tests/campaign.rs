@@ -119,6 +119,16 @@ fn the_reduced_campaign_spans_every_rate_and_disturbance_and_the_oracle_separate
     }
 }
 
+/// Fail with every failing case listed, one per line.
+fn assert_none(what: &str, failures: &[String]) {
+    assert!(
+        failures.is_empty(),
+        "{} {what}:\n{}",
+        failures.len(),
+        failures.join("\n")
+    );
+}
+
 /// The failures of one safety line over the reduced campaign, each with its rerun command.
 fn safety_failures(line: impl Fn(&CaseResult) -> Option<String>) -> Vec<String> {
     let c = reduced();
@@ -136,12 +146,7 @@ fn recycle_pi_never_surges_more_than_baseline_pi() {
         let (rp, bp) = (r.recycle_pi.surge_cycles, r.baseline_pi.surge_cycles);
         (rp > bp).then(|| format!("{rp} surge cycles, more than baseline-pi's {bp}"))
     });
-    assert!(
-        failures.is_empty(),
-        "{} safety-line failures:\n{}",
-        failures.len(),
-        failures.join("\n")
-    );
+    assert_none("safety-line failures", &failures);
 }
 
 /// Safety line of issue 22 on the reduced campaign: recycle-pi has zero surge cycles in every
@@ -154,12 +159,7 @@ fn recycle_pi_holds_every_case_the_late_oracle_holds() {
         (r.class == Feasibility::FeasibleWithMargin && rp > 0)
             .then(|| format!("{rp} surge cycles where the late oracle holds"))
     });
-    assert!(
-        failures.is_empty(),
-        "{} safety-line failures:\n{}",
-        failures.len(),
-        failures.join("\n")
-    );
+    assert_none("safety-line failures", &failures);
 }
 
 /// Tolerance on the closest approach between the same case at 50 Hz and at 1 kHz, fraction of
@@ -216,12 +216,7 @@ fn the_same_case_at_50_hz_and_1_khz_surges_at_both_rates_or_at_neither() {
             )
         })
         .collect();
-    assert!(
-        failures.is_empty(),
-        "{} cases differ between 50 Hz and 1 kHz:\n{}",
-        failures.len(),
-        failures.join("\n")
-    );
+    assert_none("cases differ between 50 Hz and 1 kHz", &failures);
 }
 
 /// Where the case surges at neither rate, its closest approach differs by less than
@@ -239,12 +234,7 @@ fn the_same_case_at_50_hz_and_1_khz_comes_equally_close() {
         })
         .map(|(r, slow, fast)| case_line(c, r, &rate_line(slow, fast)))
         .collect();
-    assert!(
-        failures.is_empty(),
-        "{} cases differ between 50 Hz and 1 kHz:\n{}",
-        failures.len(),
-        failures.join("\n")
-    );
+    assert_none("cases differ between 50 Hz and 1 kHz", &failures);
 }
 
 /// README.md's campaign block is the output of `antisurge campaign --reduced --readme`.

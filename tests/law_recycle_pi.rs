@@ -1248,12 +1248,7 @@ fn feed_drop_12_to_7(
     for k in 0..=n {
         let t = k as f64 * dt;
         let (st, raw) = pr.sense(t);
-        let op = OperatorInputs {
-            speed_setpoint_rad_s: nominal * st.speed_setpoint,
-            throttle_demand: st.throttle,
-            flow_setpoint_kg_s: st.flow_setpoint_kg_s,
-            recycle_manual: st.recycle_manual,
-        };
+        let op = antisurge::sim::operator_inputs(&st, nominal);
         let out = core.cycle(t, &raw, &op);
         let mut cmd = out.commands;
         if let Some(f) = textbook.as_mut() {

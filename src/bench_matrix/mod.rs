@@ -20,7 +20,7 @@
 //! whole matrix on one core; cases run on std threads.
 
 use crate::control::core::{ControlCore, CoreSettings, Mode};
-use crate::control::measurements::{OperatorInputs, RawSensors};
+use crate::control::measurements::RawSensors;
 use crate::control::model::ControlModel;
 use crate::control::recycle_pi::RecyclePiConfig;
 use crate::control::supervisor::InputFault;
@@ -520,12 +520,7 @@ pub fn run_case_traced_with_model(
                 }
             }
         }
-        let op = OperatorInputs {
-            speed_setpoint_rad_s: nominal_speed * st.speed_setpoint,
-            throttle_demand: st.throttle,
-            flow_setpoint_kg_s: st.flow_setpoint_kg_s,
-            recycle_manual: st.recycle_manual,
-        };
+        let op = crate::sim::operator_inputs(&st, nominal_speed);
         let out = core.cycle(t, &raw, &op);
         if let Some(e) = out.law_event {
             pr.count_law_event(e);

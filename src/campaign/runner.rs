@@ -20,7 +20,7 @@
 use super::skid::{Disturbance, DpFault, Rng, Skid, DURATION_S, EVENT_AT_S, PLANT_STEP_S};
 use super::CampaignError;
 use crate::control::core::{ControlCore, CoreSettings, Mode};
-use crate::control::measurements::{OperatorInputs, RawSensors};
+use crate::control::measurements::RawSensors;
 use crate::control::model::ControlModel;
 use crate::control::speed_loop::SpeedLoop;
 use crate::control::surge_control_line::ControlLineForm;
@@ -336,12 +336,7 @@ pub fn run_traced(
                 for a in seen.age_s.iter_mut().filter(|a| a.is_finite()) {
                     *a = age;
                 }
-                let op = OperatorInputs {
-                    speed_setpoint_rad_s: nominal_speed * st.speed_setpoint,
-                    throttle_demand: st.throttle,
-                    flow_setpoint_kg_s: st.flow_setpoint_kg_s,
-                    recycle_manual: st.recycle_manual,
-                };
+                let op = crate::sim::operator_inputs(&st, nominal_speed);
                 let out = core.cycle(t, &seen, &op);
                 if let Some(e) = out.law_event {
                     pr.count_law_event(e);

@@ -10,7 +10,8 @@ pub mod trace;
 
 pub use case::PlantCase;
 pub use runner::{
-    run, run_with, run_with_model, ControllerView, PlantRun, SimError, SimOptions, SimResult,
+    operator_inputs, run, run_with, run_with_model, ControllerView, PlantRun, SimError, SimOptions,
+    SimResult,
 };
 pub use summary::Summary;
 

@@ -98,6 +98,18 @@ impl InFlight {
     }
 }
 
+/// What the operator (or the DCS) asks for at a scenario instant, the speed setpoint scaled
+/// to the machine's nominal speed: the one mapping from a scenario to the control core's
+/// operator inputs (sim, bench matrix, campaign).
+pub fn operator_inputs(st: &ScenarioState, nominal_speed_rad_s: f64) -> OperatorInputs {
+    OperatorInputs {
+        speed_setpoint_rad_s: nominal_speed_rad_s * st.speed_setpoint,
+        throttle_demand: st.throttle,
+        flow_setpoint_kg_s: st.flow_setpoint_kg_s,
+        recycle_manual: st.recycle_manual,
+    }
+}
+
 /// Errors of a run.
 #[derive(Debug, thiserror::Error)]
 pub enum SimError {
@@ -843,12 +855,7 @@ pub fn run_with_model(
         if let Some(auto) = st.mode_request {
             core.request_auto(auto);
         }
-        let op = OperatorInputs {
-            speed_setpoint_rad_s: nominal_speed * st.speed_setpoint,
-            throttle_demand: st.throttle,
-            flow_setpoint_kg_s: st.flow_setpoint_kg_s,
-            recycle_manual: st.recycle_manual,
-        };
+        let op = operator_inputs(&st, nominal_speed);
         before_cycle(t, &mut core);
         let out = core.cycle(t, &raw, &op);
         if let Some(e) = out.law_event {
