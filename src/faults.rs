@@ -105,6 +105,52 @@ impl FaultCategory {
     }
 }
 
+/// The kind of a field link, as a fault's root cause names it ("the Modbus link is down", not
+/// the sensors it carries).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum FieldLinkKind {
+    /// A CAN interface (SocketCAN).
+    Can,
+    /// A Modbus connection (TCP or RTU).
+    Modbus,
+}
+
+impl FieldLinkKind {
+    /// Both kinds, in code order.
+    pub const ALL: [FieldLinkKind; 2] = [FieldLinkKind::Can, FieldLinkKind::Modbus];
+
+    /// The kind of a link by its reporter's name (`modbus:10.0.0.5:502`, `can0`).
+    pub fn of_link_name(name: &str) -> FieldLinkKind {
+        if name.starts_with("modbus") {
+            FieldLinkKind::Modbus
+        } else {
+            FieldLinkKind::Can
+        }
+    }
+
+    /// Code (live snapshot): 1 + position in [`Self::ALL`]; 0 is "none".
+    pub const fn code(self) -> u8 {
+        match self {
+            FieldLinkKind::Can => 1,
+            FieldLinkKind::Modbus => 2,
+        }
+    }
+
+    /// Inverse of [`Self::code`].
+    pub fn from_code(c: u8) -> Option<FieldLinkKind> {
+        Self::ALL.get(usize::from(c).checked_sub(1)?).copied()
+    }
+
+    /// Name for an operator.
+    pub const fn name(self) -> &'static str {
+        match self {
+            FieldLinkKind::Can => "CAN",
+            FieldLinkKind::Modbus => "Modbus",
+        }
+    }
+}
+
 /// A fault word: bit set of [`FaultCategory`]. `FaultSet::default()` is healthy (0).
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Hash)]
 pub struct FaultSet(pub u32);
@@ -171,6 +217,25 @@ pub mod field {
         let _ =
             ACTIVE[usize::from(c.code())]
                 .fetch_update(Ordering::Relaxed, Ordering::Relaxed, |n| n.checked_sub(1));
+    }
+
+    static LINKS_DOWN: [AtomicU32; super::FieldLinkKind::ALL.len()] = [ZERO; 2];
+
+    /// A link of `kind` went down (`true`) or came back up (`false`; pair with a down).
+    pub fn link_down(kind: super::FieldLinkKind, down: bool) {
+        let n = &LINKS_DOWN[usize::from(kind.code() - 1)];
+        if down {
+            n.fetch_add(1, Ordering::Relaxed);
+        } else {
+            let _ = n.fetch_update(Ordering::Relaxed, Ordering::Relaxed, |n| n.checked_sub(1));
+        }
+    }
+
+    /// The first kind of link that is down now, if any. Allocation-free.
+    pub fn down_link() -> Option<super::FieldLinkKind> {
+        super::FieldLinkKind::ALL
+            .into_iter()
+            .find(|k| LINKS_DOWN[usize::from(k.code() - 1)].load(Ordering::Relaxed) > 0)
     }
 
     /// The active field faults as a fault word. Allocation-free.

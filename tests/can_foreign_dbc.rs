@@ -272,3 +272,66 @@ fn a_device_without_not_available_never_gets_a_command_it_was_not_given() {
     let f = j.encode(0, &c, 0).expect("frame");
     assert_eq!(f.data()[..4], [0xA6, 0x0E, 0x00, 0x80]);
 }
+
+/// A recycle-only skid whose DBC carries a drive-torque signal in the valve's message: with
+/// the default `not_available = "dbc"` and a DBC that declares no J1939 network, the torque
+/// signal carries the DBC's start value (`GenSigStartValue`), never all ones (−32 768 N·m on
+/// a device that is not J1939); without a start value the config is refused naming the
+/// signal; a DBC that declares J1939 gets the J1939 pattern.
+#[test]
+fn an_unbound_signal_carries_the_dbcs_start_value_unless_the_dbc_says_j1939() {
+    use antisurge::io::can::bus::{FrameEncoder, NotAvailable};
+    use socketcan::EmbeddedFrame;
+    use std::time::Duration;
+
+    let text = std::fs::read_to_string(
+        common::root().join("tests/fixtures/foreign_skid/skid_foreign.dbc"),
+    )
+    .expect("dbc");
+    // the device's own "no torque request": raw 0x1234 (4660 N·m would be absurd as a
+    // command, which is what makes it recognisable on the bytes)
+    let with_start = format!(
+        "{text}\nBA_DEF_ SG_  \"GenSigStartValue\" FLOAT -3.4E+038 3.4E+038;\nBA_DEF_DEF_  \"GenSigStartValue\" 0;\nBA_ \"GenSigStartValue\" SG_ 256 DriveTorqueSetpoint 4660;\n"
+    );
+    let recycle_only: Vec<SignalBinding> = bindings()
+        .into_iter()
+        .filter(|b| b.signal != "DriveTorqueSetpoint")
+        .collect();
+    let encoder = |dbc: &str| {
+        let db = CanDatabase::parse(dbc, "skid_foreign.dbc").expect("parses");
+        let codec = CanCodec::new(&db, &recycle_only).expect("bindings fit");
+        let vlv = codec.message_index("VLV_Command").expect("message");
+        FrameEncoder::with_not_available(
+            &codec,
+            &[vlv],
+            false,
+            Duration::from_millis(50),
+            NotAvailable::default(),
+        )
+    };
+    let mut c = ActuatorCommands::default();
+    c.set(ActuatorId::RecycleValve, 0.375);
+
+    let f = encoder(&with_start)
+        .expect("start value given")
+        .encode(0, &c, 0)
+        .expect("frame");
+    // valve 37.50 % = 3750 = 0x0EA6 (Intel), torque: the start value 0x1234, not 0x8000
+    assert_eq!(f.data()[..4], [0xA6, 0x0E, 0x34, 0x12], "{:02X?}", f.data());
+
+    // no start value and no J1939 declaration: refused, naming the signal and the fixes
+    let e = encoder(&text).expect_err("no start value");
+    let msg = e.to_string();
+    assert!(msg.contains("VLV_Command.DriveTorqueSetpoint"), "{msg}");
+    assert!(msg.contains("GenSigStartValue"), "{msg}");
+
+    // the same DBC declaring a J1939 network: the J1939 pattern
+    let j1939 = format!(
+        "{text}\nBA_DEF_  \"ProtocolType\" STRING ;\nBA_DEF_DEF_  \"ProtocolType\" \"\";\nBA_ \"ProtocolType\" \"J1939\";\n"
+    );
+    let f = encoder(&j1939)
+        .expect("J1939 fills it")
+        .encode(0, &c, 0)
+        .expect("frame");
+    assert_eq!(f.data()[..4], [0xA6, 0x0E, 0x00, 0x80]);
+}

@@ -890,6 +890,21 @@ impl ControlCore {
         if self.first_t_s.is_nan() {
             self.first_t_s = t_s;
         }
+        // A start takes over from the measured recycle valve position (bumpless): while the
+        // position is bound but has not arrived yet (it may come in a later frame or poll
+        // than the pressures), the start waits for it within the start-up grace. Starting
+        // without it began from a closed valve at a plant whose valve stood at 12 % and
+        // fired a recycle trip 26 ms later (HIL, 1 run in 2).
+        let valve_pending = self.model.has_recycle_valve()
+            && self.settings.supervisor.limits[SensorId::RecycleValvePosition.index()].is_some()
+            && !validity.ok(SensorId::RecycleValvePosition);
+        if self.mode == Mode::Init
+            && valve_pending
+            && essentials_ok
+            && t_s - self.first_t_s < self.settings.startup_grace_s
+        {
+            return self.init_hold(meas, validity);
+        }
         if !essentials_ok || (law_needs_flow && !meas.m_kg_s.is_finite()) {
             if self.mode == Mode::Init && t_s - self.first_t_s < self.settings.startup_grace_s {
                 return self.init_hold(meas, validity);
@@ -1288,6 +1303,44 @@ mod tests {
         let out = core.cycle(0.5, &RawSensors::missing(), &op);
         assert_eq!(out.mode, Mode::FailSafe);
         assert_eq!(out.commands.get(ActuatorId::RecycleValve), 1.0);
+    }
+
+    #[test]
+    fn a_start_waits_for_the_valve_position_that_comes_in_a_later_frame() {
+        // pressures and flow in one frame, the valve position in another arriving 10 ms
+        // later: the law starts from the measured position, not from a closed valve
+        let (mut core, raw, op) = started(1.0);
+        let measured = raw.values.get(SensorId::RecycleValvePosition);
+        assert!(measured > 0.01, "{measured}");
+        let mut partial = raw;
+        partial.values.set(SensorId::RecycleValvePosition, f64::NAN);
+        partial.age_s[SensorId::RecycleValvePosition.index()] = f64::INFINITY;
+        for k in 0..10 {
+            let out = core.cycle(k as f64 * 1e-3, &partial, &op);
+            assert_eq!(out.mode, Mode::Init, "cycle {k}");
+            assert!(out.commands.get(ActuatorId::RecycleValve).is_nan());
+        }
+        let out = core.cycle(0.010, &raw, &op);
+        assert_eq!(out.mode, Mode::Auto);
+        let u = out.commands.get(ActuatorId::RecycleValve);
+        assert!(
+            (u - measured).abs() < 0.005,
+            "first command {u}, valve at {measured}"
+        );
+
+        // a position that never comes does not keep the controller from starting: after
+        // the grace it runs (from the last applied output) like any start without feedback
+        let (mut core, _, _) = started(0.05);
+        let mut k = 0;
+        let mode = loop {
+            let out = core.cycle(k as f64 * 1e-3, &partial, &op);
+            if out.mode != Mode::Init || k > 100 {
+                break out.mode;
+            }
+            k += 1;
+        };
+        assert_eq!(mode, Mode::Auto, "started after {k} ms");
+        assert!((50..=52).contains(&k), "started after {k} ms, grace 50 ms");
     }
 
     #[test]

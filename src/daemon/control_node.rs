@@ -249,6 +249,8 @@ impl ControlNode {
                         Cause::of_unusable_inputs(v, &raw.values.values, &raw.age_s, sup, true)
                     })
                     .unwrap_or(Cause::of(CauseKind::InputFault))
+                    // a link that is down is the root of the inputs it carries going stale
+                    .rooted_in_link(crate::faults::field::down_link())
             }
             Mode::Auto | Mode::Manual if matches!(from, Mode::Init | Mode::FailSafe) => {
                 Cause::of(CauseKind::InputsHealthy)
@@ -277,6 +279,7 @@ impl ControlNode {
             SensorId::OrificeDp,
         ]
         .iter()
+        .filter(|id| sup.limits[id.index()].is_some())
         .fold(self.seen, |b, id| b | 1 << id.index());
         let Some(live) = &self.live else {
             return;

@@ -11,6 +11,7 @@ use serde::{Deserialize, Serialize};
 
 use super::event::FallbackReason;
 use crate::control::supervisor::{InputFault, Supervisor, Validity};
+use crate::faults::FieldLinkKind;
 use crate::signals::SensorId;
 
 /// What kind of cause.
@@ -34,6 +35,9 @@ pub enum CauseKind {
     /// The emergency-shutdown / drive-trip input is set (`input` = esd_input, `value` = 1):
     /// the recycle valve opens fully at once.
     EsdInput,
+    /// A field link is down (`link`): the root cause of the inputs it carries going stale
+    /// (`input` = the first needed one, with its fault and age).
+    LinkDown,
 }
 
 impl CauseKind {
@@ -47,6 +51,7 @@ impl CauseKind {
             CauseKind::SurgeMargin => 5,
             CauseKind::Shutdown => 6,
             CauseKind::EsdInput => 7,
+            CauseKind::LinkDown => 8,
         }
     }
 
@@ -60,6 +65,7 @@ impl CauseKind {
             5 => CauseKind::SurgeMargin,
             6 => CauseKind::Shutdown,
             7 => CauseKind::EsdInput,
+            8 => CauseKind::LinkDown,
             _ => return None,
         })
     }
@@ -91,6 +97,9 @@ pub struct Cause {
     /// Freshness timeout of the input, ms.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub timeout_ms: Option<f64>,
+    /// The field link concerned ([`CauseKind::LinkDown`]).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub link: Option<FieldLinkKind>,
 }
 
 fn finite(x: f64) -> Option<f64> {
@@ -109,6 +118,7 @@ impl Cause {
             max: None,
             age_ms: None,
             timeout_ms: None,
+            link: None,
         }
     }
 
@@ -131,6 +141,7 @@ impl Cause {
             max: lim.map(|l| l.max),
             age_ms: finite(age_s * 1e3),
             timeout_ms: lim.map(|l| l.timeout_s * 1e3),
+            link: None,
         }
     }
 
@@ -153,7 +164,12 @@ impl Cause {
             let i = id.index();
             Cause::input(kind, id, validity.fault[i], values[i], age_s[i], sup)
         };
-        if let Some(id) = essentials.into_iter().find(|id| !validity.ok(*id)) {
+        // (an input the supervisor does not use, e.g. a speed the skid does not bind, is
+        // never the cause)
+        if let Some(id) = essentials
+            .into_iter()
+            .find(|id| sup.limits[id.index()].is_some() && !validity.ok(*id))
+        {
             return Some(pick(CauseKind::InputFault, id));
         }
         if needs_flow {
@@ -162,9 +178,30 @@ impl Cause {
         None
     }
 
+    /// The root cause of an input fault when a field link is down: the link, carrying the
+    /// input as its detail. Other causes, and faults a link cannot cause (out of range, NaN
+    /// from a live device), are returned as they are.
+    pub fn rooted_in_link(self, down: Option<FieldLinkKind>) -> Cause {
+        match (self.kind, self.fault, down) {
+            (
+                CauseKind::InputFault | CauseKind::FlowUnavailable,
+                Some(FallbackReason::Stale) | Some(FallbackReason::Nan) | None,
+                Some(link),
+            ) => Cause {
+                kind: CauseKind::LinkDown,
+                link: Some(link),
+                ..self
+            },
+            _ => self,
+        }
+    }
+
     /// The fault category of the heartbeat's `Faults` bitfield (config/skid.dbc) this cause
     /// falls under, if any: `sensor_timeout`, `sensor_alive_error`, `sensor_implausible`.
     pub fn category(&self) -> Option<&'static str> {
+        if self.kind == CauseKind::LinkDown {
+            return Some("field_link_down");
+        }
         match self.fault? {
             FallbackReason::Stale | FallbackReason::BusOff => Some("sensor_timeout"),
             FallbackReason::AliveCounter => Some("sensor_alive_error"),
@@ -222,6 +259,10 @@ impl Cause {
             CauseKind::EsdInput => {
                 format!("emergency shutdown / drive trip: {name} set, recycle valve fully open")
             }
+            CauseKind::LinkDown => format!(
+                "{} link down: the inputs it carries are stale ({name} {fault})",
+                self.link.map_or("field", |l| l.name())
+            ),
         }
     }
 }
@@ -275,6 +316,53 @@ mod tests {
         );
         assert_eq!(c.category(), Some("sensor_implausible"));
         assert_eq!(fallback_reason(InputFault::None), None);
+    }
+
+    #[test]
+    fn a_link_down_is_the_root_and_an_unbound_sensor_is_never_the_cause() {
+        let mut sup = sup();
+        // a recycle skid whose drive keeps its own speed: no speed transmitter bound
+        sup.limits[SensorId::ShaftSpeed.index()] = None;
+        let mut fault = [InputFault::None; SensorId::COUNT];
+        fault[SensorId::ShaftSpeed.index()] = InputFault::Nan;
+        fault[SensorId::PSuction.index()] = InputFault::Stale;
+        let v = Validity { fault };
+        let values = [f64::NAN; SensorId::COUNT];
+        let mut age = [0.0; SensorId::COUNT];
+        age[SensorId::PSuction.index()] = 0.3;
+        let c = Cause::of_unusable_inputs(&v, &values, &age, &sup, false).expect("a cause");
+        assert_eq!(
+            c.input,
+            Some(SensorId::PSuction),
+            "not the unbound speed: {c:?}"
+        );
+        assert_eq!(
+            c.rooted_in_link(None),
+            c,
+            "no link down: the input is the cause"
+        );
+        let rooted = c.rooted_in_link(Some(FieldLinkKind::Modbus));
+        assert_eq!(rooted.kind, CauseKind::LinkDown);
+        assert_eq!(rooted.category(), Some("field_link_down"));
+        assert!(
+            rooted
+                .describe()
+                .starts_with("Modbus link down: the inputs it carries are stale (p_suction stale"),
+            "{}",
+            rooted.describe()
+        );
+        assert_eq!(
+            CauseKind::from_code(CauseKind::LinkDown.code()),
+            Some(CauseKind::LinkDown)
+        );
+        // a value out of range comes from a live device: no link is its root
+        let mut fault = [InputFault::None; SensorId::COUNT];
+        fault[SensorId::PDischarge.index()] = InputFault::OutOfRange;
+        let c = Cause::of_unusable_inputs(&Validity { fault }, &values, &age, &sup, false).unwrap();
+        assert_eq!(
+            c.rooted_in_link(Some(FieldLinkKind::Can)).kind,
+            CauseKind::InputFault
+        );
     }
 
     fn sup() -> Supervisor {

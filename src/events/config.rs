@@ -3,7 +3,7 @@
 //!
 //! ```toml
 //! [event_log]
-//! path = "/var/log/antisurge/events.jsonl"
+//! path = "events.jsonl"     # relative: under $LOGS_DIRECTORY (systemd), else ./out/
 //! fsync = "interval"          # "always" | "interval" | "never"
 //! fsync_interval_ms = 200     # only with fsync = "interval"
 //! max_bytes = 16777216        # rotate before the file would grow past this
@@ -60,7 +60,9 @@ pub struct EventLogConfig {
 impl Default for EventLogConfig {
     fn default() -> Self {
         EventLogConfig {
-            path: PathBuf::from("/var/log/antisurge/events.jsonl"),
+            // relative, so the daemon puts it under `$LOGS_DIRECTORY` (systemd's
+            // `LogsDirectory=antisurge`: /var/log/antisurge), else under ./out/
+            path: PathBuf::from("events.jsonl"),
             fsync: FsyncPolicy::Interval { interval_ms: 200 },
             max_bytes: 16 * 1024 * 1024,
             keep_files: 8,

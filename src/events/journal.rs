@@ -116,5 +116,6 @@ fn kind_name(c: &Cause) -> &'static str {
         SurgeMargin => "surge_margin",
         Shutdown => "shutdown",
         EsdInput => "esd_input",
+        LinkDown => "link_down",
     }
 }

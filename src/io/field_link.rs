@@ -11,7 +11,7 @@ use std::sync::atomic::{AtomicU32, Ordering};
 use std::sync::Arc;
 
 use crate::events::event::{BusState, Event};
-use crate::faults::{FaultCategory, FaultSet};
+use crate::faults::{FaultCategory, FaultSet, FieldLinkKind};
 
 /// Where a reporter's events go (the daemon's event sender, or a test's vector).
 pub type EventSink = Arc<dyn Fn(Event) + Send + Sync>;
@@ -25,6 +25,8 @@ pub struct FieldLinkReporter {
     causes: [Option<String>; FaultCategory::ALL.len()],
     /// Whether active faults go into the fault word on the wire ([`crate::faults::field`]).
     on_wire: bool,
+    /// Whether the link is down now (as told to [`crate::faults::field::link_down`]).
+    down: bool,
 }
 
 impl Drop for FieldLinkReporter {
@@ -32,6 +34,9 @@ impl Drop for FieldLinkReporter {
         if self.on_wire {
             for c in FaultSet(self.faults.load(Ordering::Relaxed)).categories() {
                 crate::faults::field::clear(c);
+            }
+            if self.down {
+                crate::faults::field::link_down(FieldLinkKind::of_link_name(&self.link), false);
             }
         }
     }
@@ -57,6 +62,7 @@ impl FieldLinkReporter {
             faults: Arc::new(AtomicU32::new(0)),
             causes: Default::default(),
             on_wire: true,
+            down: false,
         }
     }
 
@@ -96,6 +102,12 @@ impl FieldLinkReporter {
             state,
         });
         let down = matches!(state, BusState::Down | BusState::BusOff);
+        if self.on_wire && down != self.down {
+            // the root cause the control thread names when the inputs this link carries go
+            // stale ("Modbus link down", not "p_suction stale")
+            crate::faults::field::link_down(FieldLinkKind::of_link_name(&self.link), down);
+        }
+        self.down = down;
         if down {
             self.fault(FaultCategory::FieldLinkDown, true, detail);
         } else if state == BusState::Up {

@@ -251,6 +251,7 @@ mod tests {
                 max: Some(1.2e7),
                 age_ms: Some(0.0),
                 timeout_ms: Some(50.0),
+                link: None,
             }),
             surge_count: 3,
             ..LiveSnapshot::default()

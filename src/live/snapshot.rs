@@ -200,7 +200,8 @@ impl LiveBoard {
             | u64::from(kind) << 24
             | u64::from(input) << 32
             | u64::from(fault) << 40
-            | u64::from(s.auto_requested) << 48;
+            | u64::from(s.auto_requested) << 48
+            | u64::from(c.and_then(|c| c.link).map_or(0, |l| l.code())) << 56;
         let w = [
             s.cycle,
             s.t_ns,
@@ -256,6 +257,7 @@ impl LiveBoard {
             max: unopt(w[21]),
             age_ms: unopt(w[22]),
             timeout_ms: unopt(w[23]),
+            link: crate::faults::FieldLinkKind::from_code(byte(56)),
         });
         Some(LiveSnapshot {
             cycle: w[0],
@@ -313,6 +315,7 @@ mod tests {
                 max: Some(1.2e7),
                 age_ms: Some(1.0),
                 timeout_ms: Some(50.0),
+                link: Some(crate::faults::FieldLinkKind::Modbus),
             }),
             flow_map: 1.5,
             pressure_ratio: 2.5,

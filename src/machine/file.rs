@@ -26,8 +26,12 @@ use std::path::{Path, PathBuf};
 pub struct GasToml {
     /// Molar mass, kg/mol.
     pub molar_mass_kg_mol: f64,
-    /// κ = cp/cv.
-    pub heat_capacity_ratio: f64,
+    /// κ = cp/cv. Asked only where used: a surge line stated in polytropic head
+    /// (`head = "polytropic_head_kj_kg"` or `reduced_points`) converts head to pressure ratio
+    /// with σ, whose default comes from κ; with `polytropic_exponent` given, or a line stated
+    /// in pressure ratio, κ may be left out.
+    #[serde(default)]
+    pub heat_capacity_ratio: Option<f64>,
     /// Compressibility Z at suction (default 1).
     #[serde(default)]
     pub compressibility: Option<f64>,
@@ -195,17 +199,32 @@ pub fn build(f: &MachineFile, path: &Path, text: &str) -> Result<MachineDescript
         )
         .with_hint("in kg/mol: air 0.029, natural gas ≈ 0.018–0.022 (not g/mol)"));
     }
-    if !(g.heat_capacity_ratio.is_finite()
-        && g.heat_capacity_ratio > 1.0
-        && g.heat_capacity_ratio < 2.0)
-    {
-        return Err(at(
-            "gas.heat_capacity_ratio",
-            format!("κ = {} must lie in (1, 2)", g.heat_capacity_ratio),
-        )
-        .with_hint("air 1.4, natural gas ≈ 1.3"));
-    }
-    let kappa = g.heat_capacity_ratio;
+    // κ and σ: σ converts a head axis to pressure ratio; nothing else of the controller
+    // uses either, so they are asked for only when the surge line is stated in head
+    let sl_given = f.surge_line.clone().unwrap_or_default();
+    let sigma_used = sl_given.reduced_points.is_some()
+        || (sl_given.points.is_some() && sl_given.head == HeadAxis::PolytropicHeadKjKg);
+    let kappa = match g.heat_capacity_ratio {
+        Some(k) if !(k.is_finite() && k > 1.0 && k < 2.0) => {
+            return Err(at(
+                "gas.heat_capacity_ratio",
+                format!("κ = {k} must lie in (1, 2)"),
+            )
+            .with_hint("air 1.4, natural gas ≈ 1.3"));
+        }
+        Some(k) => k,
+        None if sigma_used && g.polytropic_exponent.is_none() => {
+            return Err(at(
+                "gas",
+                "the surge line is stated in polytropic head: gas.heat_capacity_ratio (κ) or \
+                 gas.polytropic_exponent (σ) is needed to convert it to pressure ratio"
+                    .into(),
+            )
+            .with_hint("heat_capacity_ratio = 1.3 (natural gas), 1.4 (air), from the data sheet"));
+        }
+        // (not used by anything this machine file describes)
+        None => f64::NAN,
+    };
     let gas = Gas {
         molar_mass_kg_mol: g.molar_mass_kg_mol,
         heat_capacity_ratio: kappa,
@@ -220,7 +239,9 @@ pub fn build(f: &MachineFile, path: &Path, text: &str) -> Result<MachineDescript
             format!("Z = {} is not a compressibility", gas.compressibility),
         ));
     }
-    if !(positive(gas.polytropic_exponent) && gas.polytropic_exponent < 1.0) {
+    if (g.polytropic_exponent.is_some() || sigma_used)
+        && !(positive(gas.polytropic_exponent) && gas.polytropic_exponent < 1.0)
+    {
         return Err(at(
             "gas.polytropic_exponent",
             format!("σ = {} must lie in (0, 1)", gas.polytropic_exponent),
@@ -561,6 +582,39 @@ suction_temperature_k = 300.0
         // the equivalent orifice reproduces c_w at the design temperature
         let cw = m.flow_element.c_w(&m.gas, 300.0);
         assert!((cw - 3.0e-5).abs() < 1e-12, "{cw}");
+    }
+
+    #[test]
+    fn heat_capacity_ratio_is_asked_only_where_the_surge_line_needs_it() {
+        let dir = tempfile::tempdir().unwrap();
+        let no_kappa = BASE.replace("heat_capacity_ratio = 1.28\n", "");
+        // a line in pressure ratio: κ unused, not asked for
+        let p = write(
+            dir.path(),
+            "a.toml",
+            &format!("{no_kappa}[surge_line]\nsqrt_c_m3_s = 0.354\n"),
+        );
+        let m = load(&p).unwrap();
+        assert!((m.surge_line.flow_at_ratio(2.0) - 0.354).abs() < 1e-3);
+        // a line in polytropic head: κ (or σ) converts it, and the refusal names both
+        let head = "[surge_line]\nhead = \"polytropic_head_kj_kg\"\npoints = [[0.25, 40.0], [0.35, 70.0], [0.45, 100.0]]\n";
+        let p = write(dir.path(), "b.toml", &format!("{no_kappa}{head}"));
+        let e = load(&p).unwrap_err();
+        assert_eq!(e.key, "gas", "{e}");
+        assert!(
+            e.message.contains("heat_capacity_ratio") && e.message.contains("polytropic_exponent"),
+            "{e}"
+        );
+        let with_sigma = no_kappa.replace(
+            "[flow_element]",
+            "polytropic_exponent = 0.3\n[flow_element]",
+        );
+        let p = write(dir.path(), "c.toml", &format!("{with_sigma}{head}"));
+        let by_sigma = load(&p).unwrap();
+        let p = write(dir.path(), "d.toml", &format!("{BASE}{head}"));
+        let by_kappa = load(&p).unwrap();
+        assert!(by_sigma.surge_line.flow_at_ratio(2.0).is_finite());
+        assert!(by_kappa.surge_line.flow_at_ratio(2.0).is_finite());
     }
 
     #[test]

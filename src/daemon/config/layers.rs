@@ -390,12 +390,18 @@ pub fn locate(layers: &[Layer], key: &str, message: impl Into<String>) -> FileEr
 /// Where a relative output path (event log, statistics) goes: under `$LOGS_DIRECTORY` (set by
 /// systemd's `LogsDirectory=`), else under `./out/`.
 pub fn output_path(p: &Path) -> PathBuf {
+    output_path_in(p, std::env::var_os("LOGS_DIRECTORY").as_deref())
+}
+
+/// [`output_path`] with the value of `$LOGS_DIRECTORY` given (systemd may list several
+/// directories separated by `:`; the first is the unit's own).
+fn output_path_in(p: &Path, logs_directory: Option<&std::ffi::OsStr>) -> PathBuf {
     if p.is_absolute() {
         return p.to_path_buf();
     }
-    match std::env::var_os("LOGS_DIRECTORY") {
-        Some(d) => PathBuf::from(d).join(p),
-        None => Path::new("out").join(p),
+    match logs_directory.and_then(|d| d.to_str().map(|d| d.split(':').next().unwrap_or(d))) {
+        Some(d) if !d.is_empty() => PathBuf::from(d).join(p),
+        _ => Path::new("out").join(p),
     }
 }
 
@@ -544,4 +550,34 @@ pub fn flatten(table: &toml::Table) -> BTreeMap<String, String> {
     let mut out = BTreeMap::new();
     walk("", &toml::Value::Table(table.clone()), &mut out);
     out
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::events::EventLogConfig;
+    use std::ffi::OsStr;
+
+    #[test]
+    fn the_default_event_log_follows_logs_directory() {
+        let default = EventLogConfig::default().path;
+        assert_eq!(
+            output_path_in(&default, Some(OsStr::new("/var/log/antisurge"))),
+            Path::new("/var/log/antisurge/events.jsonl")
+        );
+        // systemd lists several LogsDirectory= entries with ':'; the first is the unit's own
+        assert_eq!(
+            output_path_in(&default, Some(OsStr::new("/srv/logs/a:/srv/logs/b"))),
+            Path::new("/srv/logs/a/events.jsonl")
+        );
+        assert_eq!(
+            output_path_in(&default, None),
+            Path::new("out/events.jsonl")
+        );
+        // an absolute path is the operator's choice
+        assert_eq!(
+            output_path_in(Path::new("/data/ev.jsonl"), Some(OsStr::new("/x"))),
+            Path::new("/data/ev.jsonl")
+        );
+    }
 }

@@ -241,6 +241,16 @@ fn load_layers(main: &Path, layers: Vec<Layer>) -> Result<Loaded, Vec<Problem>> 
             timeout_s: s.timeout_ms * 1e-3,
         });
     }
+    // an input the field buses do not carry is not supervised: never a fault, a lamp or a
+    // cause (a recycle skid whose drive keeps its own speed binds no shaft speed); the
+    // embedded plant delivers every sensor
+    if !matches!(config.bus.transport, Transport::InProcess) {
+        for id in SensorId::ALL {
+            if !signal_map.sensors.contains_key(&id) {
+                core.supervisor.limits[id.index()] = None;
+            }
+        }
+    }
     core.failsafe_recycle_opening = config.control.failsafe_recycle_opening_pct * 0.01;
     core.startup_grace_s = config.control.startup_grace_ms * 1e-3;
 

@@ -79,10 +79,17 @@ fn default_backoff_max_ms() -> u64 {
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize)]
 #[serde(rename_all = "snake_case")]
 pub enum NotAvailable {
+    /// Follow the receiving device's DBC (default): a DBC that declares a J1939 network
+    /// (`BA_ "ProtocolType" "J1939";`, as `config/skid.dbc` does) reads all ones as "no
+    /// value" ([`NotAvailable::J1939`]); any other device gets, in a data signal nothing is
+    /// bound to, the signal's DBC start value (`GenSigStartValue`), and a config whose sent
+    /// message leaves a signal without one is refused naming it; a bound value that is not
+    /// computed is handled as [`NotAvailable::None`] does.
+    #[default]
+    Dbc,
     /// SAE J1939: one reserved raw value per signal (all ones unsigned, the most negative
     /// signed) means "no value" (`config/skid.dbc`'s convention). Unbound data signals of a
     /// sent message carry it.
-    #[default]
     J1939,
     /// The device has no such value (it would read all ones as a number, e.g. 655.35 %): a
     /// message goes out only once every bound value was computed, a value that becomes NaN
@@ -171,7 +178,7 @@ impl CanBusConfig {
             tx_on_change_only: false,
             bitrate_bps: default_bitrate_bps(),
             max_load_pct: default_max_load_pct(),
-            not_available: NotAvailable::J1939,
+            not_available: NotAvailable::Dbc,
             heartbeat: None,
             frame_ids: Default::default(),
             cycle_trigger: CycleTriggerSpec::Inputs,

@@ -319,8 +319,8 @@ struct CodecMessage {
     /// DBC `GenMsgCycleTime`, ms (`None` or 0: event-driven).
     cycle_time_ms: Option<u32>,
     bound: Vec<BoundSignal>,
-    /// Data signals of the message that no binding uses (name, layout).
-    unbound: Vec<(String, SignalLayout)>,
+    /// Data signals of the message that no binding uses (name, layout, DBC start value).
+    unbound: Vec<(String, SignalLayout, Option<i128>)>,
 }
 
 /// Precomputed tables for decoding and encoding every message of a database.
@@ -329,6 +329,8 @@ pub struct CanCodec {
     messages: Vec<CodecMessage>,
     /// (id, index), sorted by id for binary search.
     by_id: Vec<(FrameId, MessageIndex)>,
+    /// The database declares a J1939 network ([`CanDatabase::declares_j1939`]).
+    j1939: bool,
 }
 
 /// The values one received frame delivered (fixed capacity, no heap).
@@ -534,7 +536,7 @@ impl CanCodec {
                         .iter()
                         .any(|b| b.message == cm.name && b.signal == s.name())
                 })
-                .map(|s| (s.name().to_string(), *s.layout()))
+                .map(|s| (s.name().to_string(), *s.layout(), s.start_raw()))
                 .collect();
         }
         let mut by_id: Vec<(FrameId, MessageIndex)> = messages
@@ -543,7 +545,11 @@ impl CanCodec {
             .map(|(i, m)| (m.guard.id(), MessageIndex(i as u16)))
             .collect();
         by_id.sort_unstable();
-        Ok(CanCodec { messages, by_id })
+        Ok(CanCodec {
+            messages,
+            by_id,
+            j1939: db.declares_j1939(),
+        })
     }
 
     /// Index of a message by name (start-up use).
@@ -588,9 +594,18 @@ impl CanCodec {
             .filter(|&ms| ms > 0)
     }
 
-    /// Data signals of a message that no binding uses (name, layout): the sender fills them
-    /// with "not available" or refuses them (see `bus.can.not_available`).
-    pub fn unbound_signals(&self, message: MessageIndex) -> &[(String, SignalLayout)] {
+    /// Whether the database declares a J1939 network ([`CanDatabase::declares_j1939`]).
+    pub fn declares_j1939(&self) -> bool {
+        self.j1939
+    }
+
+    /// Data signals of a message that no binding uses (name, layout, DBC start value): the
+    /// sender fills them with "not available" or the start value, or refuses them (see
+    /// `bus.can.not_available`).
+    pub fn unbound_signals(
+        &self,
+        message: MessageIndex,
+    ) -> &[(String, SignalLayout, Option<i128>)] {
         self.messages
             .get(message.get())
             .map_or(&[], |m| m.unbound.as_slice())

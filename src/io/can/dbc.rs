@@ -25,6 +25,13 @@ use super::e2e::FrameGuard;
 /// marks alive counters and CRC bytes.
 pub const ROLE_ATTRIBUTE: &str = "AntisurgeRole";
 
+/// Name of the standard DBC signal attribute holding a signal's raw start value.
+pub const START_VALUE_ATTRIBUTE: &str = "GenSigStartValue";
+
+/// Name of the standard DBC database attribute naming the protocol (`"J1939"` on a J1939
+/// network: there, all ones means "not available").
+pub const PROTOCOL_ATTRIBUTE: &str = "ProtocolType";
+
 /// Name of the standard DBC message attribute holding the cycle time, ms.
 pub const CYCLE_TIME_ATTRIBUTE: &str = "GenMsgCycleTime";
 
@@ -120,9 +127,16 @@ pub struct SignalDef {
     comment: Option<String>,
     role: SignalRole,
     value_names: Vec<(i64, String)>,
+    /// Raw start value (`GenSigStartValue`): what the signal carries before and without a
+    /// value (the receiving device's own "no command" value).
+    start_raw: Option<i128>,
 }
 
 impl SignalDef {
+    /// The raw start value from the DBC attribute [`START_VALUE_ATTRIBUTE`], if set.
+    pub fn start_raw(&self) -> Option<i128> {
+        self.start_raw
+    }
     /// Signal name.
     pub fn name(&self) -> &str {
         &self.name
@@ -282,6 +296,8 @@ pub struct CanDatabase {
     source: String,
     comment: Option<String>,
     messages: Vec<MessageDef>,
+    /// The database declares a J1939 network (`ProtocolType = "J1939"`).
+    j1939: bool,
 }
 
 /// A DBC that cannot be used, with the file it came from.
@@ -693,7 +709,14 @@ impl CanDatabase {
                     .value_descriptions_for_signal(m.id, &s.name)
                     .map(|v| v.iter().map(|d| (d.id, d.description.clone())).collect())
                     .unwrap_or_default();
+                let start_raw = match dbc.signal_attribute(m.id, &s.name, START_VALUE_ATTRIBUTE) {
+                    Some(AttributeValue::Uint(v)) => Some(i128::from(*v)),
+                    Some(AttributeValue::Int(v)) => Some(i128::from(*v)),
+                    Some(AttributeValue::Double(v)) if v.is_finite() => Some(v.round() as i128),
+                    _ => None,
+                };
                 let def = SignalDef {
+                    start_raw,
                     name: s.name.clone(),
                     layout,
                     factor: s.factor,
@@ -749,11 +772,23 @@ impl CanDatabase {
             Comment::Plain { comment } => Some(comment.clone()),
             _ => None,
         });
+        let j1939 = dbc
+            .attribute_values_database
+            .iter()
+            .filter(|a| a.name == PROTOCOL_ATTRIBUTE)
+            .any(|a| matches!(&a.value, AttributeValue::String(v) if v.eq_ignore_ascii_case("J1939")));
         Ok(CanDatabase {
             source: source.to_string(),
             comment,
             messages,
+            j1939,
         })
+    }
+
+    /// Whether the database declares a J1939 network (`BA_ "ProtocolType" "J1939";`): its
+    /// devices read all ones (the most negative value, signed) as "not available".
+    pub fn declares_j1939(&self) -> bool {
+        self.j1939
     }
 
     /// Path or name the database was loaded from.

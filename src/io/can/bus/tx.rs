@@ -146,6 +146,13 @@ impl FrameEncoder {
         refresh: Duration,
         not_available: NotAvailable,
     ) -> Result<FrameEncoder, CanBusError> {
+        // "follow the DBC": J1939 where the DBC declares it, else the start values
+        let start_values = not_available == NotAvailable::Dbc && !codec.declares_j1939();
+        let not_available = match not_available {
+            NotAvailable::Dbc if codec.declares_j1939() => NotAvailable::J1939,
+            NotAvailable::Dbc => NotAvailable::None,
+            other => other,
+        };
         let mut out = Vec::with_capacity(messages.len());
         for &index in messages {
             let name = codec.message_name(index).unwrap_or("?").to_string();
@@ -161,10 +168,30 @@ impl FrameEncoder {
                     id: guard.id(),
                 })?;
             let mut last = [0u8; MAX_PAYLOAD];
-            for (signal, layout) in codec.unbound_signals(index) {
-                match not_available {
-                    NotAvailable::J1939 => layout.pack(&mut last, layout.raw_not_available()),
-                    NotAvailable::None => {
+            for (signal, layout, start_raw) in codec.unbound_signals(index) {
+                match (not_available, start_raw) {
+                    (NotAvailable::J1939, _) => layout.pack(&mut last, layout.raw_not_available()),
+                    (_, Some(raw)) if start_values => {
+                        if !(layout.raw_min()..=layout.raw_max()).contains(raw) {
+                            return Err(CanBusError::Config {
+                                key: "dbc",
+                                message: format!(
+                                    "signal {name}.{signal}: start value (GenSigStartValue) {raw} does not fit the signal's {} bits",
+                                    layout.size()
+                                ),
+                            });
+                        }
+                        layout.pack(&mut last, *raw)
+                    }
+                    (_, None) if start_values => {
+                        return Err(CanBusError::Config {
+                            key: "not_available",
+                            message: format!(
+                                "signal {name}.{signal} is bound to nothing, the DBC gives it no start value (GenSigStartValue) and declares no J1939 network: every frame would carry a value nobody chose; bind it in the signal map, give it a GenSigStartValue in the DBC, or set not_available = \"j1939\" if the device reads all ones as no value"
+                            ),
+                        })
+                    }
+                    _ => {
                         return Err(CanBusError::Config {
                             key: "not_available",
                             message: format!(
