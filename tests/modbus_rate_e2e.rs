@@ -1012,15 +1012,18 @@ const DP_NOISE_PA: f64 = 250.0;
 /// The throttle closes 60 % → 10 % over 2 s with ± 250 Pa of Δp noise; the Δp register holds
 /// its value from 0.5 s to 1.5 s into the closure. First run: 10 of 10 seeds surged, 3–4 cycles
 /// each (the valve tripped fully open ≈ 0.9–1 s into the closure, then closed back into surge
-/// ≈ 3.1 s after its start).
-#[test]
-fn noisy_closure_with_dp_frozen_for_1_s_at_100_hz_does_not_surge_over_10_seeds() {
+/// ≈ 3.1 s after its start). Issue 23: the freeze is found within 300 ms of the controller's
+/// own sample time in every seed, the event names `orifice_dp` and the check, the machine's
+/// speed-line map stands in for the flow (no fail-safe), and no event names a sensor the skid
+/// does not bind.
+fn noisy_closure_with_dp_frozen(poll_hz: f64) {
     let _rt = real_time();
     let mut failed = Vec::new();
+    let mut latencies_ms = Vec::new();
     for seed in 1..=10u64 {
         let mut case = Case::new(
             "noisy closure, Δp frozen 1 s",
-            100.0,
+            poll_hz,
             Throttle::Ramp {
                 at_s: DISTURBANCE_AT_S,
                 over_s: 2.0,
@@ -1039,11 +1042,107 @@ fn noisy_closure_with_dp_frozen_for_1_s_at_100_hz_does_not_surge_over_10_seeds()
         if o.figures.surge_cycles > 0 {
             failed.push((seed, o.figures.surge_cycles));
         }
+        let dir = o.dir.path();
+        let events = std::fs::read_to_string(dir.join("events.jsonl")).expect("event log");
+        let found = events.lines().find(|l| {
+            l.contains("\"event\":\"fallback_entered\"")
+                && l.contains("\"input\":\"orifice_dp\"")
+                && l.contains("\"reason\":\"frozen\"")
+        });
+        assert!(
+            found.is_some(),
+            "seed {seed}: no frozen orifice_dp event:\n{events}"
+        );
+        assert!(
+            found.is_some_and(|l| l.contains("\"replaced_by\":\"speed_line\"")),
+            "seed {seed}: {found:?}"
+        );
+        // (a fail-safe whose root is the link, when a busy test machine starves the device,
+        // is not what this case is about; one caused by the flow element is)
+        let flow_failsafe = events.lines().find(|l| {
+            l.contains("\"to\":\"fail_safe\"")
+                && (l.contains("\"kind\":\"flow_unavailable\"")
+                    || l.contains("\"input\":\"orifice_dp\""))
+        });
+        assert!(
+            flow_failsafe.is_none(),
+            "seed {seed}: fail-safe although the speed line gives a flow: {flow_failsafe:?}"
+        );
+        for unbound in ["thrust_position", "drive_torque", "esd_input"] {
+            assert!(
+                !events.contains(&format!("\"{unbound}\"")),
+                "seed {seed}: an event names {unbound}, which this skid does not bind:\n{events}"
+            );
+        }
+        for l in events
+            .lines()
+            .filter(|l| l.contains("\"to\":\"fail_safe\""))
+        {
+            eprintln!("seed {seed}: {l}");
+        }
+        latencies_ms.push(1e3 * detection_latency_s(dir));
     }
+    eprintln!(
+        "{poll_hz} Hz: frozen Δp found after {latencies_ms:.0?} ms of controller sample time"
+    );
+    assert!(
+        latencies_ms.iter().all(|l| *l <= 300.0),
+        "{poll_hz} Hz: detection after {latencies_ms:.0?} ms (≤ 300 ms)"
+    );
     assert!(
         failed.is_empty(),
         "surged with (seed, cycles): {failed:?} of 10 seeds"
     );
+}
+
+/// From the black box the daemon writes at exit (one clock: the controller's cycle times):
+/// the time from the first cycle that read the frozen value to the first cycle in fallback.
+fn detection_latency_s(dir: &Path) -> f64 {
+    let bb = std::fs::read_dir(dir.join("blackbox"))
+        .expect("black-box directory")
+        .filter_map(Result::ok)
+        .map(|e| e.path())
+        .find(|p| {
+            p.file_name()
+                .is_some_and(|n| n.to_string_lossy().starts_with("blackbox-exit"))
+        })
+        .expect("black box written at exit");
+    let text = std::fs::read_to_string(&bb).expect("black box");
+    let mut lines = text.lines().filter(|l| !l.starts_with('#'));
+    let header: Vec<&str> = lines.next().expect("header").split(',').collect();
+    let col = |name: &str| header.iter().position(|h| *h == name).expect(name);
+    let (t, dp, age, fb) = (
+        col("t_s"),
+        col("in_orifice_dp"),
+        col("age_s_orifice_dp"),
+        col("flow_fallback"),
+    );
+    let rows: Vec<(f64, f64, f64, bool)> = lines
+        .map(|l| {
+            let f: Vec<&str> = l.split(',').collect();
+            let num = |i: usize| f[i].parse().unwrap_or(f64::NAN);
+            (num(t), num(dp), num(age), f[fb] == "1")
+        })
+        .collect();
+    let k_f = rows.iter().position(|r| r.3).expect("a cycle in fallback");
+    let frozen = rows[k_f].1;
+    // back to the first cycle that read the frozen value fresh (within the inputs' 200-ms
+    // freshness: a link that a busy machine let time out is the link's fault, not the check's)
+    let mut k_0 = k_f;
+    while k_0 > 0 && rows[k_0 - 1].1 == frozen && rows[k_0 - 1].2 <= 0.2 {
+        k_0 -= 1;
+    }
+    rows[k_f].0 - rows[k_0].0
+}
+
+#[test]
+fn noisy_closure_with_dp_frozen_for_1_s_at_100_hz_is_found_and_does_not_surge_over_10_seeds() {
+    noisy_closure_with_dp_frozen(100.0);
+}
+
+#[test]
+fn noisy_closure_with_dp_frozen_for_1_s_at_50_hz_is_found_and_does_not_surge_over_10_seeds() {
+    noisy_closure_with_dp_frozen(50.0);
 }
 
 // ---------------------------------------------------------------------------------------------

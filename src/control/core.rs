@@ -661,12 +661,23 @@ impl ControlCore {
             FlowSource::Orifice => (m_meas, false),
             FlowSource::Observer => (m_obs, false),
             FlowSource::OrificeWithObserverFallback => {
+                // the estimate standing in for the flow element: the observer where the
+                // machine data give one; else, with a speed-line map and a measured speed,
+                // the speed line's flow at the measured ratio less its uncertainty (the
+                // conservative side: less flow, less margin); else none (fail-safe)
+                let m_line = if q_line.is_finite() && line_unc.is_finite() {
+                    self.model
+                        .mass_flow_of_map((q_line - line_unc.max(0.0)).max(0.0), p_s, t_s_k)
+                } else {
+                    f64::NAN
+                };
+                let m_est = if m_obs.is_finite() { m_obs } else { m_line };
                 if m_meas.is_finite() {
                     (m_meas, false)
                 } else if matches!(
                     v.fault[SensorId::OrificeDp.index()],
                     InputFault::Frozen | InputFault::Drift
-                ) && m_obs.is_finite()
+                ) && m_est.is_finite()
                 {
                     // a frozen or drifting Δp: the conservative estimate, the lower of the
                     // observer's flow and the transmitter's (a closing machine loses flow that
@@ -678,9 +689,9 @@ impl ControlCore {
                         p_s,
                         t_s_k,
                     );
-                    (m_obs.min(m_frozen), true)
+                    (m_est.min(m_frozen), true)
                 } else {
-                    (m_obs, m_obs.is_finite())
+                    (m_est, m_est.is_finite())
                 }
             }
         };

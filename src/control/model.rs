@@ -310,6 +310,16 @@ impl ControlModel {
         }
     }
 
+    /// Mass flow of a flow in map coordinates, kg/s (the inverse of [`Self::map_flow`]).
+    pub fn mass_flow_of_map(&self, q_map: f64, p_suction_pa: f64, t_suction_k: f64) -> f64 {
+        match self.flow_coordinate {
+            FlowCoordinate::MassKgS => q_map,
+            FlowCoordinate::InletVolumeM3S => {
+                q_map * self.gas.density_kg_m3(p_suction_pa, t_suction_k)
+            }
+        }
+    }
+
     /// Relative surge margin (q − q_SL(R))/q_SL(R) of an operating point, from the derived
     /// surge line in invariant coordinates (seed 002 §2.3.1, eq. 2.4; seed 001 eq. 3.1).
     #[inline]

@@ -102,6 +102,8 @@ pub struct ControlNode {
     /// The ESD / drive-trip input held the recycle valve open in the previous cycle.
     esd_active: bool,
     blackbox: Option<crate::blackbox::BlackBoxTx>,
+    /// What stands in for the flow element during the current fallback.
+    fallback_replacement: Replacement,
 }
 
 fn ev_mode(m: Mode) -> EvMode {
@@ -182,6 +184,7 @@ impl ControlNode {
             seen: 0,
             esd_active: false,
             blackbox: None,
+            fallback_replacement: Replacement::Observer,
         }
     }
 
@@ -303,6 +306,8 @@ impl ControlNode {
         let (safety_on, trips) = self.core.safety_on_and_trips();
         let flow_source = if !m.m_kg_s.is_finite() {
             FlowSourceNow::None
+        } else if m.flow_fallback && !m.m_observer_kg_s.is_finite() {
+            FlowSourceNow::SpeedLineFallback
         } else if m.flow_fallback {
             FlowSourceNow::ObserverFallback
         } else if self.core.config().flow_source == crate::control::config::FlowSource::Observer {
@@ -475,10 +480,16 @@ impl ControlNode {
                 let pct = |x: f64| {
                     (reason == FallbackReason::Drift && x.is_finite()).then_some(100.0 * x)
                 };
+                let replaced_by = if out.measurements.m_observer_kg_s.is_finite() {
+                    Replacement::Observer
+                } else {
+                    Replacement::SpeedLine
+                };
+                self.fallback_replacement = replaced_by;
                 self.push(FallbackEntered {
                     input: SensorId::OrificeDp,
                     reason,
-                    replaced_by: Replacement::Observer,
+                    replaced_by,
                     vs_observer_pct: pct(v.vs_observer),
                     vs_speed_line_pct: pct(v.vs_speed_line),
                 });
@@ -487,7 +498,7 @@ impl ControlNode {
             (false, Some(since)) => {
                 self.push(FallbackLeft {
                     input: SensorId::OrificeDp,
-                    replaced_by: Replacement::Observer,
+                    replaced_by: self.fallback_replacement,
                     duration_ms: now.saturating_sub(since) / 1_000_000,
                 });
                 self.fallback_since_ns = None;

@@ -61,6 +61,9 @@ pub enum FallbackReason {
 pub enum Replacement {
     /// A model-based estimate (state observer).
     Observer,
+    /// The speed line's flow at the measured pressure ratio and speed, less the map's
+    /// uncertainty (a machine with a speed-line map and no observer).
+    SpeedLine,
     /// The last good value, held.
     LastGood,
     /// A redundant sensor measuring the same quantity.

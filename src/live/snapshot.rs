@@ -24,14 +24,17 @@ pub enum FlowSourceNow {
     Observer,
     /// The observer standing in for a failed flow element.
     ObserverFallback,
+    /// The speed line's flow standing in for a failed flow element (no observer).
+    SpeedLineFallback,
 }
 
 impl FlowSourceNow {
-    const ALL: [FlowSourceNow; 4] = [
+    const ALL: [FlowSourceNow; 5] = [
         FlowSourceNow::None,
         FlowSourceNow::Orifice,
         FlowSourceNow::Observer,
         FlowSourceNow::ObserverFallback,
+        FlowSourceNow::SpeedLineFallback,
     ];
     /// Numeric code (Modbus block).
     pub fn code(self) -> u8 {
