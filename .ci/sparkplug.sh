@@ -33,11 +33,14 @@ node=skid-ci
 keep_alive=2
 cd "$work"
 
+# persistence: the host's session (its subscription) survives the broker's restart, so what
+# the node publishes before the host is back is queued for it (as on a production broker)
+mkdir -p mosq && chmod 0755 "$work" && chmod 0777 mosq
 cat >mosquitto.conf <<CONF
 listener $port 127.0.0.1
 allow_anonymous true
 persistence true
-persistence_location $work/
+persistence_location $work/mosq/
 queue_qos0_messages true
 CONF
 start_broker() {

@@ -134,8 +134,62 @@ pub fn spawn(
         mqtt_options(cfg, node.node.ndeath()).map_err(StartError::Config)?,
         4096,
     );
-    tasks.spawn(node.run(client, el, shutdown));
+    let (tx, rx) = tokio::sync::mpsc::channel(1024);
+    let (finish_tx, finish_rx) = tokio::sync::oneshot::channel();
+    tasks.spawn(poll(el, tx, finish_rx));
+    tasks.spawn(node.run(client, rx, finish_tx, shutdown));
     Ok(())
+}
+
+/// What the connection task reports.
+enum Polled {
+    /// An MQTT event.
+    Event(MqttEvent),
+    /// The connection is lost (or could not be made): the node answers with the will of the
+    /// next attempt (None: the same), then the connection task retries after a second.
+    Lost(String, tokio::sync::oneshot::Sender<Option<LastWill>>),
+}
+
+/// The connection task: owns the event loop and polls it without ever cancelling a poll (a
+/// poll dropped mid-connect would drop the connection and fire the will).
+async fn poll(
+    mut el: EventLoop,
+    tx: tokio::sync::mpsc::Sender<Polled>,
+    mut finish: tokio::sync::oneshot::Receiver<()>,
+) {
+    loop {
+        let r = tokio::select! {
+            r = el.poll() => r,
+            _ = &mut finish => return,
+        };
+        match r {
+            Ok(ev) => {
+                if tx.send(Polled::Event(ev)).await.is_err() {
+                    return;
+                }
+            }
+            Err(e) => {
+                // nothing of the old session is sent in the new one: its seq numbers are gone
+                el.clean();
+                el.pending.clear();
+                let (wtx, wrx) = tokio::sync::oneshot::channel();
+                if tx.send(Polled::Lost(e.to_string(), wtx)).await.is_err() {
+                    return;
+                }
+                match wrx.await {
+                    Ok(Some(w)) => {
+                        el.mqtt_options.set_last_will(w);
+                    }
+                    Ok(None) => {}
+                    Err(_) => return,
+                }
+                tokio::select! {
+                    _ = tokio::time::sleep(Duration::from_secs(1)) => {}
+                    _ = &mut finish => return,
+                }
+            }
+        }
+    }
 }
 
 /// The running node.
@@ -220,7 +274,8 @@ impl Node {
     async fn run(
         mut self,
         client: AsyncClient,
-        mut el: EventLoop,
+        mut rx: tokio::sync::mpsc::Receiver<Polled>,
+        finish: tokio::sync::oneshot::Sender<()>,
         mut shutdown: watch::Receiver<bool>,
     ) {
         let mut ticker =
@@ -230,19 +285,18 @@ impl Node {
             tokio::select! {
                 r = shutdown.changed() => {
                     if r.is_err() || *shutdown.borrow() {
-                        self.stop(&client, &mut el).await;
+                        self.stop(&client, &mut rx).await;
+                        let _ = finish.send(());
                         return;
                     }
                 }
-                ev = el.poll() => match ev {
-                    Ok(ev) => self.on_event(&client, ev),
-                    Err(e) => {
-                        self.on_lost(&mut el, &e.to_string());
-                        tokio::select! {
-                            _ = tokio::time::sleep(Duration::from_secs(1)) => {}
-                            _ = shutdown.changed() => {}
-                        }
+                p = rx.recv() => match p {
+                    Some(Polled::Event(ev)) => self.on_event(&client, ev),
+                    Some(Polled::Lost(why, answer)) => {
+                        let will = self.on_lost(&why);
+                        let _ = answer.send(will);
                     }
+                    None => return,
                 },
                 _ = ticker.tick() => self.on_tick(&client),
             }
@@ -251,7 +305,7 @@ impl Node {
 
     /// A clean stop: the death certificate ourselves (the broker drops the will on a clean
     /// DISCONNECT), then disconnect.
-    async fn stop(&mut self, client: &AsyncClient, el: &mut EventLoop) {
+    async fn stop(&mut self, client: &AsyncClient, rx: &mut tokio::sync::mpsc::Receiver<Polled>) {
         self.requeue_inflight();
         let _ = self.spool.sync();
         if self.connected_at_ms.is_none() {
@@ -261,9 +315,11 @@ impl Node {
         let _ = client.try_publish(t, QoS::AtLeastOnce, false, p.encode_to_vec());
         let _ = client.try_disconnect();
         let _ = tokio::time::timeout(Duration::from_secs(2), async {
-            loop {
-                match el.poll().await {
-                    Ok(MqttEvent::Outgoing(Outgoing::Disconnect)) | Err(_) => break,
+            while let Some(p) = rx.recv().await {
+                match p {
+                    Polled::Event(MqttEvent::Outgoing(Outgoing::Disconnect)) | Polled::Lost(..) => {
+                        break
+                    }
                     _ => {}
                 }
             }
@@ -272,7 +328,9 @@ impl Node {
         tracing::info!(target: "sparkplug", "NDEATH published, disconnected from {}", self.cfg.broker);
     }
 
-    fn on_lost(&mut self, el: &mut EventLoop, why: &str) {
+    /// The connection is lost: events in flight back to the queue; a new bdSeq (and will)
+    /// if a session had been established with the current one.
+    fn on_lost(&mut self, why: &str) -> Option<LastWill> {
         let was_connected = self.connected_at_ms.take().is_some();
         if was_connected || !self.warned {
             tracing::warn!(target: "sparkplug", "broker {}: {why}; events are kept ({} queued) and replayed on reconnect", self.cfg.broker, self.spool.len() + self.inflight.len());
@@ -280,12 +338,9 @@ impl Node {
         }
         self.requeue_inflight();
         let _ = self.spool.sync();
-        // nothing of the old session is sent in the new one: its seq numbers are gone
-        el.clean();
-        el.pending.clear();
         if !was_connected {
             // no session was established with this bdSeq: the next attempt keeps it
-            return;
+            return None;
         }
         // each session has its own bdSeq, in its will and its NBIRTH
         match self.store.take_next() {
@@ -296,7 +351,7 @@ impl Node {
             }
         }
         self.node.session(self.bd_seq);
-        el.mqtt_options.set_last_will(last_will(self.node.ndeath()));
+        Some(last_will(self.node.ndeath()))
     }
 
     fn requeue_inflight(&mut self) {
