@@ -3,8 +3,9 @@
 # the daemon with the embedded simulated plant as an edge node, and an independent Python
 # host (tests/sparkplug/host.py: paho-mqtt + protobuf from a .proto written from the spec).
 #   1. NBIRTH/DBIRTH decoded with datatypes, units and ranges; NDATA/DDATA followed through
-#      the throttle closure; the deviation the host reads matches `antisurge status --json
-#      --cycle N` at the same cycle, within 1 % (percentage points of the deviation);
+#      the throttle closure; the deviation the host knows (the last value reported by
+#      exception, deadband 0.25 % of its 200 % range) matches `antisurge status --json
+#      --cycle N` at the cycle of the message, within 1 % (percentage points of the deviation);
 #   2. a DCMD without commands enabled: refused and in the event log;
 #   3. broker stopped 10 s during the closure, operator actions during the outage: their
 #      events arrive after it returns, in order, none missing;
@@ -63,6 +64,7 @@ start_daemon() {  # $1: commands_enabled
     ANTISURGE_SPARKPLUG__ENABLED=true ANTISURGE_SPARKPLUG__BROKER="127.0.0.1:$port" \
     ANTISURGE_SPARKPLUG__GROUP_ID=$group ANTISURGE_SPARKPLUG__EDGE_NODE_ID=$node \
     ANTISURGE_SPARKPLUG__KEEP_ALIVE_S=$keep_alive ANTISURGE_SPARKPLUG__COMMANDS_ENABLED="$1" \
+    ANTISURGE_SPARKPLUG__DEADBAND_PCT=0.25 \
     ANTISURGE_STATUS__SOCKET="$work/status.sock" ANTISURGE_STATUS__STATE_DIR="$work/state" \
     ANTISURGE_STATUS__OPERATOR_TOKEN_FILE="$work/token" ANTISURGE_STATUS__METRICS_LISTEN="" \
     ANTISURGE_STATUS__HMI_LISTEN="" ANTISURGE_EVENT_LOG__PATH="$work/events.jsonl" \

@@ -245,13 +245,16 @@ pub fn flatten_link(v: &serde_json::Value) -> Vec<(String, Value)> {
             serde_json::Value::Bool(b) => out.push((prefix.into(), Value::Bool(*b))),
             serde_json::Value::Number(n) => out.push((
                 prefix.into(),
-                n.as_u64()
-                    .map_or_else(|| Value::Double(n.as_f64().unwrap_or(f64::NAN)), Value::UInt64),
+                n.as_u64().map_or_else(
+                    || Value::Double(n.as_f64().unwrap_or(f64::NAN)),
+                    Value::UInt64,
+                ),
             )),
             serde_json::Value::String(s) => out.push((prefix.into(), Value::Str(s.clone()))),
-            serde_json::Value::Array(a) => {
-                out.push((prefix.into(), Value::Str(serde_json::to_string(a).unwrap_or_default())))
-            }
+            serde_json::Value::Array(a) => out.push((
+                prefix.into(),
+                Value::Str(serde_json::to_string(a).unwrap_or_default()),
+            )),
             serde_json::Value::Null => {}
         }
     }
@@ -301,9 +304,21 @@ mod tests {
             speed: (0.0, 1000.0),
         };
         let defs = compressor_metrics(&r, &db);
-        assert_eq!(defs.len(), compressor_values(&LiveSnapshot::default()).len());
+        assert_eq!(
+            defs.len(),
+            compressor_values(&LiveSnapshot::default()).len()
+        );
         let n = node_metrics(&db);
-        assert_eq!(n.len(), node_values(&crate::runtime::rt_loop::CycleStats::default().report(), 0, None, "").len());
+        assert_eq!(
+            n.len(),
+            node_values(
+                &crate::runtime::rt_loop::CycleStats::default().report(),
+                0,
+                None,
+                ""
+            )
+            .len()
+        );
         let analogue: Vec<&str> = defs
             .iter()
             .chain(n.iter())
@@ -312,7 +327,10 @@ mod tests {
             .collect();
         assert_eq!(analogue, ANALOGUE);
         let dev = &defs[1];
-        assert_eq!((dev.name.as_str(), dev.unit, dev.deadband), ("Deviation", Some("%"), 1.0));
+        assert_eq!(
+            (dev.name.as_str(), dev.unit, dev.deadband),
+            ("Deviation", Some("%"), 1.0)
+        );
         let by = Deadbands {
             default_pct: 0.5,
             by_name: [("Deviation".to_string(), 0.1)].into(),

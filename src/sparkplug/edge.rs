@@ -583,7 +583,11 @@ impl EdgeNode {
 
     /// An NDATA of these metrics as they are (events: not by exception), `historical` when
     /// replayed from the store-and-forward queue.
-    pub fn ndata_of(&mut self, metrics: Vec<(String, Value, u64)>, historical: bool) -> (String, Payload) {
+    pub fn ndata_of(
+        &mut self,
+        metrics: Vec<(String, Value, u64)>,
+        historical: bool,
+    ) -> (String, Payload) {
         let ts = now_ms();
         let metrics = metrics
             .into_iter()
@@ -661,7 +665,9 @@ mod tests {
         let props = d.properties.as_ref().expect("properties");
         assert_eq!(
             props.get("engUnit").and_then(|v| v.value.clone()),
-            Some(super::super::proto::PropertyValueKind::StringValue("%".into()))
+            Some(super::super::proto::PropertyValueKind::StringValue(
+                "%".into()
+            ))
         );
         assert_eq!(
             props.get("engHigh").and_then(|v| v.value.clone()),
@@ -670,9 +676,15 @@ mod tests {
         // a NaN is a null, typed
         let (_, p) = n.ddata(0, &dev(11, f64::NAN, "auto")).expect("null sent");
         let back = Payload::decode(p.encode_to_vec().as_slice()).expect("decode");
-        let d = back.metrics.iter().find(|m| m.name.as_deref() == Some("Deviation"));
+        let d = back
+            .metrics
+            .iter()
+            .find(|m| m.name.as_deref() == Some("Deviation"));
         let d = d.expect("deviation");
-        assert_eq!((d.is_null, d.datatype, &d.value), (Some(true), Some(datatype::DOUBLE), &None));
+        assert_eq!(
+            (d.is_null, d.datatype, &d.value),
+            (Some(true), Some(datatype::DOUBLE), &None)
+        );
         let (topic, death) = n.ndeath();
         assert_eq!(topic, "spBv1.0/Plant1/NDEATH/skid-7");
         assert_eq!(death.seq, None);
@@ -687,7 +699,9 @@ mod tests {
         n.dbirth(0, &dev(1, 10.0, "auto"));
         // deadband: 1 % of 100 % span = 1.0; the cycle alone does not make a message
         assert!(n.ddata(0, &dev(2, 10.9, "auto")).is_none());
-        let (_, p) = n.ddata(0, &dev(3, 11.2, "auto")).expect("beyond the deadband");
+        let (_, p) = n
+            .ddata(0, &dev(3, 11.2, "auto"))
+            .expect("beyond the deadband");
         let names: Vec<_> = p.metrics.iter().filter_map(|m| m.name.clone()).collect();
         assert_eq!(names, ["Cycle", "Deviation"]);
         assert_eq!(p.metrics[0].value, Some(MetricValue::LongValue(3)));
@@ -722,7 +736,10 @@ mod tests {
         assert!(seqs.contains(&255));
         // a rebirth restarts at 0 with the same bdSeq
         let (_, p) = n.nbirth(&[Value::UInt64(0)]);
-        assert_eq!((p.seq, &p.metrics[0].value), (Some(0), &Some(MetricValue::LongValue(1))));
+        assert_eq!(
+            (p.seq, &p.metrics[0].value),
+            (Some(0), &Some(MetricValue::LongValue(1)))
+        );
         // a rebirth re-reports everything: the birth values are the reported ones
         assert!(n.ddata(0, &dev(1, 0.0, "a")).is_some());
     }
@@ -746,7 +763,10 @@ mod tests {
     fn commands_rebirth_and_operator_actions() {
         let t = Topics::new("G", "N").expect("ids");
         assert_eq!(t.parse("spBv1.0/G/NCMD/N"), Some(("NCMD", None)));
-        assert_eq!(t.parse("spBv1.0/G/DCMD/N/compressor"), Some(("DCMD", Some("compressor"))));
+        assert_eq!(
+            t.parse("spBv1.0/G/DCMD/N/compressor"),
+            Some(("DCMD", Some("compressor")))
+        );
         assert_eq!(t.parse("spBv1.0/G/DCMD/other/compressor"), None);
         assert_eq!(t.commands(), ["spBv1.0/G/NCMD/N", "spBv1.0/G/DCMD/N/+"]);
         assert!(Topics::new("a/b", "N").is_err() && Topics::new("G", "#").is_err());

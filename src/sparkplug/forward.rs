@@ -31,7 +31,11 @@ impl HostEvent {
             .get("ts")
             .and_then(|t| t.as_str())
             .and_then(|t| crate::events::Timestamp::parse_rfc3339(t).ok())
-            .and_then(|t| t.to_system_time().duration_since(std::time::UNIX_EPOCH).ok())
+            .and_then(|t| {
+                t.to_system_time()
+                    .duration_since(std::time::UNIX_EPOCH)
+                    .ok()
+            })
             .map_or(0, |d| d.as_millis() as u64);
         let cause = match v.get("cause") {
             Some(c) => match serde_json::from_value::<crate::events::cause::Cause>(c.clone()) {
@@ -231,7 +235,9 @@ mod tests {
     use std::io::Write;
 
     fn line(seq: u64, kind: &str) -> String {
-        format!(r#"{{"ts":"2026-11-28T04:00:00.000001Z","seq":{seq},"event":"{kind}","reason":"r{seq}"}}"#)
+        format!(
+            r#"{{"ts":"2026-11-28T04:00:00.000001Z","seq":{seq},"event":"{kind}","reason":"r{seq}"}}"#
+        )
     }
 
     #[test]
@@ -242,11 +248,23 @@ mod tests {
         // from the end: the existing line is not sent
         let mut f = LogFollower::new(&p, None);
         assert!(f.poll().is_empty());
-        let mut w = std::fs::OpenOptions::new().append(true).open(&p).expect("open");
-        write!(w, "{}\n{}", line(2, "mode_changed"), &line(3, "surge_detected")[..20]).expect("w");
+        let mut w = std::fs::OpenOptions::new()
+            .append(true)
+            .open(&p)
+            .expect("open");
+        write!(
+            w,
+            "{}\n{}",
+            line(2, "mode_changed"),
+            &line(3, "surge_detected")[..20]
+        )
+        .expect("w");
         let got = f.poll();
         assert_eq!(got.len(), 1);
-        assert_eq!((got[0].seq, got[0].kind.as_str(), got[0].cause.as_str()), (2, "mode_changed", "r2"));
+        assert_eq!(
+            (got[0].seq, got[0].kind.as_str(), got[0].cause.as_str()),
+            (2, "mode_changed", "r2")
+        );
         assert!(got[0].ts_ms > 1_700_000_000_000);
         write!(w, "{}\n", &line(3, "surge_detected")[20..]).expect("w");
         assert_eq!(f.poll().iter().map(|e| e.seq).collect::<Vec<_>>(), [3]);
@@ -254,7 +272,11 @@ mod tests {
         std::fs::write(&p, line(4, "stopped") + "\n").expect("write");
         assert_eq!(f.poll().iter().map(|e| e.seq).collect::<Vec<_>>(), [4]);
         // from a known seq: what the host does not have yet
-        std::fs::write(&p, [line(4, "a"), line(5, "b"), line(6, "c")].join("\n") + "\n").expect("w");
+        std::fs::write(
+            &p,
+            [line(4, "a"), line(5, "b"), line(6, "c")].join("\n") + "\n",
+        )
+        .expect("w");
         let mut f = LogFollower::new(&p, Some(4));
         assert_eq!(f.poll().iter().map(|e| e.seq).collect::<Vec<_>>(), [5, 6]);
         assert_eq!(f.last_seq(), Some(6));

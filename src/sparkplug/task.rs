@@ -278,8 +278,7 @@ impl Node {
         finish: tokio::sync::oneshot::Sender<()>,
         mut shutdown: watch::Receiver<bool>,
     ) {
-        let mut ticker =
-            tokio::time::interval(Duration::from_millis(self.cfg.publish_interval_ms));
+        let mut ticker = tokio::time::interval(Duration::from_millis(self.cfg.publish_interval_ms));
         ticker.set_missed_tick_behavior(tokio::time::MissedTickBehavior::Skip);
         loop {
             tokio::select! {
@@ -383,7 +382,9 @@ impl Node {
                 self.births(client);
                 self.send_events(client);
             }
-            MqttEvent::Incoming(Packet::Publish(p)) => self.on_command(client, &p.topic, &p.payload),
+            MqttEvent::Incoming(Packet::Publish(p)) => {
+                self.on_command(client, &p.topic, &p.payload)
+            }
             MqttEvent::Outgoing(Outgoing::Publish(pkid)) if pkid != 0 => {
                 if let Some(slot) = self.inflight.iter_mut().find(|(k, _)| k.is_none()) {
                     slot.0 = Some(pkid);
@@ -417,7 +418,11 @@ impl Node {
         let now = catalogue::link_devices(&(c.links)());
         for (i, names) in &self.links {
             let dev = self.node.device_names().nth(*i).unwrap_or("").to_string();
-            let cur = now.iter().find(|(n, _)| *n == dev).map(|d| d.1.as_slice()).unwrap_or(&[]);
+            let cur = now
+                .iter()
+                .find(|(n, _)| *n == dev)
+                .map(|d| d.1.as_slice())
+                .unwrap_or(&[]);
             if let Some(b) = self.node.dbirth(*i, &catalogue::link_values(names, cur)) {
                 self.publish(client, b, QoS::AtMostOnce);
             }
@@ -434,9 +439,7 @@ impl Node {
         while self.inflight.len() < MAX_INFLIGHT_EVENTS {
             let Some(e) = self.spool.pop() else { break };
             let historical = e.ts_ms < since;
-            let msg = self
-                .node
-                .ndata_of(catalogue::event_metrics(&e), historical);
+            let msg = self.node.ndata_of(catalogue::event_metrics(&e), historical);
             if !self.publish(client, msg, QoS::AtLeastOnce) {
                 self.spool.requeue_front(vec![e]);
                 break;
@@ -482,7 +485,11 @@ impl Node {
                 for k in 0..self.links.len() {
                     let (i, names) = &self.links[k];
                     let dev = self.node.device_names().nth(*i).unwrap_or("").to_string();
-                    let cur = now.iter().find(|(n, _)| *n == dev).map(|d| d.1.as_slice()).unwrap_or(&[]);
+                    let cur = now
+                        .iter()
+                        .find(|(n, _)| *n == dev)
+                        .map(|d| d.1.as_slice())
+                        .unwrap_or(&[]);
                     let vals = catalogue::link_values(names, cur);
                     let i = *i;
                     if let Some(m) = self.node.ddata(i, &vals) {
@@ -500,8 +507,7 @@ impl Node {
         let Some((kind, device)) = self.node.topics.parse(topic) else {
             return;
         };
-        let known_device =
-            device.is_none_or(|d| self.node.device_names().any(|n| n == d));
+        let known_device = device.is_none_or(|d| self.node.device_names().any(|n| n == d));
         if !matches!((kind, device), ("NCMD", None) | ("DCMD", Some(_))) || !known_device {
             return;
         }

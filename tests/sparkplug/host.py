@@ -107,6 +107,7 @@ def record(args):
     out = open(args.out, "a", buffering=1)
     lock = threading.Lock()
     last_compare = [0.0]
+    known = {}
 
     def write(obj):
         with lock:
@@ -137,13 +138,19 @@ def record(args):
         if rec is None:
             return
         write(rec)
-        if args.status_cmd and rec["kind"] == "DDATA" and rec["device"] == "compressor":
-            vals = {m["name"]: m["value"] for m in rec["metrics"]}
-            if "Deviation" in vals and vals["Deviation"] is not None and "Cycle" in vals \
-                    and time.time() - last_compare[0] > args.compare_every_s:
-                last_compare[0] = time.time()
-                threading.Thread(target=compare, args=(vals["Cycle"], vals["Deviation"], rec["node"]),
-                                 daemon=True).start()
+        if rec["device"] != "compressor" or rec["kind"] not in ("DBIRTH", "DDATA"):
+            return
+        # what the host knows: the last reported value (report by exception), at the cycle
+        # of the message (every compressor DDATA carries its cycle)
+        vals = {m["name"]: m["value"] for m in rec["metrics"]}
+        if "Deviation" in vals:
+            known[rec["node"]] = vals["Deviation"]
+        dev = known.get(rec["node"])
+        if args.status_cmd and rec["kind"] == "DDATA" and dev is not None and "Cycle" in vals \
+                and time.time() - last_compare[0] > args.compare_every_s:
+            last_compare[0] = time.time()
+            threading.Thread(target=compare, args=(vals["Cycle"], dev, rec["node"]),
+                             daemon=True).start()
 
     host, port = args.broker.rsplit(":", 1)
     c = mqtt.Client(mqtt.CallbackAPIVersion.VERSION2, client_id=args.client_id, clean_session=False)
@@ -355,7 +362,7 @@ def main():
     r.add_argument("--out", required=True)
     r.add_argument("--client-id", default="spb-test-host")
     r.add_argument("--status-cmd")
-    r.add_argument("--compare-every-s", type=float, default=0.5)
+    r.add_argument("--compare-every-s", type=float, default=0.3)
     r.add_argument("--ready")
     for name in ("cmd", "rebirth"):
         c = sub.add_parser(name)

@@ -225,10 +225,7 @@ mod tests {
         assert!(!s.enabled && !s.commands_enabled);
         assert_eq!(s.broker_host_port(), Ok(("127.0.0.1".into(), 1883)));
         assert!(s.validate().is_empty());
-        let on = SparkplugSection {
-            enabled: true,
-            ..s
-        };
+        let on = SparkplugSection { enabled: true, ..s };
         assert!(on.validate().is_empty(), "{:?}", on.validate());
     }
 
@@ -265,7 +262,10 @@ mod tests {
             ..SparkplugSection::default()
         };
         let p = s.validate();
-        assert!(p.len() == 1 && p[0].message.contains("readable by everyone"), "{p:?}");
+        assert!(
+            p.len() == 1 && p[0].message.contains("readable by everyone"),
+            "{p:?}"
+        );
         std::fs::set_permissions(&pw, std::fs::Permissions::from_mode(0o640)).expect("chmod");
         assert!(s.validate().is_empty());
     }
