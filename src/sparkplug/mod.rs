@@ -12,6 +12,7 @@
 
 pub mod catalogue;
 pub mod edge;
+pub mod fleet;
 pub mod forward;
 pub mod proto;
 pub mod task;

@@ -305,6 +305,19 @@ impl Node {
     /// A clean stop: the death certificate ourselves (the broker drops the will on a clean
     /// DISCONNECT), then disconnect.
     async fn stop(&mut self, client: &AsyncClient, rx: &mut tokio::sync::mpsc::Receiver<Polled>) {
+        // the events in flight: their acknowledgements, for a second at most
+        let _ = tokio::time::timeout(Duration::from_secs(1), async {
+            while self.connected_at_ms.is_some() && !self.inflight.is_empty() {
+                match rx.recv().await {
+                    Some(Polled::Event(ev)) => self.on_event(client, ev),
+                    Some(Polled::Lost(why, answer)) => {
+                        let _ = answer.send(self.on_lost(&why));
+                    }
+                    None => break,
+                }
+            }
+        })
+        .await;
         self.requeue_inflight();
         let _ = self.spool.sync();
         if self.connected_at_ms.is_none() {

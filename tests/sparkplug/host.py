@@ -283,17 +283,36 @@ def check(args):
             if k == "NDATA" and "Events/Seq" in names:
                 s["events"].append((names["Events/Seq"]["value"], r["recv_ms"], names["Events/Seq"]["historical"]))
         summary[node] = s
-    # events: in order, none missing, against the event log
+    # latency: publish (payload timestamp, the node's clock) to reception (same machine)
+    lat = sorted(r["recv_ms"] - r["timestamp"] for r in recs
+                 if r.get("kind") in ("NDATA", "DDATA") and r.get("timestamp"))
+    if lat:
+        summary["latency_ms"] = {"n": len(lat), "p50": lat[len(lat) // 2],
+                                 "p99": lat[min(len(lat) - 1, int(len(lat) * 0.99))], "max": lat[-1]}
+    # events: in order, none missing, against the event log(s)
+    logs = {}
     if args.events_log:
         log = [json.loads(l) for l in open(args.events_log) if l.strip()]
+        logs = {node: log for node in nodes}
+    if args.events_dir:
         for node in nodes:
+            path = os.path.join(args.events_dir, node, "events.jsonl")
+            logs[node] = [json.loads(l) for l in open(path) if l.strip()]
+    if logs:
+        for node in nodes:
+            log = logs[node]
             got, seen = [], set()
             for seq, t, hist in summary[node]["events"]:
                 if seq not in seen:
                     seen.add(seq)
                     got.append(seq)
             f.expect(got == sorted(got), f"{node}: events out of order {got[:20]}")
-            if got:
+            if args.all_events:
+                want = [e["seq"] for e in log]
+                missing = sorted(set(want) - seen)
+                f.expect(not missing, f"{node}: events missing {missing[:20]} of {len(want)}")
+                summary[node]["events_written"] = len(want)
+            elif got:
                 want = [e["seq"] for e in log if got[0] <= e["seq"] <= got[-1]]
                 missing = sorted(set(want) - seen)
                 f.expect(not missing, f"{node}: events missing {missing[:20]}")
@@ -337,6 +356,15 @@ def check(args):
                                          "min": min(devs) if devs else None, "max": max(devs) if devs else None}
     for node in nodes:
         summary[node].pop("events", None)
+        summary[node].pop("ndeath_ms", None)
+        if args.sessions is not None:
+            f.expect(summary[node]["sessions"] == args.sessions,
+                     f"{node}: {summary[node]['sessions']} sessions, want {args.sessions}")
+    if args.brief:
+        per = [summary.pop(n) for n in nodes]
+        summary["nodes"] = len(nodes)
+        for k in ("sessions", "messages", "gaps", "ndeath", "events_received", "events_written", "event_duplicates"):
+            summary[k] = sum(p.get(k, 0) for p in per)
     results = [r for r in recs if r.get("kind") == "NDATA" and any(m["name"] == "Operator/Last Result" for m in r["metrics"])]
     summary["command_results"] = [m["value"] for r in results for m in r["metrics"] if m["name"] == "Operator/Last Result"]
     for want in args.expect_result or []:
@@ -381,6 +409,10 @@ def main():
     k.add_argument("--keep-alive-s", type=float, default=5)
     k.add_argument("--min-compares", type=int, default=0)
     k.add_argument("--expect-result", action="append")
+    k.add_argument("--events-dir", help="per-node event logs: DIR/<node>/events.jsonl")
+    k.add_argument("--all-events", action="store_true", help="every event of the log(s) must arrive")
+    k.add_argument("--sessions", type=int, help="NBIRTHs each node must have")
+    k.add_argument("--brief", action="store_true", help="totals instead of one summary per node")
     a = ap.parse_args()
     {"record": record, "cmd": cmd, "rebirth": rebirth, "check": check}[a.what](a)
 
