@@ -333,7 +333,7 @@ impl Seq {
     }
 
     /// The next message's.
-    pub fn next(&mut self) -> u64 {
+    pub fn take(&mut self) -> u64 {
         let s = self.0;
         self.0 = self.0.wrapping_add(1);
         u64::from(s)
@@ -537,7 +537,7 @@ impl EdgeNode {
             Payload {
                 timestamp: Some(ts),
                 metrics,
-                seq: Some(self.seq.next()),
+                seq: Some(self.seq.take()),
                 ..Default::default()
             },
         ))
@@ -555,7 +555,7 @@ impl EdgeNode {
                 Payload {
                     timestamp: Some(ts),
                     metrics,
-                    seq: Some(self.seq.next()),
+                    seq: Some(self.seq.take()),
                     ..Default::default()
                 },
             )
@@ -575,7 +575,7 @@ impl EdgeNode {
             Payload {
                 timestamp: Some(ts),
                 metrics,
-                seq: Some(self.seq.next()),
+                seq: Some(self.seq.take()),
                 ..Default::default()
             },
         ))
@@ -607,7 +607,7 @@ impl EdgeNode {
             Payload {
                 timestamp: Some(ts),
                 metrics,
-                seq: Some(self.seq.next()),
+                seq: Some(self.seq.take()),
                 ..Default::default()
             },
         )

@@ -266,7 +266,7 @@ mod tests {
             (2, "mode_changed", "r2")
         );
         assert!(got[0].ts_ms > 1_700_000_000_000);
-        write!(w, "{}\n", &line(3, "surge_detected")[20..]).expect("w");
+        writeln!(w, "{}", &line(3, "surge_detected")[20..]).expect("w");
         assert_eq!(f.poll().iter().map(|e| e.seq).collect::<Vec<_>>(), [3]);
         // rotation: a new, shorter file; seq continues
         std::fs::write(&p, line(4, "stopped") + "\n").expect("write");
