@@ -11,7 +11,9 @@
 #      events arrive after it returns, in order, none missing;
 #   4. kill -9: NDEATH within the keep-alive (1.5 x keep_alive_s); restart: NBIRTH with
 #      bdSeq + 1, seq 0, no sequence gap in any session;
-#   5. commands enabled, wrong token: refused; right token: done.
+#   5. commands enabled, wrong token: refused; right token: done;
+#   6. TLS (a CA file) and broker credentials (a password file with the token file's rules):
+#      check-config refuses a world-readable one; the node publishes over TLS with them.
 # Needs: target/release/antisurge; mosquitto; python3 with paho-mqtt, protobuf, grpcio-tools.
 set -euo pipefail
 cd "$(dirname "$0")/.."
@@ -19,9 +21,9 @@ root=$PWD
 bin=$root/target/release/antisurge
 host="python3 $root/tests/sparkplug/host.py"
 work=$(mktemp -d)
-mosq_pid=""; daemon_pid=""; host_pid=""
+mosq_pid=""; daemon_pid=""; host_pid=""; tls_pid=""
 cleanup() {
-    for p in $daemon_pid $host_pid $mosq_pid; do kill "$p" 2>/dev/null || true; done
+    for p in $daemon_pid $host_pid $mosq_pid $tls_pid; do kill "$p" 2>/dev/null || true; done
     wait 2>/dev/null || true
     if [ "${keep_work:-0}" = 1 ]; then echo "work directory kept: $work"; else rm -rf "$work"; fi
 }
@@ -60,8 +62,10 @@ host_pid=$!
 for _ in $(seq 100); do [ -e host.ready ] && break; sleep 0.1; done
 [ -e host.ready ] || { echo "host did not connect"; cat host.log; exit 1; }
 
-start_daemon() {  # $1: commands_enabled
-    ANTISURGE_SPARKPLUG__ENABLED=true ANTISURGE_SPARKPLUG__BROKER="127.0.0.1:$port" \
+broker="127.0.0.1:$port"
+extra=()
+start_daemon() {  # $1: commands_enabled; $broker, and ${extra[@]} more settings
+    env "${extra[@]}" ANTISURGE_SPARKPLUG__ENABLED=true ANTISURGE_SPARKPLUG__BROKER="$broker" \
     ANTISURGE_SPARKPLUG__GROUP_ID=$group ANTISURGE_SPARKPLUG__EDGE_NODE_ID=$node \
     ANTISURGE_SPARKPLUG__KEEP_ALIVE_S=$keep_alive ANTISURGE_SPARKPLUG__COMMANDS_ENABLED="$1" \
     ANTISURGE_SPARKPLUG__DEADBAND_PCT=0.25 \
@@ -119,6 +123,54 @@ daemon_pid=""
 sleep 0.5
 kill -TERM $host_pid; wait $host_pid 2>/dev/null || true
 host_pid=""
+
+echo "-- TLS and broker credentials (the password file has the token file's rules)"
+tport=$(free_port)
+openssl req -x509 -newkey rsa:2048 -nodes -days 2 -subj /CN=test-ca -keyout ca.key -out ca.crt 2>/dev/null
+openssl req -newkey rsa:2048 -nodes -subj /CN=127.0.0.1 -keyout srv.key -out srv.csr 2>/dev/null
+printf 'subjectAltName=IP:127.0.0.1\n' >san.ext
+openssl x509 -req -in srv.csr -CA ca.crt -CAkey ca.key -CAcreateserial -days 2 -extfile san.ext -out srv.crt 2>/dev/null
+chmod 0644 srv.key  # the test broker drops to its own user
+: >passwd && mosquitto_passwd -b passwd skid mqtt-s3cret && chmod 0644 passwd
+echo mqtt-s3cret >mqtt.password && chmod 0644 mqtt.password
+tls_env() {
+    env ANTISURGE_SPARKPLUG__BROKER="127.0.0.1:$tport" ANTISURGE_SPARKPLUG__CA_FILE="$work/ca.crt" \
+        ANTISURGE_SPARKPLUG__USERNAME=skid ANTISURGE_SPARKPLUG__PASSWORD_FILE="$work/mqtt.password" "$@"
+}
+if tls_env ANTISURGE_SPARKPLUG__ENABLED=true "$bin" check-config "$root/config/antisurge.toml" >check.txt 2>&1; then
+    echo "check-config accepted a password file readable by everyone"; exit 1
+fi
+grep -q "sparkplug.password_file" check.txt || { echo "check-config did not name sparkplug.password_file"; cat check.txt; exit 1; }
+chmod 0640 mqtt.password
+printf 'listener %s 127.0.0.1\ncafile %s/ca.crt\ncertfile %s/srv.crt\nkeyfile %s/srv.key\nallow_anonymous false\npassword_file %s/passwd\n' \
+    "$tport" "$work" "$work" "$work" "$work" >tls.conf
+mosquitto -c tls.conf >mosquitto-tls.log 2>&1 &
+tls_pid=$!
+sleep 0.5
+broker="127.0.0.1:$tport"
+extra=(ANTISURGE_SPARKPLUG__CA_FILE="$work/ca.crt" ANTISURGE_SPARKPLUG__USERNAME=skid
+       ANTISURGE_SPARKPLUG__PASSWORD_FILE="$work/mqtt.password")
+start_daemon false
+python3 - "$tport" "$work/ca.crt" $group $node <<'PY'
+import sys, threading, paho.mqtt.client as mqtt
+port, ca, group, node = int(sys.argv[1]), sys.argv[2], sys.argv[3], sys.argv[4]
+got = threading.Event()
+c = mqtt.Client(mqtt.CallbackAPIVersion.VERSION2, client_id="tls-host")
+c.tls_set(ca_certs=ca)
+c.username_pw_set("skid", "mqtt-s3cret")
+c.on_connect = lambda c, u, f, r, p: c.subscribe(f"spBv1.0/{group}/#", qos=1)
+c.on_message = lambda c, u, m: got.set() if m.topic.startswith(f"spBv1.0/{group}/DDATA/{node}") else None
+c.connect("127.0.0.1", port)
+c.loop_start()
+ok = got.wait(20)
+c.loop_stop()
+sys.exit(0 if ok else "no DDATA over TLS with credentials")
+PY
+grep -q "connected to 127.0.0.1:$tport" daemon.log || { echo "the node did not connect over TLS"; exit 1; }
+echo "TLS + credentials: the node's DDATA received over TLS; a world-readable password file refused by check-config"
+kill -TERM $daemon_pid; wait $daemon_pid 2>/dev/null || true
+daemon_pid=""
+kill $tls_pid 2>/dev/null || true
 
 echo "-- the host's checks"
 $host check --rec rec.jsonl --events-log events.jsonl --kill-ms "$kill_ms" --outage-ms "$out_a" "$out_b" \
