@@ -734,14 +734,46 @@ mod tests {
             assert_eq!(w[1], (w[0] + 1) % 256, "{w:?}");
         }
         assert!(seqs.contains(&255));
-        // a rebirth restarts at 0 with the same bdSeq
+        // a rebirth restarts at 0 with the same bdSeq, and the DBIRTH follows with 1
         let (_, p) = n.nbirth(&[Value::UInt64(0)]);
         assert_eq!(
             (p.seq, &p.metrics[0].value),
             (Some(0), &Some(MetricValue::LongValue(1)))
         );
-        // a rebirth re-reports everything: the birth values are the reported ones
-        assert!(n.ddata(0, &dev(1, 0.0, "a")).is_some());
+        let (_, p) = n.dbirth(0, &dev(7, 0.0, "a")).expect("device");
+        assert_eq!(p.seq, Some(1));
+        // the birth values are the reported ones: the same values make no DDATA
+        assert!(n.ddata(0, &dev(8, 0.0, "a")).is_none());
+    }
+
+    #[test]
+    fn explicit_metrics_never_go_by_exception_and_rangeless_deadbands_are_relative() {
+        let mut set = MetricSet::new(vec![
+            MetricDef::relative("Mass Flow", "kg/s", 1.0),
+            MetricDef::explicit("Events/Kind"),
+        ]);
+        let v = |m: f64, k: &str| vec![Value::Double(m), Value::Str(k.into())];
+        set.birth(&v(10.0, ""), 0);
+        // 1 % of the last reported 10 kg/s: 0.1
+        assert!(set.exceptions(&v(10.09, "surge"), 0).is_empty());
+        let m = set.exceptions(&v(10.11, "surge"), 0);
+        assert_eq!(m.len(), 1);
+        assert_eq!(m[0].name.as_deref(), Some("Mass Flow"));
+        // null and back count as changes
+        assert_eq!(set.exceptions(&v(f64::NAN, ""), 0).len(), 1);
+        assert_eq!(set.exceptions(&v(10.11, ""), 0).len(), 1);
+        // an explicit NDATA is numbered like the others and may be historical
+        let mut n = node();
+        n.session(0);
+        n.nbirth(&[Value::UInt64(0)]);
+        let (_, p) = n.ndata_of(
+            vec![("Events/Kind".into(), Value::Str("x".into()), 5)],
+            true,
+        );
+        assert_eq!(
+            (p.seq, p.metrics[0].is_historical, p.metrics[0].timestamp),
+            (Some(1), Some(true), Some(5))
+        );
     }
 
     #[test]
