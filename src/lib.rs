@@ -29,4 +29,5 @@ pub mod scenario;
 pub mod signals;
 pub mod sim;
 pub mod solver;
+pub mod sparkplug;
 pub mod surge;

@@ -47,6 +47,9 @@ enum Command {
     /// Run the control core over a black-box recording (bit-exact with the recorded
     /// settings; with `--config`/`--law`, what another setting would have commanded).
     Replay(cli::replay::ReplayArgs),
+    /// N simulated skids, each a Sparkplug B edge node, against one MQTT broker (a fleet
+    /// benchmark: `.ci/sparkplug_fleet.sh` runs it with an independent host).
+    FleetSim(cli::fleet::FleetArgs),
     /// Print shell completions (bash, zsh, fish, elvish, powershell) to stdout.
     Completions {
         /// The shell.
@@ -82,6 +85,7 @@ fn main() -> std::process::ExitCode {
             Ok(code) => return code,
             Err(e) => Err(e),
         },
+        Some(Command::FleetSim(args)) => cli::fleet::run(&args),
         Some(Command::Completions { shell }) => {
             use clap::CommandFactory;
             clap_complete::generate(

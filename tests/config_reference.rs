@@ -12,7 +12,7 @@ mod common;
 use antisurge::daemon::config::tls::TlsSection;
 use antisurge::daemon::config::{
     load_with_env, BusSection, ControlSection, DaemonConfig, InputSection, PlantSection,
-    ReloadSection, SimulationSection, StartMode, StatusSection, Transport,
+    ReloadSection, SimulationSection, SparkplugSection, StartMode, StatusSection, Transport,
 };
 use antisurge::events::{EventLogConfig, FsyncPolicy};
 use antisurge::io::can::bus::CanBusConfig;
@@ -152,6 +152,22 @@ fn populated() -> DaemonConfig {
         reload: ReloadSection {
             watch_files: false,
             settle_ms: 1000.0,
+        },
+        sparkplug: SparkplugSection {
+            enabled: false,
+            broker: "127.0.0.1:1883".into(),
+            group_id: "antisurge".into(),
+            edge_node_id: "skid-1".into(),
+            client_id: Some("antisurge-antisurge-skid-1".into()),
+            keep_alive_s: 5,
+            publish_interval_ms: 100,
+            deadband_pct: 0.5,
+            deadbands_pct: [("Deviation".to_string(), 0.1)].into(),
+            commands_enabled: false,
+            username: Some("skid-1".into()),
+            password_file: Some(PathBuf::from("/etc/antisurge/mqtt.password")),
+            ca_file: Some(PathBuf::from("tls/broker-ca.crt")),
+            store_forward_events: 10_000,
         },
     }
 }

@@ -3,6 +3,7 @@
 pub mod bench_matrix;
 pub mod campaign;
 pub mod daemon;
+pub mod fleet;
 pub mod locate;
 pub mod pictures;
 pub mod plot;

@@ -570,6 +570,24 @@ async fn serve(loaded: Loaded, opts: RunOptions) -> Result<()> {
         shutdown_rx.clone(),
         &mut tasks,
     );
+    // the Sparkplug B edge node (issue 26): off the control thread, reads the same snapshot
+    if cfg.sparkplug.enabled {
+        let inputs = crate::sparkplug::EdgeInputs {
+            ctx: _live.clone(),
+            ranges: crate::sparkplug::catalogue::Ranges::of(&crate::live::hmi::MapLines::new(
+                &current_model,
+                &current_controller,
+                current_law == crate::control::LawId::RecyclePi,
+            )),
+            state_dir: crate::live::state_dir(&cfg.status),
+            events_path: cfg.event_log.path.clone(),
+        };
+        if let Err(e) =
+            crate::sparkplug::spawn(&cfg.sparkplug, inputs, shutdown_rx.clone(), &mut tasks)
+        {
+            tracing::error!(target: "sparkplug", "no Sparkplug B edge node: {e}");
+        }
+    }
     // signals, reload, watchdog, status
     let mut sigterm = tokio::signal::unix::signal(tokio::signal::unix::SignalKind::terminate())?;
     let mut sigint = tokio::signal::unix::signal(tokio::signal::unix::SignalKind::interrupt())?;

@@ -39,6 +39,7 @@ pub mod print;
 pub mod problem;
 pub mod reload;
 pub mod simulation;
+pub mod sparkplug;
 pub mod status;
 pub mod tls;
 
@@ -54,6 +55,7 @@ pub use plant::PlantSection;
 pub use problem::{KeyProblem, Problem, Severity};
 pub use reload::{is_live_key, ReloadSection, RESTART_KEYS};
 pub use simulation::SimulationSection;
+pub use sparkplug::SparkplugSection;
 pub use status::StatusSection;
 
 use crate::config::FileError;
@@ -108,6 +110,9 @@ pub struct DaemonConfig {
     /// How configuration changes are picked up.
     #[serde(default)]
     pub reload: ReloadSection,
+    /// The Sparkplug B edge node (off by default).
+    #[serde(default)]
+    pub sparkplug: SparkplugSection,
 }
 
 /// A loaded, resolved and checked configuration.
@@ -258,6 +263,7 @@ fn load_layers(main: &Path, layers: Vec<Layer>) -> Result<Loaded, Vec<Problem>> 
     config.event_log.path = output_path(&config.event_log.path);
     config.status.stats_file = config.status.stats_file.as_deref().map(output_path);
     config.status.tls = config.status.tls.as_ref().map(|t| t.resolved(main));
+    config.sparkplug = config.sparkplug.resolved(main);
     let mut loaded = Loaded {
         config,
         main_path: main.to_path_buf(),
@@ -344,6 +350,7 @@ pub fn check(l: &Loaded) -> Vec<Problem> {
     let mut own = event_log::validate(&c.event_log);
     own.extend(c.simulation.validate());
     own.extend(c.status.validate());
+    own.extend(c.sparkplug.validate());
     out.extend(own.into_iter().map(|p| p.locate_in(l)));
     out.extend(map_problems);
     out.extend(machine::transport_problem(l));

@@ -59,6 +59,7 @@ pub const RESTART_KEYS: &[&str] = &[
     "simulation",
     "status",
     "reload",
+    "sparkplug",
 ];
 
 /// Is `key` (dotted) applied live on reload?
