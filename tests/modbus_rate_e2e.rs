@@ -177,6 +177,9 @@ throttle_position = { modbus = { unit_id = 1, table = "input", address = 10, dat
 
 [actuators]
 recycle_valve = { modbus = { unit_id = 1, table = "holding", address = 102, data_type = "u16", scale = 1e-4 } }
+
+[feedback]
+recycle_valve = { tolerance = 0.05, time_ms = 100 }
 "#;
 
 /// One real-time case at a time (see the module comment).
@@ -627,6 +630,8 @@ struct Case {
     dp_frozen: Option<(f64, f64)>,
     /// The link dropped over [from, to), plant time, s.
     outage: Option<(f64, f64)>,
+    /// Another Modbus master writes the valve's setpoint to 0 over [from, to), plant time, s.
+    second_writer: Option<(f64, f64)>,
     /// No daemon; the valve held (the sanity case).
     no_daemon: bool,
 }
@@ -643,6 +648,7 @@ impl Case {
             latency_seed: 1,
             dp_frozen: None,
             outage: None,
+            second_writer: None,
             no_daemon: false,
         }
     }
@@ -656,6 +662,9 @@ struct Outcome {
     /// Plant time the plant lagged the wall clock by at most, s (printed, never asserted).
     max_lag_s: f64,
     dir: tempfile::TempDir,
+    /// `antisurge status --json` at the end of the run, before and after an `ack` (cases with
+    /// a second writer only).
+    status_at_end: Option<(serde_json::Value, serde_json::Value)>,
 }
 
 /// The daemon's config: defaults except what the skid needs (bus and map, the machine,
@@ -700,6 +709,7 @@ path = "{events}"
 [status]
 log_interval_s = 5.0
 socket = "{socket}"
+operator_token_file = "{token}"
 metrics_listen = ""
 hmi_listen = ""
 "#,
@@ -707,6 +717,7 @@ hmi_listen = ""
         map = map.display(),
         events = dir.join("events.jsonl").display(),
         socket = dir.join("status.sock").display(),
+        token = dir.join("operator.token").display(),
     );
     let path = dir.join("antisurge.toml");
     std::fs::write(&path, cfg).expect("write config");
@@ -721,6 +732,12 @@ fn run_case(case: Case) -> Outcome {
     let (machine_path, desc) = machine(&dir);
     let map_path = dir.join("signal_map.toml");
     std::fs::write(&map_path, SIGNAL_MAP).expect("write map");
+    {
+        use std::os::unix::fs::PermissionsExt;
+        let token = dir.join("operator.token");
+        std::fs::write(&token, "e2e-token\n").expect("token");
+        std::fs::set_permissions(&token, std::fs::Permissions::from_mode(0o600)).expect("chmod");
+    }
 
     let shared: Shared = Arc::new(Mutex::new(DeviceState {
         words: [0; INPUT_WORDS],
@@ -790,6 +807,12 @@ fn run_case(case: Case) -> Outcome {
                 }
                 link_down = down;
             }
+            if let Some((from, to)) = case.second_writer {
+                if t >= from && t < to {
+                    // the other master's write lands after the daemon's: the setpoint is 0
+                    lock(&shared).valve_cmd = 0.0;
+                }
+            }
             let cmd = lock(&shared).valve_cmd;
             p.step(cmd);
             // publish what the transmitters read
@@ -821,6 +844,31 @@ fn run_case(case: Case) -> Outcome {
         (p.figures, max_lag_s)
     };
 
+    // the device still answers (its last values): the status, then an acknowledgement
+    let status_at_end = (case.second_writer.is_some() && daemon.is_some()).then(|| {
+        let before = status_json(&dir);
+        let sock = dir.join("status.sock").display().to_string();
+        let tf = dir.join("operator.token").display().to_string();
+        let out = std::process::Command::new(env!("CARGO_BIN_EXE_antisurge"))
+            .args(["operate", "--socket", &sock, "--token-file", &tf, "ack"])
+            .output()
+            .expect("operate ack");
+        assert!(out.status.success(), "ack refused: {out:?}");
+        // the feedback task checks every 10 ms; poll the status until it has (bounded)
+        let mut after = status_json(&dir);
+        for _ in 0..100 {
+            if after["field_faults"]
+                .as_array()
+                .is_some_and(|a| a.is_empty())
+            {
+                break;
+            }
+            std::thread::sleep(Duration::from_millis(20));
+            after = status_json(&dir);
+        }
+        (before, after)
+    });
+
     if let Some(d) = daemon.as_mut() {
         signal(d, libc::SIGTERM);
         let _ = wait(d, Duration::from_secs(20), "controller", &dir);
@@ -836,7 +884,23 @@ fn run_case(case: Case) -> Outcome {
         reads: st.reads,
         max_lag_s,
         dir: tmp,
+        status_at_end,
     }
+}
+
+/// `antisurge status --json` of the daemon in `dir`.
+fn status_json(dir: &Path) -> serde_json::Value {
+    let sock = dir.join("status.sock").display().to_string();
+    let out = std::process::Command::new(env!("CARGO_BIN_EXE_antisurge"))
+        .args(["status", "--json", "--socket", &sock])
+        .output()
+        .expect("antisurge status");
+    serde_json::from_slice(&out.stdout).unwrap_or_else(|e| {
+        panic!(
+            "status --json: {e}: {}",
+            String::from_utf8_lossy(&out.stderr)
+        )
+    })
 }
 
 fn lock_server(
@@ -1195,4 +1259,88 @@ fn after_a_3_s_link_outage_the_first_valve_command_matches_the_measured_position
         100.0 * w.reported_pos,
         logs(o.dir.path())
     );
+    // the resume (fail-safe exit, the command taken over from the measured position and
+    // closing from there) raises no feedback mismatch: the valve follows its positioner model
+    let events = events_until_shutdown(o.dir.path());
+    assert!(
+        !events.contains("actuator_feedback_mismatch"),
+        "a mismatch on the resume:\n{events}"
+    );
+}
+
+// ---------------------------------------------------------------------------------------------
+// Case 5: a second master writes the valve to 0 for 4 s (issue 23)
+
+/// The daemon holds the valve at its command; another Modbus master writes the setpoint to 0
+/// for 4 s in steady running. The command/feedback mismatch is raised (the valve leaves the
+/// positioner model of its 50-ms stroke by more than 5 % for 100 ms), names the valve, stays
+/// latched after the writes stop and the valve follows again (status `field_faults`), and
+/// clears on the operator's acknowledgement. No mismatch is raised anywhere else in the run.
+#[test]
+fn a_second_writer_is_a_latched_feedback_mismatch_until_acknowledged() {
+    let _rt = real_time();
+    // the throttle closes slowly to 10 % first, so the daemon holds the valve open (a
+    // master writing 0 onto a closed valve changes nothing)
+    let mut case = Case::new(
+        "second writer",
+        100.0,
+        Throttle::Ramp {
+            at_s: 1.5,
+            over_s: 2.0,
+            to: THROTTLE_END,
+        },
+        DISTURBANCE_AT_S + 6.0,
+    );
+    case.second_writer = Some((DISTURBANCE_AT_S, DISTURBANCE_AT_S + 4.0));
+    let o = run_case(case);
+    report(&case, &o);
+    let events = events_until_shutdown(o.dir.path());
+    let raised: Vec<&str> = events
+        .lines()
+        .filter(|l| {
+            l.contains("\"fault\":\"actuator_feedback_mismatch\"") && l.contains("\"active\":true")
+        })
+        .collect();
+    assert_eq!(raised.len(), 1, "one mismatch, raised once:\n{events}");
+    assert!(
+        raised[0].contains("\"link\":\"recycle_valve\""),
+        "{}",
+        raised[0]
+    );
+    // raised 100 ms after the valve left the model (the 10-ms checks): the cause says so
+    let lasted: f64 = raised[0]
+        .split("for ")
+        .last()
+        .and_then(|t| t.split(" s").next())
+        .and_then(|t| t.parse().ok())
+        .expect("duration in the cause");
+    assert!((0.1..0.15).contains(&lasted), "{}", raised[0]);
+    let (before, after) = o.status_at_end.expect("status at the end");
+    assert_eq!(
+        before["field_faults"],
+        serde_json::json!(["actuator_feedback_mismatch"]),
+        "latched 2 s after the writes stopped: {before:#}"
+    );
+    assert_eq!(
+        after["field_faults"],
+        serde_json::json!([]),
+        "cleared by the ack: {after:#}"
+    );
+    let cleared = events
+        .lines()
+        .filter(|l| {
+            l.contains("\"fault\":\"actuator_feedback_mismatch\"") && l.contains("\"active\":false")
+        })
+        .count();
+    assert_eq!(cleared, 1, "{events}");
+}
+
+/// The event log up to the daemon's shutdown (after it the test's device no longer moves the
+/// valve, so the shutdown's opening command is not followed: not what the cases judge).
+fn events_until_shutdown(dir: &Path) -> String {
+    let all = std::fs::read_to_string(dir.join("events.jsonl")).expect("event log");
+    all.lines()
+        .take_while(|l| !l.contains("\"to\":\"shutdown\""))
+        .map(|l| format!("{l}\n"))
+        .collect()
 }

@@ -60,6 +60,8 @@ pub struct Health {
     pub updates_refused: AtomicU64,
     /// Surge cycles detected.
     pub surges: AtomicU64,
+    /// Operator acknowledgements so far (the field tasks clear latched faults on a change).
+    pub acknowledgements: AtomicU64,
 }
 
 impl Health {
@@ -232,6 +234,7 @@ impl ControlNode {
                     }
                 }
                 C::Acknowledge => {
+                    self.health.acknowledgements.fetch_add(1, Ordering::Relaxed);
                     if matches!(self.prev_mode, Mode::Auto | Mode::Manual) {
                         self.cause = None;
                     }

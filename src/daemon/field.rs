@@ -86,7 +86,11 @@ pub async fn supervise_feedback(
     timeouts_s: [f64; crate::signals::SensorId::COUNT],
     events: EventSender,
     shutdown: watch::Receiver<bool>,
+    health: Arc<super::control_node::Health>,
 ) {
+    let mut acks = health
+        .acknowledgements
+        .load(std::sync::atomic::Ordering::Relaxed);
     let mut reporters: std::collections::BTreeMap<ActuatorId, FieldLinkReporter> =
         Default::default();
     let stop = until_true(shutdown);
@@ -100,6 +104,14 @@ pub async fn supervise_feedback(
             _ = tick.tick() => {}
         }
         let now = crate::runtime::handoff::monotonic_ns();
+        // the operator acknowledged: latched mismatches clear once their valve follows
+        let a = health
+            .acknowledgements
+            .load(std::sync::atomic::Ordering::Relaxed);
+        if a != acks {
+            acks = a;
+            sup.acknowledge();
+        }
         let Some(o) = outputs.latest() else { continue };
         let (values, age) = sensors.snapshot(now);
         sup.step(
@@ -231,6 +243,7 @@ pub fn spawn_controller_links(
     boards: ControllerBoards,
     shutdown: watch::Receiver<bool>,
     events: EventSender,
+    health: Arc<super::control_node::Health>,
 ) -> Result<LinkCounters> {
     let ControllerBoards {
         sensors,
@@ -240,7 +253,11 @@ pub fn spawn_controller_links(
     } = boards;
     let mut counters = LinkCounters::default();
     let map = &l.signal_map;
-    let sup = FeedbackSupervisor::new(&map.feedback);
+    let mut sup = FeedbackSupervisor::new(&map.feedback);
+    if let Some(v) = l.model.recycle_valve {
+        // the feedback follows the valve's own positioner model (crate::io::feedback)
+        sup = sup.with_valve(crate::signals::ActuatorId::RecycleValve, v.spec);
+    }
     if !sup.is_empty() {
         // feedback counts as fresh for its input timeout (else: no judgement)
         let mut timeouts_s = [0.2; crate::signals::SensorId::COUNT];
@@ -256,6 +273,7 @@ pub fn spawn_controller_links(
             timeouts_s,
             events.clone(),
             shutdown.clone(),
+            health,
         ));
     }
     if map.uses_can() {

@@ -548,6 +548,7 @@ async fn serve(loaded: Loaded, opts: RunOptions) -> Result<()> {
                 },
                 shutdown_rx.clone(),
                 events.clone(),
+                Arc::clone(&health),
             )?;
         }
     }

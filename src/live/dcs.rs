@@ -29,7 +29,7 @@ pub const REGISTERS: [(u16, &str, &str); 16] = [
     (10, "cause_kind", "0 none, 1 input_fault, 2 flow_unavailable, 3 inputs_healthy, 4 operator, 5 surge_margin, 6 shutdown"),
     (11, "cause_input", "0 none, else input index + 1"),
     (12, "cause_fault", "0 none, 1 stale, 2 out_of_range, 3 nan, 4 alive_counter, 5 bus_off, 6 frozen, 7 drift"),
-    (13, "flow_source", "0 none, 1 orifice, 2 observer, 3 observer standing in"),
+    (13, "flow_source", "0 none, 1 orifice, 2 observer, 3 observer standing in, 4 speed line standing in"),
     (14, "alive", "control cycle counter, low 16 bits (changes while the controller runs)"),
     (15, "trip_count", "recycle trips since start"),
 ];

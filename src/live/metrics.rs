@@ -62,6 +62,21 @@ impl Collector for LiveCollector {
             "99th percentile of the control cycle's compute time",
             r.compute.p99_us * 1e-6,
         )?;
+        {
+            // the fault word of the field links (the one the heartbeat and watchdog carry)
+            let g = ConstGauge::new(0i64);
+            let mut fam = e.encode_descriptor(
+                "antisurge_field_fault",
+                "Field fault active (1) by category: link down, write failed, actuator feedback mismatch (latched until acknowledged), ...",
+                None,
+                g.metric_type(),
+            )?;
+            let word = crate::faults::FaultSet(crate::faults::field::word());
+            for c in crate::faults::FaultCategory::ALL {
+                let g = ConstGauge::new(i64::from(word.has(c)));
+                g.encode(fam.encode_family(&[("fault", c.name())])?)?;
+            }
+        }
         let Some(s) = self.live.latest() else {
             return Ok(());
         };

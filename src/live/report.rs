@@ -38,6 +38,11 @@ pub struct StatusReport {
     pub cause_text: Option<String>,
     /// Inputs not usable now.
     pub faults: Vec<FaultLamp>,
+    /// Field faults active now (links, writes, actuator feedback; latched ones until
+    /// acknowledged), by category name: the same fault word the CAN heartbeat and the Modbus
+    /// watchdog register carry.
+    #[serde(default)]
+    pub field_faults: Vec<String>,
     /// Deviation from the control line, % of control-line flow (positive = safe).
     pub deviation_pct: Option<f64>,
     /// Surge margin to the surge line, %.
@@ -102,6 +107,10 @@ impl StatusReport {
                 .into_iter()
                 .filter(|id| s.fault_bits & (1 << id.index()) != 0)
                 .map(|input| FaultLamp { input })
+                .collect(),
+            field_faults: crate::faults::FaultSet(crate::faults::field::word())
+                .categories()
+                .map(|c| c.name().to_string())
                 .collect(),
             deviation_pct: f(s.deviation_pct),
             surge_margin_pct: f(s.surge_margin_pct),
@@ -201,6 +210,9 @@ pub fn human(r: &StatusReport) -> String {
         "surges        {}   safety-on {} step(s), +{:.1} %   trips {}\n",
         r.surge_count, r.safety_on_count, r.safety_on_shift_pct, r.trip_count
     );
+    if !r.field_faults.is_empty() {
+        o += &format!("field faults  {}\n", r.field_faults.join(", "));
+    }
     let lamps = if r.faults.is_empty() {
         "none".to_string()
     } else {

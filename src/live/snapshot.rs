@@ -40,6 +40,17 @@ impl FlowSourceNow {
     pub fn code(self) -> u8 {
         self as u8
     }
+
+    /// snake_case name, as in `antisurge status --json`.
+    pub const fn name(self) -> &'static str {
+        match self {
+            FlowSourceNow::None => "none",
+            FlowSourceNow::Orifice => "orifice",
+            FlowSourceNow::Observer => "observer",
+            FlowSourceNow::ObserverFallback => "observer_fallback",
+            FlowSourceNow::SpeedLineFallback => "speed_line_fallback",
+        }
+    }
 }
 
 /// One cycle's operator view. All flows in the map's flow coordinate unless the name says

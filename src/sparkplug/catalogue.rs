@@ -189,12 +189,7 @@ pub fn compressor_values(s: &LiveSnapshot) -> Vec<Value> {
         .filter(|id| s.fault_bits & (1 << id.index()) != 0)
         .map(|id| id.name())
         .collect();
-    let source = match s.flow_source {
-        crate::live::snapshot::FlowSourceNow::None => "none",
-        crate::live::snapshot::FlowSourceNow::Orifice => "orifice",
-        crate::live::snapshot::FlowSourceNow::Observer => "observer",
-        crate::live::snapshot::FlowSourceNow::ObserverFallback => "observer_fallback",
-    };
+    let source = s.flow_source.name();
     vec![
         Value::UInt64(s.cycle),
         Value::Double(s.deviation_pct),
