@@ -23,7 +23,9 @@
 //!   [`machine`]);
 //! - [`cross`]: the rules between sections (the law on this machine, what the law needs
 //!   bound, signal map against the buses, DBC, bus load, risky combinations), in one place;
-//! - [`print`]: `check-config --print`.
+//! - [`print`]: `check-config --print`;
+//! - [`unit`]: what the shipped systemd unit lets the service bind;
+//! - [`running`]: the running configuration's record and the completeness rule of a reload.
 
 pub mod bus;
 pub mod control;
@@ -38,9 +40,11 @@ pub mod plant;
 pub mod print;
 pub mod problem;
 pub mod reload;
+pub mod running;
 pub mod simulation;
 pub mod status;
 pub mod tls;
+pub mod unit;
 
 pub use bus::{BusSection, Transport};
 pub use control::{ControlSection, StartMode};
