@@ -65,7 +65,10 @@ fn client(addr: SocketAddr) -> TcpStream {
 }
 
 /// Poll every 5 ms until `stop`; answer times (µs) and failures.
-fn well_behaved(addr: SocketAddr, stop: Arc<AtomicBool>) -> std::thread::JoinHandle<(Vec<u64>, Vec<String>)> {
+fn well_behaved(
+    addr: SocketAddr,
+    stop: Arc<AtomicBool>,
+) -> std::thread::JoinHandle<(Vec<u64>, Vec<String>)> {
     let mut s = client(addr);
     std::thread::spawn(move || {
         let (mut times, mut failures) = (Vec::new(), Vec::new());
@@ -122,7 +125,10 @@ fn report(label: &str, mut times: Vec<u64>) {
 fn until(what: &str, mut f: impl FnMut() -> bool) {
     let t0 = Instant::now();
     while !f() {
-        assert!(t0.elapsed() < Duration::from_secs(60), "gave up waiting for {what}");
+        assert!(
+            t0.elapsed() < Duration::from_secs(60),
+            "gave up waiting for {what}"
+        );
         std::thread::sleep(Duration::from_millis(20));
     }
 }
@@ -143,7 +149,9 @@ fn set_nofile(soft: u64) -> u64 {
 }
 
 fn open_fds() -> u64 {
-    std::fs::read_dir("/proc/self/fd").expect("/proc/self/fd").count() as u64
+    std::fs::read_dir("/proc/self/fd")
+        .expect("/proc/self/fd")
+        .count() as u64
 }
 
 #[test]
@@ -199,7 +207,10 @@ fn ten_thousand_idle_connections() {
     let during = counters.snapshot();
     stop.store(true, Ordering::Relaxed);
     let (times, failures) = dcs_client.join().expect("client");
-    assert!(failures.is_empty(), "the DCS client was not served: {failures:?}");
+    assert!(
+        failures.is_empty(),
+        "the DCS client was not served: {failures:?}"
+    );
     assert!(times.len() >= 5, "{} polls", times.len());
     report("DCS client during 10 000 idle connections (cap 32)", times);
     assert!(
@@ -281,14 +292,22 @@ fn out_of_descriptors() {
     // compete for them until accept fails with EMFILE
     let old = set_nofile(open_fds() + 300);
     let (held, refused) = flood(addr, FLOOD);
-    until("EMFILE at accept", || counters.snapshot().accept_exhausted > 0);
+    until("EMFILE at accept", || {
+        counters.snapshot().accept_exhausted > 0
+    });
     stop.store(true, Ordering::Relaxed);
     let (times, failures) = dcs_client.join().expect("client");
     let during = counters.snapshot();
     drop(held);
     set_nofile(old);
-    assert!(refused > 0, "the flood should have run out of descriptors too");
-    assert!(failures.is_empty(), "the DCS client was not served: {failures:?}");
+    assert!(
+        refused > 0,
+        "the flood should have run out of descriptors too"
+    );
+    assert!(
+        failures.is_empty(),
+        "the DCS client was not served: {failures:?}"
+    );
     report("DCS client while accept fails with EMFILE", times);
     assert!(during.accept_exhausted > 0 && during.shed > 0, "{during:?}");
     {
@@ -297,7 +316,9 @@ fn out_of_descriptors() {
             reports
                 .iter()
                 .any(|r| r.cause == ShedCause::DescriptorsExhausted
-                    && r.error.as_deref().is_some_and(|e| e.contains("os error 24"))),
+                    && r.error
+                        .as_deref()
+                        .is_some_and(|e| e.contains("os error 24"))),
             "{reports:?}"
         );
     }

@@ -44,7 +44,10 @@ fn the_package_drop_in_replaces_every_usr_local_line() {
             .map(|l| l.replace(" man:antisurge(1)", ""))
             .collect();
         assert_eq!(got, expected, "{key}: the drop-in's lines");
-        assert!(drop.iter().all(|l| !l.contains("/usr/local")), "{key}: {drop:?}");
+        assert!(
+            drop.iter().all(|l| !l.contains("/usr/local")),
+            "{key}: {drop:?}"
+        );
     }
     // what the drop-in names is installed by the package
     let cargo = std::fs::read_to_string(common::root().join("Cargo.toml")).expect("Cargo.toml");
@@ -53,7 +56,10 @@ fn the_package_drop_in_replaces_every_usr_local_line() {
         r#"["README.md", "usr/share/doc/antisurge/""#,
         r#"["target/deb-extra/antisurge.1.gz", "usr/share/man/man1/""#,
     ] {
-        assert!(cargo.contains(asset), "Cargo.toml [package.metadata.deb] lacks {asset}");
+        assert!(
+            cargo.contains(asset),
+            "Cargo.toml [package.metadata.deb] lacks {asset}"
+        );
     }
     // the reload checks against the running configuration, then signals
     let reload = lines(DROP_IN, "ExecReload");

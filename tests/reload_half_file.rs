@@ -1,7 +1,9 @@
 //! Issue 25, item 2: a half-written configuration file is never applied.
 //!
-//! A running daemon's config is cut at 10 pseudo-random byte offsets (fixed seed, printed);
-//! each is SIGHUPed: 0 applied, 10 `config_rejected` events. `check-config
+//! A running daemon's config is cut at 10 pseudo-random byte offsets (fixed seed, printed),
+//! then at the start of the line of each (a cut there parses: the keys after it are just
+//! missing, and were applied as defaults before issue 25); each is SIGHUPed: 0 applied,
+//! 20 `config_rejected` events. `check-config
 //! --against-running` (what the shipped unit's `systemctl reload` runs) refuses each cut
 //! file too and names a missing key. Then the whole file with one gain changed is applied,
 //! and `check-config --against-running` shows that change.
@@ -104,14 +106,27 @@ kp_per_map_flow = KP
         x ^= x << 17;
         offsets.push((x % whole.len() as u64) as usize);
     }
-    println!("cut offsets (of {} bytes): {offsets:?}", whole.len());
+    // ...and the same cuts moved back to the start of their line: these files parse (the
+    // keys after the cut are simply missing), which is what was applied before issue 25
+    let line_starts: Vec<usize> = offsets
+        .iter()
+        .map(|&at| whole[..at].rfind('\n').map_or(0, |i| i + 1))
+        .collect();
+    println!(
+        "cut offsets (of {} bytes): {offsets:?}; at line starts: {line_starts:?}",
+        whole.len()
+    );
+    offsets.extend(&line_starts);
     let mut refused_by_check = 0;
     for (i, &at) in offsets.iter().enumerate() {
         let cut = &whole.as_bytes()[..at];
         let cut = String::from_utf8_lossy(cut).into_owned();
         write_atomically(&cfg, &cut);
         let (code, text) = check_against_running(&cfg, &record);
-        assert_ne!(code, 0, "check-config accepted the file cut at {at}:\n{text}");
+        assert_ne!(
+            code, 0,
+            "check-config accepted the file cut at {at}:\n{text}"
+        );
         refused_by_check += 1;
         signal(&d, libc::SIGHUP);
         until(dir, &format!("refusal {} (cut at {at})", i + 1), || {
@@ -119,11 +134,16 @@ kp_per_map_flow = KP
         });
         assert_eq!(count(&events, "config_applied"), 0, "cut at {at} applied");
     }
-    assert_eq!(refused_by_check, 10);
+    assert_eq!(refused_by_check, 20);
     let log = std::fs::read_to_string(&events).expect("events");
+    let missing = log
+        .lines()
+        .filter(|l| l.contains("config_rejected") && l.contains("missing from the new files"))
+        .count();
+    println!("refusals naming missing keys: {missing} of 20");
     assert!(
-        log.contains("missing from the new files") || log.contains("line break"),
-        "{log}"
+        missing >= 5,
+        "the line-start cuts parse; their keys are missing:\n{log}"
     );
 
     // the whole file, one gain changed: shown by check-config, applied on SIGHUP
@@ -139,9 +159,12 @@ kp_per_map_flow = KP
     until(dir, "the applied reload", || {
         count(&events, "config_applied") == 1
     });
-    assert_eq!(count(&events, "config_rejected"), 10);
+    assert_eq!(count(&events, "config_rejected"), 20);
     let rec = std::fs::read_to_string(&record).expect("record");
-    assert!(rec.contains("12.0"), "the record follows the applied reload: {rec}");
+    assert!(
+        rec.contains("12.0"),
+        "the record follows the applied reload: {rec}"
+    );
 
     signal(&d, libc::SIGTERM);
     let st = wait(&mut d, Duration::from_secs(30), "controller", dir);

@@ -480,9 +480,7 @@ impl Event {
                 clip(cause);
             }
             Event::Note { text } => clip(text),
-            Event::ConnectionsShed {
-                server, detail, ..
-            } => {
+            Event::ConnectionsShed { server, detail, .. } => {
                 clip(server);
                 if let Some(d) = detail {
                     clip(d);

@@ -146,13 +146,14 @@ pub async fn serve(
             r.counters.open, r.counters.shed, r.counters.accept_exhausted);
         let _ = events.send(e);
     });
-    let server = match spawn_bounded_tcp_server(listener, Arc::clone(&image), limits, counters(), on_shed) {
-        Ok(s) => s,
-        Err(e) => {
-            tracing::error!(target: "status", "Modbus block for the DCS: {e}");
-            return;
-        }
-    };
+    let server =
+        match spawn_bounded_tcp_server(listener, Arc::clone(&image), limits, counters(), on_shed) {
+            Ok(s) => s,
+            Err(e) => {
+                tracing::error!(target: "status", "Modbus block for the DCS: {e}");
+                return;
+            }
+        };
     let mut tick = tokio::time::interval(Duration::from_millis(100));
     loop {
         tokio::select! {

@@ -219,7 +219,10 @@ pub fn plausibility(l: &Loaded) -> Vec<Problem> {
             }
         }
         if let Some(s) = l.config.inputs.get(&id) {
-            if !(s.min <= v && v <= s.max) {
+            // a range explained by another unit is an error (super::sanity), not a warning
+            if !(s.min <= v && v <= s.max)
+                && super::sanity::likely_units(s.min, s.max, v).is_empty()
+            {
                 let mut e = locate(
                     &l.layers,
                     &format!("inputs.{}.max", id.name()),

@@ -25,6 +25,7 @@
 //!   bound, signal map against the buses, DBC, bus load, risky combinations), in one place;
 //! - [`print`]: `check-config --print`;
 //! - [`unit`]: what the shipped systemd unit lets the service bind;
+//! - [`sanity`]: pressure ranges typed in another unit, valve openings in percent or fraction;
 //! - [`running`]: the running configuration's record and the completeness rule of a reload.
 
 pub mod bus;
@@ -41,6 +42,7 @@ pub mod print;
 pub mod problem;
 pub mod reload;
 pub mod running;
+pub mod sanity;
 pub mod simulation;
 pub mod status;
 pub mod tls;
@@ -342,6 +344,8 @@ pub fn check(l: &Loaded) -> Vec<Problem> {
     out.extend(map_problems);
     out.extend(machine::transport_problem(l));
     out.extend(machine_data);
+    out.extend(sanity::pressure_ranges(l));
+    out.extend(sanity::fraction_bindings(l));
     out.extend(machine::plausibility(l));
     let warnings = cross::warnings(l, &out);
     out.extend(warnings);

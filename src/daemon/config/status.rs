@@ -231,7 +231,11 @@ mod tests {
         s.modbus_max_connections = Some(0);
         s.modbus_idle_timeout_s = 0.0;
         s.modbus_max_requests_per_s = f64::NAN;
-        let keys: Vec<_> = s.dcs_limit_problems(4096).into_iter().map(|p| p.key).collect();
+        let keys: Vec<_> = s
+            .dcs_limit_problems(4096)
+            .into_iter()
+            .map(|p| p.key)
+            .collect();
         assert_eq!(
             keys,
             [

@@ -176,7 +176,11 @@ mod tests {
         let p = bind_problems_with(&status("0.0.0.0:502"), &[SHIPPED_UNIT], 1024);
         assert_eq!(p.len(), 1);
         assert_eq!(p[0].key, "status.modbus_listen");
-        assert!(p[0].message.contains("AmbientCapabilities"), "{}", p[0].message);
+        assert!(
+            p[0].message.contains("AmbientCapabilities"),
+            "{}",
+            p[0].message
+        );
         assert!(p[0].hint.as_deref().is_some_and(|h| h.contains(NET_BIND)));
         assert!(bind_problems_with(&status("0.0.0.0:1502"), &[SHIPPED_UNIT], 1024).is_empty());
         // a kernel that lets everyone bind low ports

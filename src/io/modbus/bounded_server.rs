@@ -483,8 +483,13 @@ mod tests {
         img.map(1, RegisterTable::DiscreteInput, 0, 10);
         img.write_words(1, RegisterTable::Input, 0, &[1, 2, 0xABCD, 4])
             .expect("mapped");
-        img.write_words(1, RegisterTable::DiscreteInput, 0, &[1, 0, 0, 0, 0, 0, 0, 0, 1, 1])
-            .expect("mapped");
+        img.write_words(
+            1,
+            RegisterTable::DiscreteInput,
+            0,
+            &[1, 0, 0, 0, 0, 0, 0, 0, 1, 1],
+        )
+        .expect("mapped");
         img.into_shared()
     }
 
@@ -493,8 +498,15 @@ mod tests {
         adu.extend_from_slice(pdu);
         let mut out = Vec::new();
         answer(img, &adu, &mut out);
-        assert_eq!(&out[..4], &[0x12, 0x34, 0, 0], "transaction and protocol echoed");
-        assert_eq!(usize::from(u16::from_be_bytes([out[4], out[5]])), out.len() - 6);
+        assert_eq!(
+            &out[..4],
+            &[0x12, 0x34, 0, 0],
+            "transaction and protocol echoed"
+        );
+        assert_eq!(
+            usize::from(u16::from_be_bytes([out[4], out[5]])),
+            out.len() - 6
+        );
         out[7..].to_vec()
     }
 
@@ -549,7 +561,10 @@ mod tests {
         shared.conns().insert(2, state(5, u64::MAX)); // never asked, newer
         shared.conns().insert(3, state(1, u64::MAX)); // never asked, older
         assert!(shared.evict_one(false));
-        assert!(!shared.conns().contains_key(&3), "the oldest silent one goes first");
+        assert!(
+            !shared.conns().contains_key(&3),
+            "the oldest silent one goes first"
+        );
         assert!(shared.evict_one(true));
         assert!(!shared.conns().contains_key(&2));
         assert!(
