@@ -170,3 +170,77 @@ kp_per_map_flow = KP
     let st = wait(&mut d, Duration::from_secs(30), "controller", dir);
     assert!(st.success(), "controller exit {st:?}:\n{}", logs(dir));
 }
+
+/// Issue 25, item 6 (first part): a reload whose input range refuses what the transmitter
+/// reads now (legal, no unit explains it: only a warning statically) is refused against the
+/// live inputs instead of putting the controller into fail-safe.
+#[test]
+fn a_range_that_refuses_the_live_reading_is_not_applied() {
+    let tmp = tempfile::tempdir().expect("tmp");
+    let dir = tmp.path();
+    let events = dir.join("events.jsonl");
+    let base = format!(
+        r#"[plant]
+file = "{plant}"
+[control]
+law = "recycle-pi"
+[cycle]
+rate_hz = 100.0
+lock_memory = false
+[event_log]
+path = "{events}"
+fsync = "always"
+[simulation]
+scenario = "throttle-closure"
+hold_after_end = true
+[status]
+log_interval_s = 0.0
+socket = "{socket}"
+metrics_listen = ""
+hmi_listen = ""
+[inputs.p_discharge]
+min = 1.0e4
+max = MAX
+timeout_ms = 200.0
+"#,
+        plant = shipped("plants/kvangardsnes2009_recycle.toml"),
+        events = events.display(),
+        socket = dir.join("status.sock").display(),
+    );
+    let cfg = dir.join("antisurge.toml");
+    std::fs::write(&cfg, base.replace("MAX", "1.2e7")).expect("write");
+    let cfg_s = cfg.display().to_string();
+    let mut d = spawn(dir, "run", &["run", "--config", &cfg_s]);
+    until(dir, "auto", || {
+        std::fs::read_to_string(&events)
+            .unwrap_or_default()
+            .contains("\"to\":\"auto\"")
+    });
+    // 0.101 bar absolute at most: below any discharge pressure, and no unit explains it
+    write_atomically(&cfg, &base.replace("MAX", "1.01e4"));
+    signal(&d, libc::SIGHUP);
+    until(dir, "the refusal", || {
+        count(&events, "config_rejected") == 1
+    });
+    let log = std::fs::read_to_string(&events).expect("events");
+    let rejected = log
+        .lines()
+        .find(|l| l.contains("config_rejected"))
+        .expect("rejected");
+    assert!(
+        rejected.contains("inputs.p_discharge.max") && rejected.contains("fail-safe"),
+        "{rejected}"
+    );
+    assert_eq!(count(&events, "config_applied"), 0, "{log}");
+    // a range that holds the reading is applied
+    write_atomically(&cfg, &base.replace("MAX", "1.1e7"));
+    signal(&d, libc::SIGHUP);
+    until(dir, "the applied reload", || {
+        count(&events, "config_applied") == 1
+    });
+    let log = std::fs::read_to_string(&events).expect("events");
+    assert!(!log.contains("\"to\":\"fail_safe\""), "{log}");
+    signal(&d, libc::SIGTERM);
+    let st = wait(&mut d, Duration::from_secs(30), "controller", dir);
+    assert!(st.success(), "controller exit {st:?}:\n{}", logs(dir));
+}

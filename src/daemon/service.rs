@@ -638,7 +638,11 @@ async fn serve(loaded: Loaded, opts: RunOptions) -> Result<()> {
                 // a file cut off while being written may parse: keys missing against the
                 // running configuration are a refusal, not defaults
                 let result = result.and_then(|new| {
-                    let p = config::running::RunningConfig::of(&current).incomplete(&new);
+                    let mut p = config::running::RunningConfig::of(&current).incomplete(&new);
+                    // nor may it refuse what the transmitters read now (fail-safe at once)
+                    if p.is_empty() {
+                        p = config::dry_run::inputs_refused(&current, &new, |id| sensors.get(id).0);
+                    }
                     if p.is_empty() { Ok(new) } else { Err(p) }
                 });
                 if let Some(n) = reload(&current, &model0, result, &mut updates_tx, &events) { current = n; record(&current); }

@@ -26,6 +26,7 @@
 //! - [`print`]: `check-config --print`;
 //! - [`unit`]: what the shipped systemd unit lets the service bind;
 //! - [`sanity`]: pressure ranges typed in another unit, valve openings in percent or fraction;
+//! - [`dry_run`]: a reload against the live inputs (a range that refuses them is refused);
 //! - [`running`]: the running configuration's record and the completeness rule of a reload.
 
 pub mod bus;
@@ -33,6 +34,7 @@ pub mod control;
 pub mod controller;
 pub mod cross;
 pub mod cycle;
+pub mod dry_run;
 pub mod event_log;
 pub mod inputs;
 pub mod layers;

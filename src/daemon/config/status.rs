@@ -187,7 +187,7 @@ impl StatusSection {
             );
         }
         let r = self.modbus_max_requests_per_s;
-        if !(r.is_finite() && r >= 1.0 && r <= 1000.0) {
+        if !(r.is_finite() && (1.0..=1000.0).contains(&r)) {
             out.push(
                 KeyProblem::error(
                     "status.modbus_max_requests_per_s",

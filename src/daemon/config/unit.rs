@@ -54,7 +54,7 @@ pub fn unit_list<'a>(texts: impl IntoIterator<Item = &'a str>, key: &str) -> BTr
 /// Whether units with these texts (the unit, then its drop-ins) give the service
 /// `CAP_NET_BIND_SERVICE`: in `AmbientCapabilities=` and not kept out by
 /// `CapabilityBoundingSet=`.
-pub fn grants_net_bind<'a>(texts: &[&'a str]) -> bool {
+pub fn grants_net_bind(texts: &[&str]) -> bool {
     let ambient = unit_list(texts.iter().copied(), "AmbientCapabilities");
     let bounding = unit_list(texts.iter().copied(), "CapabilityBoundingSet");
     ambient.contains(NET_BIND) && (bounding.is_empty() || bounding.contains(NET_BIND))
