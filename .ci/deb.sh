@@ -92,7 +92,7 @@ in_root antisurge | grep -q "Usage: antisurge" || { echo "deb.sh: a bare antisur
 
 echo "== the installed unit (issue 25): systemd-analyze verify, token, ExecReload as installed"
 test -f "$root/etc/antisurge/operator.token" || { echo "deb.sh: postinst made no operator token" >&2; exit 1; }
-token_mode=$(stat -c '%a %U:%G' "$root/etc/antisurge/operator.token")
+token_mode=$(chroot "$root" stat -c '%a %U:%G' /etc/antisurge/operator.token) # the root's names, not the host's
 [ "$token_mode" = "640 root:antisurge" ] || { echo "deb.sh: operator token is $token_mode, not 640 root:antisurge" >&2; exit 1; }
 # a minbase root has no systemd: add it now (the dependency check above is done)
 cp /etc/resolv.conf "$root/etc/resolv.conf"

@@ -37,10 +37,30 @@ fn until(dir: &Path, what: &str, mut f: impl FnMut() -> bool) {
 
 fn check_against_running(cfg: &Path, record: &Path) -> (i32, String) {
     let out = Command::new(env!("CARGO_BIN_EXE_antisurge"))
-        .args(["check-config", "--against-running"])
+        .arg("check-config")
+        .args(["--against-running", "--running-record"])
         .arg(record)
         .arg(cfg)
         .env_remove("RUNTIME_DIRECTORY")
+        .output()
+        .expect("check-config");
+    (
+        out.status.code().unwrap_or(-1),
+        format!(
+            "{}{}",
+            String::from_utf8_lossy(&out.stdout),
+            String::from_utf8_lossy(&out.stderr)
+        ),
+    )
+}
+
+/// `check-config --against-running FILE` as the unit runs it, with the record found beside
+/// the status socket (`status.socket` is absolute in these configs).
+fn check_against_running_as_the_unit(cfg: &Path, dir: &Path) -> (i32, String) {
+    let out = Command::new(env!("CARGO_BIN_EXE_antisurge"))
+        .args(["check-config", "--against-running"])
+        .arg(cfg)
+        .env("RUNTIME_DIRECTORY", dir)
         .output()
         .expect("check-config");
     (
@@ -95,6 +115,10 @@ kp_per_map_flow = KP
     let cfg_s = cfg.display().to_string();
     let mut d = spawn(dir, "run", &["run", "--config", &cfg_s]);
     until(dir, "the running-config record", || record.is_file());
+    // the unit's form (`--against-running FILE`) checks FILE, not FILE as the record
+    let (code, text) = check_against_running_as_the_unit(&cfg, dir);
+    assert_eq!(code, 0, "{text}");
+    assert!(text.contains("no key changes"), "{text}");
     until(dir, "the started event", || count(&events, "started") == 1);
 
     // 10 offsets from a fixed-seed xorshift (reproducible; printed for the record)

@@ -107,11 +107,14 @@ pub struct CheckArgs {
     #[arg(long)]
     pub print: bool,
     /// Also check the files against the configuration the daemon runs (its
-    /// `running-config.json`, beside the status socket, or this file): show the difference
-    /// and refuse keys the running files set and the new ones do not (a file cut off while
-    /// being written). The shipped unit's `systemctl reload` runs this.
-    #[arg(long, value_name = "RECORD", num_args = 0..=1, default_missing_value = "")]
-    pub against_running: Option<PathBuf>,
+    /// `running-config.json`, beside the status socket): show the difference and refuse keys
+    /// the running files set and the new ones do not (a file cut off while being written).
+    /// The shipped unit's `systemctl reload` runs this.
+    #[arg(long)]
+    pub against_running: bool,
+    /// With `--against-running`: the daemon's record, if not the one beside the socket.
+    #[arg(long, value_name = "RECORD", requires = "against_running")]
+    pub running_record: Option<PathBuf>,
 }
 
 /// Where `--against-running` finds the daemon's record when not told.
@@ -159,16 +162,17 @@ fn against_running(l: &config::Loaded, given: &Path) -> Vec<config::Problem> {
 /// Check a config; exit status 78 (EX_CONFIG) on errors.
 pub fn check(args: &CheckArgs) -> Result<std::process::ExitCode> {
     let file = args.file.clone().unwrap_or_else(default_config);
-    let loaded = config::load(&file).and_then(|l| match &args.against_running {
-        Some(given) => {
-            let p = against_running(&l, given);
-            if p.is_empty() {
-                Ok(l)
-            } else {
-                Err(p)
-            }
+    let loaded = config::load(&file).and_then(|l| {
+        if !args.against_running {
+            return Ok(l);
         }
-        None => Ok(l),
+        let given = args.running_record.clone().unwrap_or_default();
+        let p = against_running(&l, &given);
+        if p.is_empty() {
+            Ok(l)
+        } else {
+            Err(p)
+        }
     });
     match loaded {
         Ok(l) => {
