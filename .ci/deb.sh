@@ -9,7 +9,11 @@
 #    not in that root, and runs its postinst (system user antisurge, unit left disabled);
 # 4. in that root, as an unprivileged user, from `/`, with an empty environment and no config:
 #    `antisurge --version` must name the commit, `antisurge sim` must run the shipped plant
-#    (built into the binary) to "STABLE — no surge", a bare `antisurge` must print help.
+#    (built into the binary) to "STABLE — no surge", a bare `antisurge` must print help;
+# 5. the installed unit: the operator token postinst made (0640 root:antisurge),
+#    `systemd-analyze verify` on the unit with the package's drop-in (systemd added to the
+#    root for it), and the unit's effective ExecReload check run as the service user:
+#    exit 0 on the shipped config, non-zero on a bad one.
 # Needs root (debootstrap, chroot).
 set -euo pipefail
 cd "$(dirname "$0")/.."
@@ -85,4 +89,49 @@ grep -q "$commit" <<<"$version" || { echo "deb.sh: --version does not name commi
 in_root antisurge sim | tee "$root/tmp/sim.txt"
 grep -q "STABLE — no surge" "$root/tmp/sim.txt" || { echo "deb.sh: sim did not report STABLE" >&2; exit 1; }
 in_root antisurge | grep -q "Usage: antisurge" || { echo "deb.sh: a bare antisurge does not print help" >&2; exit 1; }
+
+echo "== the installed unit (issue 25): systemd-analyze verify, token, ExecReload as installed"
+test -f "$root/etc/antisurge/operator.token" || { echo "deb.sh: postinst made no operator token" >&2; exit 1; }
+token_mode=$(chroot "$root" stat -c '%a %U:%G' /etc/antisurge/operator.token) # the root's names, not the host's
+[ "$token_mode" = "640 root:antisurge" ] || { echo "deb.sh: operator token is $token_mode, not 640 root:antisurge" >&2; exit 1; }
+# a minbase root has no systemd: add it now (the dependency check above is done)
+cp /etc/resolv.conf "$root/etc/resolv.conf"
+chroot "$root" env -i PATH=/usr/sbin:/usr/bin:/sbin:/bin DEBIAN_FRONTEND=noninteractive \
+    apt-get -q -o Dpkg::Use-Pty=0 install -y --no-install-recommends systemd >/dev/null
+verify_out=$(chroot "$root" env -i PATH=/usr/sbin:/usr/bin:/sbin:/bin \
+    systemd-analyze verify --man=no antisurge.service 2>&1) || { echo "$verify_out" >&2; echo "deb.sh: systemd-analyze verify failed on the installed unit" >&2; exit 1; }
+if grep -q antisurge <<<"$verify_out"; then
+    echo "$verify_out" >&2
+    echo "deb.sh: systemd-analyze verify warns about the installed unit" >&2
+    exit 1
+fi
+echo "systemd-analyze verify antisurge.service (unit + package drop-in): OK"
+# the unit's effective ExecReload: the drop-in's lines after its reset
+dropin=$root/usr/lib/systemd/system/antisurge.service.d/usr-bin.conf
+reload_check=$(sed -n '/^ExecReload=$/,$ s/^ExecReload=\(.\+\)$/\1/p' "$dropin" | head -n 1)
+case $reload_check in
+    /usr/bin/antisurge\ check-config*) ;;
+    *) echo "deb.sh: the installed ExecReload does not run the packaged check-config: '$reload_check'" >&2; exit 1 ;;
+esac
+test -x "$root${reload_check%% *}" || { echo "deb.sh: ExecReload's ${reload_check%% *} is not installed" >&2; exit 1; }
+reload_signal=$(sed -n '/^ExecReload=$/,$ s/^ExecReload=\(.\+\)$/\1/p' "$dropin" | tail -n 1)
+test -x "$root${reload_signal%% *}" || { echo "deb.sh: ExecReload's ${reload_signal%% *} is not installed" >&2; exit 1; }
+run_reload_check() { # as the service user, with the unit's runtime directory, like systemd
+    mkdir -p "$root/run/antisurge"
+    # shellcheck disable=SC2086 # the command line is split like systemd splits it
+    chroot --userspec=antisurge:antisurge "$root" env -i PATH=/usr/bin:/bin LANG=C.UTF-8 \
+        RUNTIME_DIRECTORY=/run/antisurge sh -c 'cd / && exec "$@"' sh $reload_check
+}
+rc=0
+run_reload_check >"$root/tmp/reload_good.txt" 2>&1 || rc=$?
+cat "$root/tmp/reload_good.txt"
+[ "$rc" = 0 ] || { echo "deb.sh: ExecReload's check exits $rc on the shipped config" >&2; exit 1; }
+cp "$root/etc/antisurge/antisurge.toml" "$root/tmp/antisurge.toml.good"
+printf '[control]\nlaw = "no-such-law"\n' >"$root/etc/antisurge/antisurge.toml"
+rc=0
+run_reload_check >"$root/tmp/reload_bad.txt" 2>&1 || rc=$?
+cp "$root/tmp/antisurge.toml.good" "$root/etc/antisurge/antisurge.toml"
+head -n 5 "$root/tmp/reload_bad.txt"
+[ "$rc" != 0 ] || { echo "deb.sh: ExecReload's check accepted a bad config" >&2; exit 1; }
+echo "ExecReload check as installed: 0 on the shipped config, $rc on a bad one"
 echo "== .deb OK"

@@ -95,7 +95,7 @@ check "ExecStart runs the daemon with /etc/antisurge/antisurge.toml" \
     has 'ExecStart=/usr/local/bin/antisurge run --config /etc/antisurge/antisurge.toml'
 check "ExecReload sends SIGHUP" has 'ExecReload=/bin/kill -HUP \$MAINPID'
 check "ExecReload runs check-config before the SIGHUP (a bad file fails systemctl reload)" \
-    bash -c '[[ $(grep -E "^ExecReload=" "$1" | head -1) == "ExecReload=/usr/local/bin/antisurge check-config /etc/antisurge/antisurge.toml" && $(grep -E "^ExecReload=" "$1" | tail -1) == "ExecReload=/bin/kill -HUP \$MAINPID" ]]' _ "$UNIT"
+    bash -c '[[ $(grep -E "^ExecReload=" "$1" | head -1) == "ExecReload=/usr/local/bin/antisurge check-config --against-running /etc/antisurge/antisurge.toml" && $(grep -E "^ExecReload=" "$1" | tail -1) == "ExecReload=/bin/kill -HUP \$MAINPID" ]]' _ "$UNIT"
 check "Restart=always with RestartPreventExitStatus=78 (EX_CONFIG stops the restart loop)" \
     bash -c 'grep -qx "Restart=always" "$1" && grep -qx "RestartPreventExitStatus=78" "$1"' _ "$UNIT"
 

@@ -268,18 +268,35 @@ fn good_configs_select_what_they_say() {
 }
 
 #[test]
-fn a_pressure_range_in_bar_is_a_warning_naming_the_key() {
-    let p = common::root().join("tests/good_configs/warning_discharge_range_in_bar.toml");
-    let l = load_with_env(&p, &[]).unwrap_or_else(|e| panic!("refused: {e:?}"));
-    let w = l
-        .warnings
+fn a_pressure_range_in_bar_is_an_error_naming_the_unit() {
+    // a warning until issue 25 (the range put a running compressor into fail-safe)
+    let p = common::root().join("tests/bad_configs/vendor_discharge_range_in_bar.toml");
+    let problems = match load_with_env(&p, &[]) {
+        Ok(l) => panic!("accepted (warnings {:?})", l.warnings),
+        Err(p) => p,
+    };
+    let e = problems
         .iter()
-        .find(|w| w.error.key == "inputs.p_discharge.max")
-        .unwrap_or_else(|| panic!("no range warning: {:?}", l.warnings));
-    assert!(w.error.message.contains("excludes"), "{w}");
-    assert!(w.error.message.contains("fail-safe"), "{w}");
-    assert!(same_file(&w.error.file, &p), "{w}");
-    assert_eq!(w.error.line, 9, "{w}");
+        .find(|e| e.error.key == "inputs.p_discharge.max")
+        .unwrap_or_else(|| panic!("no range error: {problems:?}"));
+    assert!(!e.warning, "{e}");
+    assert!(e.error.message.contains("looks typed in bar"), "{e}");
+    assert!(e.error.message.contains("fail-safe"), "{e}");
+    assert!(
+        e.error
+            .hint
+            .as_deref()
+            .is_some_and(|h| h.contains("min = 1e5")),
+        "{e}"
+    );
+    assert!(same_file(&e.error.file, &p), "{e}");
+    assert_eq!(e.error.line, 12, "{e}");
+    assert!(
+        problems
+            .iter()
+            .all(|w| !w.warning || w.error.key != "inputs.p_discharge.max"),
+        "the warning is not repeated: {problems:?}"
+    );
 }
 
 #[test]

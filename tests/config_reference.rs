@@ -147,6 +147,9 @@ fn populated() -> DaemonConfig {
                 key_file: PathBuf::from("tls/hmi.key"),
             }),
             modbus_listen: Some("0.0.0.0:502".into()),
+            modbus_max_connections: Some(64),
+            modbus_idle_timeout_s: 30.0,
+            modbus_max_requests_per_s: 20.0,
             operator_token_file: Some(PathBuf::from("/etc/antisurge/operator.token")),
         },
         reload: ReloadSection {

@@ -106,12 +106,75 @@ pub struct CheckArgs {
     /// conf.d file, environment variable, plant file, default).
     #[arg(long)]
     pub print: bool,
+    /// Also check the files against the configuration the daemon runs (its
+    /// `running-config.json`, beside the status socket): show the difference and refuse keys
+    /// the running files set and the new ones do not (a file cut off while being written).
+    /// The shipped unit's `systemctl reload` runs this.
+    #[arg(long)]
+    pub against_running: bool,
+    /// With `--against-running`: the daemon's record, if not the one beside the socket.
+    #[arg(long, value_name = "RECORD", requires = "against_running")]
+    pub running_record: Option<PathBuf>,
+}
+
+/// Where `--against-running` finds the daemon's record when not told.
+fn running_record(l: &config::Loaded, given: &Path) -> PathBuf {
+    use config::running::{RunningConfig, FILE_NAME};
+    if !given.as_os_str().is_empty() {
+        return given.to_path_buf();
+    }
+    let installed = Path::new("/run/antisurge").join(FILE_NAME);
+    if std::env::var_os("RUNTIME_DIRECTORY").is_none() && installed.exists() {
+        return installed;
+    }
+    RunningConfig::path_beside(&antisurge::live::socket_path(&l.config.status))
+}
+
+/// `--against-running`: print the difference; the problems that refuse the files.
+fn against_running(l: &config::Loaded, given: &Path) -> Vec<config::Problem> {
+    use config::running::{format_diff, RunningConfig};
+    let path = running_record(l, given);
+    let running = match RunningConfig::load(&path) {
+        Ok(r) => r,
+        Err(e) => {
+            eprintln!("warning: no running configuration to compare with ({e}); the files were checked alone");
+            return Vec::new();
+        }
+    };
+    let diff = running.diff(l);
+    if diff.is_empty() {
+        println!(
+            "against the running configuration ({}, pid {}): no key changes",
+            path.display(),
+            running.pid
+        );
+    } else {
+        println!(
+            "against the running configuration ({}, pid {}):\n{}",
+            path.display(),
+            running.pid,
+            format_diff(&diff).trim_end()
+        );
+    }
+    running.incomplete(l)
 }
 
 /// Check a config; exit status 78 (EX_CONFIG) on errors.
 pub fn check(args: &CheckArgs) -> Result<std::process::ExitCode> {
     let file = args.file.clone().unwrap_or_else(default_config);
-    match config::load(&file) {
+    let loaded = config::load(&file).and_then(|l| {
+        if !args.against_running {
+            return Ok(l);
+        }
+        let given = args.running_record.clone().unwrap_or_default();
+        let p = against_running(&l, &given);
+        if p.is_empty() {
+            Ok(l)
+        } else {
+            Err(p)
+        }
+    });
+    match loaded {
         Ok(l) => {
             for w in &l.warnings {
                 eprintln!("{w}");

@@ -603,6 +603,15 @@ async fn serve(loaded: Loaded, opts: RunOptions) -> Result<()> {
         None
     };
     let settle = Duration::from_secs_f64(cfg.reload.settle_ms / 1e3);
+    // what runs, for `check-config --against-running` (issue 25: no half file)
+    let running_file =
+        config::running::RunningConfig::path_beside(&crate::live::socket_path(&cfg.status));
+    let record = |l: &Loaded| {
+        if let Err(e) = config::running::RunningConfig::of(l).save(&running_file) {
+            tracing::warn!(target: "config", "cannot record the running configuration in {}: {e}; `check-config --against-running` will not see it", running_file.display());
+        }
+    };
+    record(&loaded);
     let mut current = loaded;
     let mut ticker = tokio::time::interval(Duration::from_millis(100));
     let started = std::time::Instant::now();
@@ -645,7 +654,17 @@ async fn serve(loaded: Loaded, opts: RunOptions) -> Result<()> {
                         continue;
                     }
                 };
-                if let Some(n) = reload(&current, &model0, result, &mut updates_tx, &events) { current = n; }
+                // a file cut off while being written may parse: keys missing against the
+                // running configuration are a refusal, not defaults
+                let result = result.and_then(|new| {
+                    let mut p = config::running::RunningConfig::of(&current).incomplete(&new);
+                    // nor may it refuse what the transmitters read now (fail-safe at once)
+                    if p.is_empty() {
+                        p = config::dry_run::inputs_refused(&current, &new, |id| sensors.get(id).0);
+                    }
+                    if p.is_empty() { Ok(new) } else { Err(p) }
+                });
+                if let Some(n) = reload(&current, &model0, result, &mut updates_tx, &events) { current = n; record(&current); }
                 if std::mem::take(&mut reload_again) { loading = Some(start_load(&current.main_path)); }
             }
             _ = ticker.tick() => {

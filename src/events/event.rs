@@ -331,6 +331,23 @@ pub enum Event {
         /// The text.
         text: String,
     },
+    /// A network server shed connections (the connection cap was reached, or `accept` ran
+    /// out of descriptors); written at most every 10 s while it lasts.
+    ConnectionsShed {
+        /// The server, e.g. `dcs-modbus 0.0.0.0:502`.
+        server: String,
+        /// `connection_cap` or `descriptors_exhausted`.
+        cause: String,
+        /// Detail (the operating-system error), when there is one.
+        #[serde(default, skip_serializing_if = "Option::is_none")]
+        detail: Option<String>,
+        /// Connections open when reported.
+        open: u64,
+        /// Connections shed since the server started.
+        shed_total: u64,
+        /// `accept` failures for want of descriptors since the server started.
+        accept_exhausted_total: u64,
+    },
     /// Events were lost before reaching the file; written as soon as the loss is noticed.
     EventsDropped {
         /// How many were lost since the previous `events_dropped`.
@@ -390,6 +407,7 @@ impl Event {
             Event::RecycleTrip(_) => "recycle_trip",
             Event::Note { .. } => "note",
             Event::EventsDropped { .. } => "events_dropped",
+            Event::ConnectionsShed { .. } => "connections_shed",
         }
     }
 
@@ -465,6 +483,12 @@ impl Event {
                 clip(cause);
             }
             Event::Note { text } => clip(text),
+            Event::ConnectionsShed { server, detail, .. } => {
+                clip(server);
+                if let Some(d) = detail {
+                    clip(d);
+                }
+            }
             Event::SurgeDetected(_)
             | Event::SurgeCounter(_)
             | Event::SafetyOnShift(_)

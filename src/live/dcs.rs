@@ -3,13 +3,56 @@
 //! 0–15, refreshed every 100 ms from the live snapshot. Off unless `status.modbus_listen` is
 //! set (e.g. `0.0.0.0:502`: Modbus has no authentication, so it serves read-only data only).
 //! The register map is in README.md ("Modbus block for the DCS") and [`REGISTERS`].
+//!
+//! The block is served by [`crate::io::modbus::bounded_server`]: a connection cap
+//! (`status.modbus_max_connections`), an idle time-out (`status.modbus_idle_timeout_s`), a
+//! request budget per connection (`status.modbus_max_requests_per_s`) and an accept loop that
+//! backs off and carries on when the process runs out of descriptors. Its counters are in the
+//! metrics endpoint ([`counters`]); shedding writes a `connections_shed` event.
 
-use std::sync::Arc;
+use std::sync::{Arc, LazyLock};
 use std::time::Duration;
 
 use super::snapshot::{LiveBoard, LiveSnapshot};
-use crate::io::modbus::server::{lock_image, spawn_tcp_server_on, RegisterImage, SharedImage};
+use crate::daemon::config::StatusSection;
+use crate::events::{Event, EventSender};
+use crate::io::modbus::bounded_server::{
+    spawn_bounded_tcp_server, ServerCounters, ServerLimits, ShedCause, ShedReport,
+};
+use crate::io::modbus::server::{lock_image, RegisterImage, SharedImage};
 use crate::io::modbus::RegisterTable;
+
+static COUNTERS: LazyLock<Arc<ServerCounters>> = LazyLock::new(Arc::default);
+
+/// The DCS block's counters (one block per process; all zero and not `serving` while off).
+pub fn counters() -> Arc<ServerCounters> {
+    Arc::clone(&COUNTERS)
+}
+
+/// The block's limits from `[status]`.
+pub fn limits(status: &StatusSection) -> ServerLimits {
+    ServerLimits {
+        max_connections: status.modbus_max_connections() as usize,
+        idle_timeout: Duration::from_secs_f64(status.modbus_idle_timeout_s.clamp(1e-3, 3600.0)),
+        max_requests_per_s: status.modbus_max_requests_per_s,
+    }
+}
+
+/// The event for a shed report.
+pub fn shed_event(r: &ShedReport) -> Event {
+    Event::ConnectionsShed {
+        server: format!("dcs-modbus {}", r.local_addr),
+        cause: match r.cause {
+            ShedCause::ConnectionCap => "connection_cap",
+            ShedCause::DescriptorsExhausted => "descriptors_exhausted",
+        }
+        .to_string(),
+        detail: r.error.clone(),
+        open: r.counters.open,
+        shed_total: r.counters.shed,
+        accept_exhausted_total: r.counters.accept_exhausted,
+    }
+}
 
 /// Unit id of the block.
 pub const UNIT_ID: u8 = 1;
@@ -84,22 +127,33 @@ pub fn words(s: &LiveSnapshot) -> [u16; 16] {
     ]
 }
 
-/// Serve the block on `listener`, refreshing it from `live` every 100 ms until `shutdown`.
+/// Serve the block on `listener` within `limits`, refreshing it from `live` every 100 ms until
+/// `shutdown`; shedding is logged to `events` and the journal.
 pub async fn serve(
     listener: tokio::net::TcpListener,
     live: Arc<LiveBoard>,
+    limits: ServerLimits,
+    events: EventSender,
     mut shutdown: tokio::sync::watch::Receiver<bool>,
 ) {
     let mut image = RegisterImage::new();
     image.map(UNIT_ID, RegisterTable::Input, 0, REGISTERS.len() as u16);
     let image: SharedImage = image.into_shared();
-    let server = match spawn_tcp_server_on(listener, Arc::clone(&image)) {
-        Ok(s) => s,
-        Err(e) => {
-            tracing::error!(target: "status", "Modbus block for the DCS: {e}");
-            return;
-        }
-    };
+    let on_shed = Arc::new(move |r: ShedReport| {
+        let e = shed_event(&r);
+        tracing::warn!(target: "status", "Modbus block for the DCS on {}: shedding connections ({:?}{}): {} open, {} shed, {} accept failures for want of descriptors",
+            r.local_addr, r.cause, r.error.as_deref().map(|e| format!(", {e}")).unwrap_or_default(),
+            r.counters.open, r.counters.shed, r.counters.accept_exhausted);
+        let _ = events.send(e);
+    });
+    let server =
+        match spawn_bounded_tcp_server(listener, Arc::clone(&image), limits, counters(), on_shed) {
+            Ok(s) => s,
+            Err(e) => {
+                tracing::error!(target: "status", "Modbus block for the DCS: {e}");
+                return;
+            }
+        };
     let mut tick = tokio::time::interval(Duration::from_millis(100));
     loop {
         tokio::select! {

@@ -77,6 +77,7 @@ impl Collector for LiveCollector {
                 g.encode(fam.encode_family(&[("fault", c.name())])?)?;
             }
         }
+        dcs_counters(&mut e)?;
         let Some(s) = self.live.latest() else {
             return Ok(());
         };
@@ -158,6 +159,33 @@ impl Collector for LiveCollector {
         }
         Ok(())
     }
+}
+
+/// The DCS block's server counters (only while the block is on).
+fn dcs_counters(e: &mut DescriptorEncoder) -> std::fmt::Result {
+    let c = super::dcs::counters();
+    if !c.serving.load(std::sync::atomic::Ordering::Relaxed) {
+        return Ok(());
+    }
+    let c = c.snapshot();
+    gauge(
+        e,
+        "antisurge_dcs_connections",
+        "Modbus block for the DCS: connections open",
+        c.open as f64,
+    )?;
+    for (name, help, v) in [
+        ("antisurge_dcs_connections_accepted", "Modbus block for the DCS: connections accepted", c.accepted),
+        ("antisurge_dcs_connections_shed", "Modbus block for the DCS: connections closed to make room at the cap or refused at it", c.shed),
+        ("antisurge_dcs_connections_idle_closed", "Modbus block for the DCS: connections closed by the idle time-out", c.idle_closed),
+        ("antisurge_dcs_connections_malformed", "Modbus block for the DCS: connections closed on a malformed frame", c.malformed),
+        ("antisurge_dcs_accept_exhausted", "Modbus block for the DCS: accept failures for want of descriptors (EMFILE and the like), each followed by a back-off", c.accept_exhausted),
+        ("antisurge_dcs_requests", "Modbus block for the DCS: requests answered", c.requests),
+        ("antisurge_dcs_requests_throttled", "Modbus block for the DCS: requests held back by the per-connection budget", c.throttled),
+    ] {
+        counter(e, name, help, v)?;
+    }
+    Ok(())
 }
 
 /// Where the endpoint binds: `listen` (None: the default; empty: off). A non-loopback

@@ -238,8 +238,16 @@ pub fn spawn(
             .and_then(|l| tokio::net::TcpListener::from_std(l).map_err(|e| e.to_string()))
         {
             Ok(l) => {
-                tracing::info!(target: "status", "Modbus block for the DCS on {text} (unit 1, input registers 0-15)");
-                tasks.spawn(dcs::serve(l, Arc::clone(&ctx.live), shutdown.clone()));
+                let limits = dcs::limits(status);
+                tracing::info!(target: "status", "Modbus block for the DCS on {text} (unit 1, input registers 0-15; at most {} connections, idle time-out {:?}, {} requests/s each)",
+                    limits.max_connections, limits.idle_timeout, limits.max_requests_per_s);
+                tasks.spawn(dcs::serve(
+                    l,
+                    Arc::clone(&ctx.live),
+                    limits,
+                    ctx.events.clone(),
+                    shutdown.clone(),
+                ));
             }
             Err(e) => {
                 tracing::error!(target: "status", "no Modbus block for the DCS on {text}: {e}")

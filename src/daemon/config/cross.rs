@@ -15,7 +15,7 @@ use crate::io::signal_map::Binding;
 use crate::signals::ActuatorId;
 
 /// An error about a key of the signal map file, located in that file.
-fn map_error(l: &Loaded, key: &str, message: String) -> FileError {
+pub(crate) fn map_error(l: &Loaded, key: &str, message: String) -> FileError {
     match &l.config.bus.signal_map {
         Some(p) => {
             let path = resolve(&l.main_path, p);

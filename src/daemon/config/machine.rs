@@ -202,24 +202,41 @@ pub fn plausibility(l: &Loaded) -> Vec<Problem> {
     for (id, v) in expect {
         if let Some(r) = l.machine.transmitters.get(&id) {
             if !(r.min <= v && v <= r.max) {
-                out.push(warn(
-                    machine_file_error(
+                // explained by another unit: an error naming it (issue 25), else a warning
+                let units = super::sanity::likely_units(r.min, r.max, v);
+                let message = match units.first() {
+                    Some(_) => format!(
+                        "range [{}, {}] looks typed in {}: in {} it excludes the design {} of {v:.4e} Pa, so every reading would be refused and the controller would hold fail-safe (recycle valve open)",
+                        r.min,
+                        r.max,
+                        units.join(" or "),
+                        id.unit(),
+                        id.name()
+                    ),
+                    None => format!(
+                        "range [{}, {}] {} excludes the design {} of {v:.4e} Pa: typed in bar or kPa?",
+                        r.min,
+                        r.max,
+                        id.unit(),
+                        id.name()
+                    ),
+                };
+                out.push(Problem {
+                    error: machine_file_error(
                         l,
                         &format!("transmitters.{}.max", id.name()),
-                        format!(
-                            "range [{}, {}] {} excludes the design {} of {v:.4e} Pa: typed in bar or kPa?",
-                            r.min,
-                            r.max,
-                            id.unit(),
-                            id.name()
-                        ),
+                        message,
                     )
                     .with_hint("ranges are in SI units: Pa absolute (1 bar = 1e5 Pa)"),
-                ));
+                    warning: units.is_empty(),
+                });
             }
         }
         if let Some(s) = l.config.inputs.get(&id) {
-            if !(s.min <= v && v <= s.max) {
+            // a range explained by another unit is an error (super::sanity), not a warning
+            if !(s.min <= v && v <= s.max)
+                && super::sanity::likely_units(s.min, s.max, v).is_empty()
+            {
                 let mut e = locate(
                     &l.layers,
                     &format!("inputs.{}.max", id.name()),

@@ -23,13 +23,18 @@
 //!   [`machine`]);
 //! - [`cross`]: the rules between sections (the law on this machine, what the law needs
 //!   bound, signal map against the buses, DBC, bus load, risky combinations), in one place;
-//! - [`print`]: `check-config --print`.
+//! - [`print`]: `check-config --print`;
+//! - [`unit`]: what the shipped systemd unit lets the service bind;
+//! - [`sanity`]: pressure ranges typed in another unit, valve openings in percent or fraction;
+//! - [`dry_run`]: a reload against the live inputs (a range that refuses them is refused);
+//! - [`running`]: the running configuration's record and the completeness rule of a reload.
 
 pub mod bus;
 pub mod control;
 pub mod controller;
 pub mod cross;
 pub mod cycle;
+pub mod dry_run;
 pub mod event_log;
 pub mod inputs;
 pub mod layers;
@@ -38,10 +43,13 @@ pub mod plant;
 pub mod print;
 pub mod problem;
 pub mod reload;
+pub mod running;
+pub mod sanity;
 pub mod simulation;
 pub mod sparkplug;
 pub mod status;
 pub mod tls;
+pub mod unit;
 
 pub use bus::{BusSection, Transport};
 pub use control::{ControlSection, StartMode};
@@ -355,6 +363,8 @@ pub fn check(l: &Loaded) -> Vec<Problem> {
     out.extend(map_problems);
     out.extend(machine::transport_problem(l));
     out.extend(machine_data);
+    out.extend(sanity::pressure_ranges(l));
+    out.extend(sanity::fraction_bindings(l));
     out.extend(machine::plausibility(l));
     let warnings = cross::warnings(l, &out);
     out.extend(warnings);

@@ -8,10 +8,13 @@
 //!   exponential backoff after any link failure, typed errors and counters.
 //! - [`server`]: a Modbus TCP (and RTU) server answering from a [`SharedImage`], for the
 //!   simulated plant and hardware-in-the-loop tests.
+//! - [`bounded_server`]: a read-only Modbus TCP server with a connection cap, idle time-out,
+//!   request budget and descriptor-exhaustion back-off (the DCS block's).
 //! - [`link`]: the link tasks. Controller: poll sensors into the sensor board, write the
 //!   control thread's outputs and a heartbeat block. Plant: a server over the snapshot,
 //!   command and heartbeat boards.
 
+pub mod bounded_server;
 pub mod client;
 pub mod link;
 pub mod plan;

@@ -448,6 +448,14 @@ pub struct TcpServerHandle {
 }
 
 impl TcpServerHandle {
+    /// A handle on a server task listening on `local_addr`.
+    pub(crate) fn from_task(local_addr: SocketAddr, task: JoinHandle<()>) -> TcpServerHandle {
+        TcpServerHandle {
+            local_addr,
+            task: Some(task),
+        }
+    }
+
     /// The address the server listens on (useful after binding port 0).
     pub fn local_addr(&self) -> SocketAddr {
         self.local_addr
