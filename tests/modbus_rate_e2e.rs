@@ -1266,6 +1266,15 @@ fn after_a_3_s_link_outage_the_first_valve_command_matches_the_measured_position
         !events.contains("actuator_feedback_mismatch"),
         "a mismatch on the resume:\n{events}"
     );
+    // the fail-safe names its root: the Modbus link, not the sensors it carries
+    let failsafe = events
+        .lines()
+        .find(|l| l.contains("\"to\":\"fail_safe\""))
+        .unwrap_or_else(|| panic!("no fail-safe during the outage:\n{events}"));
+    assert!(
+        failsafe.contains("\"kind\":\"link_down\"") && failsafe.contains("\"link\":\"modbus\""),
+        "{failsafe}"
+    );
 }
 
 // ---------------------------------------------------------------------------------------------

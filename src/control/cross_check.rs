@@ -250,17 +250,22 @@ impl FrozenDpCheck {
 mod tests {
     use super::*;
 
-    /// A closure-like ramp: pressures rise 2 %/s, the Δp 1.5 %/s; the Δp repeats its value
-    /// from t = 1 s to 2 s.
-    fn run(freeze: bool, noise: f64) -> (Option<f64>, Option<f64>) {
-        let mut c = FrozenDpCheck::new();
-        let mut seed = 7u64;
-        let mut rnd = || {
+    /// Uniform noise in [−1, 1) from a xorshift sequence (deterministic per seed).
+    fn symmetric_noise(seed: u64) -> impl FnMut() -> f64 {
+        let mut seed = seed.max(1);
+        move || {
             seed ^= seed << 13;
             seed ^= seed >> 7;
             seed ^= seed << 17;
             (seed >> 11) as f64 / (1u64 << 53) as f64 * 2.0 - 1.0
-        };
+        }
+    }
+
+    /// A closure-like ramp: pressures rise 2 %/s, the Δp 1.5 %/s; the Δp repeats its value
+    /// from t = 1 s to 2 s.
+    fn run(freeze: bool, noise: f64) -> (Option<f64>, Option<f64>) {
+        let mut c = FrozenDpCheck::new();
+        let mut rnd = symmetric_noise(7);
         let (mut found, mut cleared) = (None, None);
         let mut held = f64::NAN;
         for k in 0..3000 {
@@ -308,13 +313,7 @@ mod tests {
     ) -> (Option<f64>, Option<f64>) {
         let mut c = FrozenDpCheck::new();
         c.repeat_criterion = repeat_criterion;
-        let mut seed = seed.max(1);
-        let mut rnd = || {
-            seed ^= seed << 13;
-            seed ^= seed >> 7;
-            seed ^= seed << 17;
-            (seed >> 11) as f64 / (1u64 << 53) as f64 * 2.0 - 1.0
-        };
+        let mut rnd = symmetric_noise(seed);
         let (mut found, mut cleared) = (None, None);
         let (mut ps, mut pd, mut dp) = (f64::NAN, f64::NAN, f64::NAN);
         let mut held = f64::NAN;
