@@ -73,19 +73,16 @@ fn check_against_running_as_the_unit(cfg: &Path, dir: &Path) -> (i32, String) {
     )
 }
 
-#[test]
-fn a_config_cut_anywhere_is_refused() {
-    let tmp = tempfile::tempdir().expect("tmp");
-    let dir = tmp.path();
-    let events = dir.join("events.jsonl");
-    // the last line sets a key: a cut anywhere loses at least part of a key
-    let full = format!(
+/// The daemon config both cases run: kvangardsnes2009's recycle plant in process at 100 Hz,
+/// event log and status socket in `dir`, with `control` added to `[control]` and `rest` after
+/// the shared sections.
+fn embedded_config(dir: &Path, control: &str, rest: &str) -> String {
+    format!(
         r#"[plant]
 file = "{plant}"
 [control]
 law = "recycle-pi"
-failsafe_recycle_opening_pct = 100.0
-[cycle]
+{control}[cycle]
 rate_hz = 100.0
 lock_memory = false
 [event_log]
@@ -99,14 +96,23 @@ log_interval_s = 0.0
 socket = "{socket}"
 metrics_listen = ""
 hmi_listen = ""
-[reload]
-watch_files = false
-[controller.recycle_pi.pi]
-kp_per_map_flow = KP
-"#,
+{rest}"#,
         plant = shipped("plants/kvangardsnes2009_recycle.toml"),
-        events = events.display(),
+        events = dir.join("events.jsonl").display(),
         socket = dir.join("status.sock").display(),
+    )
+}
+
+#[test]
+fn a_config_cut_anywhere_is_refused() {
+    let tmp = tempfile::tempdir().expect("tmp");
+    let dir = tmp.path();
+    let events = dir.join("events.jsonl");
+    // the last line sets a key: a cut anywhere loses at least part of a key
+    let full = embedded_config(
+        dir,
+        "failsafe_recycle_opening_pct = 100.0\n",
+        "[reload]\nwatch_files = false\n[controller.recycle_pi.pi]\nkp_per_map_flow = KP\n",
     );
     let cfg = dir.join("antisurge.toml");
     let whole = full.replace("KP", "10.0");
@@ -203,33 +209,10 @@ fn a_range_that_refuses_the_live_reading_is_not_applied() {
     let tmp = tempfile::tempdir().expect("tmp");
     let dir = tmp.path();
     let events = dir.join("events.jsonl");
-    let base = format!(
-        r#"[plant]
-file = "{plant}"
-[control]
-law = "recycle-pi"
-[cycle]
-rate_hz = 100.0
-lock_memory = false
-[event_log]
-path = "{events}"
-fsync = "always"
-[simulation]
-scenario = "throttle-closure"
-hold_after_end = true
-[status]
-log_interval_s = 0.0
-socket = "{socket}"
-metrics_listen = ""
-hmi_listen = ""
-[inputs.p_discharge]
-min = 1.0e4
-max = MAX
-timeout_ms = 200.0
-"#,
-        plant = shipped("plants/kvangardsnes2009_recycle.toml"),
-        events = events.display(),
-        socket = dir.join("status.sock").display(),
+    let base = embedded_config(
+        dir,
+        "",
+        "[inputs.p_discharge]\nmin = 1.0e4\nmax = MAX\ntimeout_ms = 200.0\n",
     );
     let cfg = dir.join("antisurge.toml");
     std::fs::write(&cfg, base.replace("MAX", "1.2e7")).expect("write");

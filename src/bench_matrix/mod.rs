@@ -318,15 +318,7 @@ pub fn map_off(model: &ControlModel, flow_factor: f64, rise_factor: f64) -> Cont
     let mut m = model.clone();
     if let Some(map) = m.map.as_mut() {
         if let MapModel::Polynomial(p) = &mut map.model {
-            p.flow_scale *= flow_factor;
-            p.flow_lo *= flow_factor;
-            p.flow_hi *= flow_factor;
-            for row in p.coeffs.iter_mut() {
-                for c in row.iter_mut() {
-                    *c *= rise_factor;
-                }
-            }
-            p.coeffs[0][0] += 1.0 - rise_factor;
+            *p = p.scaled(flow_factor, rise_factor);
         }
     }
     m

@@ -343,17 +343,22 @@ pub fn helmholtz_hz(rs: &crate::plant::file::RecycleParams) -> f64 {
         / (2.0 * std::f64::consts::PI)
 }
 
-/// Step-to-reversal time of a plant, s: from its initial steady state, the discharge
-/// (throttle) slammed shut in one plant step, recycle valve and drive torque held, the time to
-/// the first compressor flow reversal (w_c < 0). None: no reversal within `horizon_s`.
-pub fn step_to_reversal_s(plant: &PlantCase, horizon_s: f64) -> Option<f64> {
+/// The plant's inputs at its initial steady state (throttle, recycle valve, feed).
+fn initial_inputs(plant: &PlantCase) -> PlantInputs {
     let init = plant.file.initial;
-    let inputs = PlantInputs {
+    PlantInputs {
         throttle_process: init.throttle,
         recycle_manual: init.recycle_valve,
         feed: init.feed,
         ..PlantInputs::default()
-    };
+    }
+}
+
+/// Step-to-reversal time of a plant, s: from its initial steady state, the discharge
+/// (throttle) slammed shut in one plant step, recycle valve and drive torque held, the time to
+/// the first compressor flow reversal (w_c < 0). None: no reversal within `horizon_s`.
+pub fn step_to_reversal_s(plant: &PlantCase, horizon_s: f64) -> Option<f64> {
+    let inputs = initial_inputs(plant);
     let mut p = SimPlant::new(plant, &inputs).ok()?;
     if let SimPlant::Recycle(r) = &mut p {
         r.x[ix::LT] = 0.0;
@@ -381,13 +386,7 @@ pub fn step_to_reversal_s(plant: &PlantCase, horizon_s: f64) -> Option<f64> {
 /// The surge margin of a plant's initial steady state, fraction of surge-line flow (NaN: no
 /// steady state).
 pub fn initial_margin(plant: &PlantCase) -> f64 {
-    let init = plant.file.initial;
-    let inputs = PlantInputs {
-        throttle_process: init.throttle,
-        recycle_manual: init.recycle_valve,
-        feed: init.feed,
-        ..PlantInputs::default()
-    };
+    let inputs = initial_inputs(plant);
     let Ok(p) = SimPlant::new(plant, &inputs) else {
         return f64::NAN;
     };
@@ -424,15 +423,7 @@ fn vary_map(
     let MapModel::Polynomial(p) = &mut m.model else {
         return None;
     };
-    p.flow_scale *= flow_factor;
-    p.flow_lo *= flow_factor;
-    p.flow_hi *= flow_factor;
-    for row in p.coeffs.iter_mut() {
-        for c in row.iter_mut() {
-            *c *= rise_factor;
-        }
-    }
-    p.coeffs[0][0] += 1.0 - rise_factor;
+    *p = p.scaled(flow_factor, rise_factor);
     let poly = *p;
     m.surge_line = SurgeLine::tabulate(poly.omega_min, poly.omega_max, |w| poly.peak(w)).ok()?;
     Some(m)

@@ -161,6 +161,22 @@ fn lstsq_cubic(xs: &[f64], ys: &[f64]) -> Option<[f64; 4]> {
 }
 
 impl PolynomialMap {
+    /// The same map with its flows scaled by `flow_factor` and its pressure rise Ψ − 1 by
+    /// `rise_factor` (a map that is off from the machine: the benchmark's and the campaign's
+    /// "map off" cases).
+    pub fn scaled(mut self, flow_factor: f64, rise_factor: f64) -> PolynomialMap {
+        self.flow_scale *= flow_factor;
+        self.flow_lo *= flow_factor;
+        self.flow_hi *= flow_factor;
+        for row in self.coeffs.iter_mut() {
+            for c in row.iter_mut() {
+                *c *= rise_factor;
+            }
+        }
+        self.coeffs[0][0] += 1.0 - rise_factor;
+        self
+    }
+
     /// Two-stage least-squares fit of the samples (seed 002 App. A procedure).
     pub fn fit(samples: &[MapSample], file: &Path) -> Result<PolynomialMap, MapError> {
         let fit_err = |message: String| MapError::Fit {

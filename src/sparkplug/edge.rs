@@ -489,6 +489,13 @@ impl EdgeNode {
         self.born = false;
     }
 
+    /// Every node metric's value: `bdSeq`, the rebirth control (false), then `values`.
+    fn node_values(&self, values: &[Value]) -> Vec<Value> {
+        let mut all = vec![Value::UInt64(u64::from(self.bd_seq)), Value::Bool(false)];
+        all.extend_from_slice(values);
+        all
+    }
+
     /// The NDEATH (the MQTT will of the session): `bdSeq` only, no `seq`.
     pub fn ndeath(&self) -> (String, Payload) {
         let ts = now_ms();
@@ -512,18 +519,12 @@ impl EdgeNode {
     /// `values` are the node metrics after `bdSeq` and the rebirth control.
     pub fn nbirth(&mut self, values: &[Value]) -> (String, Payload) {
         let ts = now_ms();
-        let mut all = vec![Value::UInt64(u64::from(self.bd_seq)), Value::Bool(false)];
-        all.extend_from_slice(values);
+        let all = self.node_values(values);
         let metrics = self.node.birth(&all, ts);
         self.born = true;
         (
             self.topics.node("NBIRTH"),
-            Payload {
-                timestamp: Some(ts),
-                metrics,
-                seq: Some(self.seq.birth()),
-                ..Default::default()
-            },
+            sequenced(ts, metrics, self.seq.birth()),
         )
     }
 
@@ -534,30 +535,19 @@ impl EdgeNode {
         let metrics = set.birth(values, ts);
         Some((
             self.topics.device("DBIRTH", name),
-            Payload {
-                timestamp: Some(ts),
-                metrics,
-                seq: Some(self.seq.take()),
-                ..Default::default()
-            },
+            sequenced(ts, metrics, self.seq.take()),
         ))
     }
 
     /// NDATA by exception (None: nothing moved beyond its deadband).
     pub fn ndata(&mut self, values: &[Value]) -> Option<(String, Payload)> {
         let ts = now_ms();
-        let mut all = vec![Value::UInt64(u64::from(self.bd_seq)), Value::Bool(false)];
-        all.extend_from_slice(values);
+        let all = self.node_values(values);
         let metrics = self.node.exceptions(&all, ts);
         (!metrics.is_empty()).then(|| {
             (
                 self.topics.node("NDATA"),
-                Payload {
-                    timestamp: Some(ts),
-                    metrics,
-                    seq: Some(self.seq.take()),
-                    ..Default::default()
-                },
+                sequenced(ts, metrics, self.seq.take()),
             )
         })
     }
@@ -572,12 +562,7 @@ impl EdgeNode {
         }
         Some((
             self.topics.device("DDATA", name),
-            Payload {
-                timestamp: Some(ts),
-                metrics,
-                seq: Some(self.seq.take()),
-                ..Default::default()
-            },
+            sequenced(ts, metrics, self.seq.take()),
         ))
     }
 
@@ -604,13 +589,18 @@ impl EdgeNode {
             .collect();
         (
             self.topics.node("NDATA"),
-            Payload {
-                timestamp: Some(ts),
-                metrics,
-                seq: Some(self.seq.take()),
-                ..Default::default()
-            },
+            sequenced(ts, metrics, self.seq.take()),
         )
+    }
+}
+
+/// A payload at `ts` with `metrics` and its sequence number.
+fn sequenced(ts: u64, metrics: Vec<Metric>, seq: u64) -> Payload {
+    Payload {
+        timestamp: Some(ts),
+        metrics,
+        seq: Some(seq),
+        ..Default::default()
     }
 }
 

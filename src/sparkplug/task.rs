@@ -212,6 +212,23 @@ struct Node {
 }
 
 impl Node {
+    /// The `k`-th link device's index and values from the links' state `now`
+    /// ([`catalogue::link_devices`]); a link missing from it reports nothing.
+    fn link_device_values(
+        &self,
+        k: usize,
+        now: &[(String, Vec<(String, Value)>)],
+    ) -> (usize, Vec<Value>) {
+        let (i, names) = &self.links[k];
+        let dev = self.node.device_names().nth(*i).unwrap_or("");
+        let cur = now
+            .iter()
+            .find(|(n, _)| n == dev)
+            .map(|d| d.1.as_slice())
+            .unwrap_or(&[]);
+        (*i, catalogue::link_values(names, cur))
+    }
+
     fn new(cfg: &SparkplugSection, inputs: EdgeInputs) -> Result<Node, StartError> {
         let topics = Topics::new(&cfg.group_id, &cfg.edge_node_id)?;
         let db = Deadbands {
@@ -429,14 +446,9 @@ impl Node {
             self.publish(client, b, QoS::AtMostOnce);
         }
         let now = catalogue::link_devices(&(c.links)());
-        for (i, names) in &self.links {
-            let dev = self.node.device_names().nth(*i).unwrap_or("").to_string();
-            let cur = now
-                .iter()
-                .find(|(n, _)| *n == dev)
-                .map(|d| d.1.as_slice())
-                .unwrap_or(&[]);
-            if let Some(b) = self.node.dbirth(*i, &catalogue::link_values(names, cur)) {
+        for k in 0..self.links.len() {
+            let (i, vals) = self.link_device_values(k, &now);
+            if let Some(b) = self.node.dbirth(i, &vals) {
                 self.publish(client, b, QoS::AtMostOnce);
             }
         }
@@ -496,15 +508,7 @@ impl Node {
             if !self.links.is_empty() {
                 let now = catalogue::link_devices(&(c.links)());
                 for k in 0..self.links.len() {
-                    let (i, names) = &self.links[k];
-                    let dev = self.node.device_names().nth(*i).unwrap_or("").to_string();
-                    let cur = now
-                        .iter()
-                        .find(|(n, _)| *n == dev)
-                        .map(|d| d.1.as_slice())
-                        .unwrap_or(&[]);
-                    let vals = catalogue::link_values(names, cur);
-                    let i = *i;
+                    let (i, vals) = self.link_device_values(k, &now);
                     if let Some(m) = self.node.ddata(i, &vals) {
                         self.publish(client, m, QoS::AtMostOnce);
                     }
