@@ -284,8 +284,13 @@ enum OracleValve {
 /// Figures of one run, on the plant's true state from the disturbance on.
 #[derive(Debug, Clone, Default)]
 struct Figures {
+    /// Cycles of the detector's count during which the true operating point reached the surge
+    /// line (a flow reversal, or a limit cycle whose swing took the point to or past the line).
     surge_cycles: u32,
     reversals: u32,
+    /// Cycles the detector counted (a 0.3–30 Hz swing of more than 5 % of the mean flow)
+    /// with the point right of the surge line all along: the valve hunting, not surge.
+    hunting_cycles: u32,
     /// Smallest true compressor flow, kg/s.
     min_flow_kg_s: f64,
     /// Smallest true surge margin (flow − surge-line flow at the pressure ratio, over the
@@ -319,9 +324,10 @@ impl std::fmt::Display for Figures {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
         write!(
             f,
-            "surge cycles {} (reversals {}) · min flow {:.4} kg/s · closest approach {:+.1} % surge margin · first reversal {} · valve: cmd max {:.1} %, stem max {:.1} %, 5 % open after {}, final {:.1} % · final flow {:.4} kg/s",
+            "surge cycles {} (reversals {}, hunting cycles right of the surge line {}) · min flow {:.4} kg/s · closest approach {:+.1} % surge margin · first reversal {} · valve: cmd max {:.1} %, stem max {:.1} %, 5 % open after {}, final {:.1} % · final flow {:.4} kg/s",
             self.surge_cycles,
             self.reversals,
+            self.hunting_cycles,
             self.min_flow_kg_s,
             100.0 * self.min_margin,
             ms(self.reversal_after_s),
@@ -350,6 +356,11 @@ struct PlantLoop<'a> {
     inputs: PlantInputs,
     governor: SpeedLoop,
     detector: SurgeDetector,
+    /// Smallest true surge margin since the detector last counted a cycle.
+    episode_min_margin: f64,
+    /// Counted cycles that reached the surge line, and those that did not.
+    surge_cycles: u32,
+    hunting_cycles: u32,
     figures: Figures,
     throttle: Throttle,
     k: u64,
@@ -377,6 +388,9 @@ impl<'a> PlantLoop<'a> {
             inputs,
             governor,
             detector: SurgeDetector::new(DetectorConfig::default()),
+            episode_min_margin: f64::INFINITY,
+            surge_cycles: 0,
+            hunting_cycles: 0,
             figures: Figures::new(),
             throttle,
             k: 0,
@@ -403,19 +417,35 @@ impl<'a> PlantLoop<'a> {
         self.k += 1;
         let t = self.t_s();
         let truth = self.plant.truth();
+        let surge = self
+            .desc
+            .map
+            .surge_line
+            .flow_at_ratio(truth.pressure_ratio());
+        let margin = (truth.flow_map - surge) / surge;
+        self.episode_min_margin = self.episode_min_margin.min(margin);
+        let counted = self.detector.surge_cycles;
         self.detector.update(t, PLANT_STEP_S, truth.m_kg_s);
+        let new_cycles = self.detector.surge_cycles - counted;
+        if new_cycles > 0 {
+            // the surge line separates the stable region from the unstable one (seed 002 §2.2,
+            // zero slope of the pressure rise): a swing that kept the point right of it all
+            // along is forced by the valve (hunting), a swing that reached it is surge
+            if self.episode_min_margin <= 0.0 || truth.m_kg_s < 0.0 {
+                self.surge_cycles += new_cycles;
+            } else {
+                self.hunting_cycles += new_cycles;
+            }
+            self.episode_min_margin = margin;
+        }
         let since = t - self.throttle.start_s();
         if since >= 0.0 {
             let fg = &mut self.figures;
-            fg.surge_cycles = self.detector.surge_cycles;
+            fg.surge_cycles = self.surge_cycles;
+            fg.hunting_cycles = self.hunting_cycles;
             fg.reversals = self.detector.reversals;
             fg.min_flow_kg_s = fg.min_flow_kg_s.min(truth.m_kg_s);
-            let surge = self
-                .desc
-                .map
-                .surge_line
-                .flow_at_ratio(truth.pressure_ratio());
-            fg.min_margin = fg.min_margin.min((truth.flow_map - surge) / surge);
+            fg.min_margin = fg.min_margin.min(margin);
             if fg.reversal_after_s.is_nan() && truth.m_kg_s < 0.0 {
                 fg.reversal_after_s = since;
             }
