@@ -993,6 +993,9 @@ impl Controller {
             self.write_values[n + 1] = f64::from(w[1]);
             self.write_values[n + 2] = f64::from(o.faults);
         }
+        // whether this set carries a beat the device sees: the legacy heartbeat block, or the
+        // watchdog contract's counter when it is not withheld
+        let mut beat = self.heartbeat;
         if let Some(wd) = &self.watchdog {
             // Writes failing for longer than write_fault_timeout_ms: the counter stands
             // still, so the device's own watchdog takes it to its safe state.
@@ -1001,6 +1004,8 @@ impl Controller {
                 .is_some_and(|(t0, _)| monotonic_ns().saturating_sub(t0) >= self.write_fault_ns);
             if withheld {
                 LinkCounters::add(&c.watchdog_withheld, 1);
+            } else {
+                beat = true;
             }
             let at = self.watchdog_at;
             self.watchdog_writer.values(
@@ -1028,7 +1033,7 @@ impl Controller {
                 out.write = Some(None);
                 let c = &self.monitor.counters;
                 LinkCounters::add(&c.writes_ok, 1);
-                if self.heartbeat {
+                if beat {
                     LinkCounters::add(&c.heartbeats, 1);
                 }
                 out.answered |= report.requests > 0;
