@@ -37,11 +37,14 @@ pub enum FaultCategory {
     FieldWriteFailed,
     /// A field link (CAN interface, Modbus connection) is down.
     FieldLinkDown,
+    /// A field link answers, but slower than its configured rate or than its inputs'
+    /// freshness allows (achieved poll period, answer latency).
+    FieldLinkSlow,
 }
 
 impl FaultCategory {
     /// Every category, in bit order.
-    pub const ALL: [FaultCategory; 11] = [
+    pub const ALL: [FaultCategory; 12] = [
         FaultCategory::SensorTimeout,
         FaultCategory::SensorAliveError,
         FaultCategory::SensorCrcError,
@@ -53,6 +56,7 @@ impl FaultCategory {
         FaultCategory::ActuatorFeedbackMismatch,
         FaultCategory::FieldWriteFailed,
         FaultCategory::FieldLinkDown,
+        FaultCategory::FieldLinkSlow,
     ];
 
     /// Bit number on the wire (the DBC's `Faults` documentation).
@@ -79,6 +83,7 @@ impl FaultCategory {
             FaultCategory::ActuatorFeedbackMismatch => "actuator_feedback_mismatch",
             FaultCategory::FieldWriteFailed => "field_write_failed",
             FaultCategory::FieldLinkDown => "field_link_down",
+            FaultCategory::FieldLinkSlow => "field_link_slow",
         }
     }
 
@@ -96,6 +101,9 @@ impl FaultCategory {
             FaultCategory::ActuatorFeedbackMismatch => "an actuator does not follow its command",
             FaultCategory::FieldWriteFailed => "a field device refuses or ignores writes",
             FaultCategory::FieldLinkDown => "a field link is down",
+            FaultCategory::FieldLinkSlow => {
+                "a field link answers slower than its rate or its inputs' freshness allows"
+            }
         }
     }
 

@@ -525,6 +525,8 @@ struct DeviceState {
     latency: Rng,
     /// When set, writes are not applied (the valve held: the sanity case).
     ignore_writes: bool,
+    /// Every answer comes this much later over [from, to), plant time, s.
+    slow: Option<(f64, f64, f64)>,
 }
 
 type Shared = Arc<Mutex<DeviceState>>;
@@ -560,7 +562,11 @@ impl tokio_modbus::server::Service for DeviceService {
         let delay = {
             let mut s = lock(&shared);
             let u = s.latency.unit();
-            Duration::from_secs_f64(LATENCY_MIN_S + u * (LATENCY_MAX_S - LATENCY_MIN_S))
+            let late_s = match s.slow {
+                Some((from, to, late_s)) if s.t_s >= from && s.t_s < to => late_s,
+                _ => 0.0,
+            };
+            Duration::from_secs_f64(LATENCY_MIN_S + u * (LATENCY_MAX_S - LATENCY_MIN_S) + late_s)
         };
         if req.slave != 1 {
             return Box::pin(std::future::ready(Err(ExceptionCode::GatewayTargetDevice)));
@@ -664,6 +670,8 @@ struct Case {
     second_writer: Option<(f64, f64)>,
     /// No daemon; the valve held (the sanity case).
     no_daemon: bool,
+    /// The device answers this much later over [from, to), plant time: (from, to, late), s.
+    slow: Option<(f64, f64, f64)>,
 }
 
 impl Case {
@@ -680,6 +688,7 @@ impl Case {
             outage: None,
             second_writer: None,
             no_daemon: false,
+            slow: None,
         }
     }
 }
@@ -695,6 +704,11 @@ struct Outcome {
     /// `antisurge status --json` at the end of the run, before and after an `ack` (cases with
     /// a second writer only).
     status_at_end: Option<(serde_json::Value, serde_json::Value)>,
+    /// `antisurge status --json` at the end of a slow-device case (its latency window still
+    /// holds the slow answers).
+    status_slow: Option<serde_json::Value>,
+    /// When the device went slow (this machine's clock).
+    slow_started: Option<std::time::SystemTime>,
 }
 
 /// The daemon's config: defaults except what the skid needs (bus and map, the machine,
@@ -779,6 +793,7 @@ fn run_case(case: Case) -> Outcome {
         pos: desc.file.initial.recycle_valve,
         latency: Rng::new(case.latency_seed),
         ignore_writes: case.no_daemon,
+        slow: case.slow,
     }));
 
     // the Modbus side: its own runtime, one worker
@@ -803,12 +818,13 @@ fn run_case(case: Case) -> Outcome {
     });
 
     // the plant thread, paced by the wall clock; the link outage is switched from here
-    let (figures, max_lag_s) = {
+    let (figures, max_lag_s, slow_started) = {
         let shared = Arc::clone(&shared);
         let mut p = PlantLoop::new(&desc, case.throttle);
         let mut noise = Rng::new(case.noise_seed);
         let mut frozen_dp = f64::NAN;
         let mut link_down = false;
+        let mut slow_started = None;
         let n = (case.end_s / PLANT_STEP_S).round() as u64;
         let t0 = Instant::now();
         let mut max_lag_s: f64 = 0.0;
@@ -843,6 +859,11 @@ fn run_case(case: Case) -> Outcome {
                     lock(&shared).valve_cmd = 0.0;
                 }
             }
+            if let Some((from, ..)) = case.slow {
+                if t >= from && slow_started.is_none() {
+                    slow_started = Some(std::time::SystemTime::now());
+                }
+            }
             let cmd = lock(&shared).valve_cmd;
             p.step(cmd);
             // publish what the transmitters read
@@ -871,10 +892,11 @@ fn run_case(case: Case) -> Outcome {
             st.t_s = t;
             st.pos = s.get(SensorId::RecycleValvePosition);
         }
-        (p.figures, max_lag_s)
+        (p.figures, max_lag_s, slow_started)
     };
 
     // the device still answers (its last values): the status, then an acknowledgement
+    let status_slow = (case.slow.is_some() && daemon.is_some()).then(|| status_json(&dir));
     let status_at_end = (case.second_writer.is_some() && daemon.is_some()).then(|| {
         let before = status_json(&dir);
         let sock = dir.join("status.sock").display().to_string();
@@ -915,6 +937,8 @@ fn run_case(case: Case) -> Outcome {
         max_lag_s,
         dir: tmp,
         status_at_end,
+        status_slow,
+        slow_started,
     }
 }
 
@@ -1382,4 +1406,94 @@ fn events_until_shutdown(dir: &Path) -> String {
         .take_while(|l| !l.contains("\"to\":\"shutdown\""))
         .map(|l| format!("{l}\n"))
         .collect()
+}
+
+/// Issue 23, link quality: the device answers 90 ms late for 8 s (its poll rate falls from
+/// 100 Hz to ≈ 8 Hz). Asserted: a `field_link_slow` fault event naming the Modbus link while
+/// the device is slow, with the achieved period and latency in its cause, cleared after; the
+/// status shows the link's quality (period, p50/p99 latency); every fail-safe of the run is
+/// rooted in an input that went stale beyond its budget (or the link), so a valve at 100 % is
+/// never the slow link's doing alone. The time from the slowdown to the event is printed.
+#[test]
+fn a_device_answering_90_ms_late_for_8_s_is_reported_as_a_slow_link() {
+    let _rt = real_time();
+    let mut case = Case::new(
+        "device 90 ms late for 8 s",
+        100.0,
+        Throttle::Ramp {
+            at_s: DISTURBANCE_AT_S,
+            over_s: 3.0,
+            to: 0.3,
+        },
+        DISTURBANCE_AT_S + 9.5,
+    );
+    let (from, to) = (DISTURBANCE_AT_S - 1.0, DISTURBANCE_AT_S + 7.0);
+    case.slow = Some((from, to, 0.09));
+    let o = run_case(case);
+    report(&case, &o);
+    let events = events_until_shutdown(o.dir.path());
+    let raised: Vec<&str> = events
+        .lines()
+        .filter(|l| l.contains("\"fault\":\"field_link_slow\"") && l.contains("\"active\":true"))
+        .collect();
+    assert!(!raised.is_empty(), "no field_link_slow event:\n{events}");
+    let first = raised[0];
+    assert!(
+        first.contains("\"link\":\"modbus:127.0.0.1:") && first.contains("achieved poll period"),
+        "{first}"
+    );
+    eprintln!("[{}] {first}", case.name);
+    // the event's time against the device's slowdown, both on this machine's clock (printed,
+    // never asserted: a busy machine delays the daemon, not the design)
+    let start = o.slow_started.expect("the device went slow");
+    let ts = first
+        .split("\"ts\":\"")
+        .nth(1)
+        .and_then(|r| r.split('"').next())
+        .and_then(|t| antisurge::events::Timestamp::parse_rfc3339(t).ok())
+        .expect("event time")
+        .to_system_time();
+    let after = ts
+        .duration_since(start)
+        .unwrap_or_else(|_| panic!("raised before the device went slow: {first}"));
+    eprintln!(
+        "[{}] field_link_slow raised {:.0} ms after the device went slow",
+        case.name,
+        after.as_secs_f64() * 1e3
+    );
+    let cleared = events
+        .lines()
+        .any(|l| l.contains("\"fault\":\"field_link_slow\"") && l.contains("\"active\":false"));
+    assert!(
+        cleared,
+        "field_link_slow never cleared after the device recovered:\n{events}"
+    );
+    // status: the link's quality
+    let st = o.status_slow.as_ref().expect("status");
+    let m = &st["links"]["modbus"];
+    let p99 = m["latency_p99_us"].as_u64().unwrap_or(0);
+    let p50 = m["latency_p50_us"].as_u64().unwrap_or(0);
+    let period = m["poll_period_us"].as_u64().unwrap_or(0);
+    eprintln!("[{}] status at the end: poll period {period} µs, latency p50 {p50} µs, p99 {p99} µs, timeouts {}, exceptions {}", case.name, m["timeouts"], m["exceptions"]);
+    assert!(
+        p99 >= 90_000,
+        "the slow answers are in the 10-s window: {m}"
+    );
+    assert!(
+        period > 0 && period < 90_000,
+        "back to its rate after the device recovered: {m}"
+    );
+    // a fail-safe in this run is rooted in stale inputs or the link, never in anything else
+    for l in events
+        .lines()
+        .filter(|l| l.contains("\"to\":\"fail_safe\""))
+    {
+        eprintln!("[{}] {l}", case.name);
+        assert!(
+            l.contains("\"fault\":\"stale\"")
+                || l.contains("\"kind\":\"link_down\"")
+                || l.contains("stale"),
+            "a fail-safe not rooted in a stale input: {l}"
+        );
+    }
 }

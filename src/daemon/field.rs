@@ -146,20 +146,102 @@ fn modbus_link_name(cfg: &ModbusLinkConfig) -> String {
     }
 }
 
+/// What a link's quality is judged against: its configured poll period and the freshness
+/// budget of the inputs it carries (the smallest input timeout among them; `None` when it
+/// carries no supervised input).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct QualityBudget {
+    /// The configured poll period, s.
+    pub period_s: f64,
+    /// The smallest freshness timeout of the inputs the link carries, s.
+    pub freshness_s: Option<f64>,
+}
+
+impl QualityBudget {
+    /// Why the link is slow, or `None` when it is not. A link is slow when its achieved poll
+    /// period exceeds the freshness budget of the inputs it carries: then every input goes
+    /// stale between two answers, however quickly each comes. (Not when it merely misses its
+    /// configured rate: a device 14 ms away cannot be polled at 100 Hz, and a lamp that is
+    /// always on is no lamp. The figures, rate included, are in the status and the metrics.)
+    /// Without a supervised input on the link, twice the configured period stands in.
+    pub fn slow(&self, poll_period_us: u64, p50_us: u64, p99_us: u64) -> Option<String> {
+        if poll_period_us == 0 {
+            return None;
+        }
+        let period_s = poll_period_us as f64 * 1e-6;
+        let age_s = (poll_period_us + p99_us) as f64 * 1e-6;
+        let limit_s = self.freshness_s.unwrap_or(2.0 * self.period_s);
+        if period_s <= limit_s {
+            return None;
+        }
+        let mut why = format!(
+            "achieved poll period {:.0} ms against {:.0} ms configured (answer latency p50 {:.0} ms, p99 {:.0} ms)",
+            period_s * 1e3,
+            self.period_s * 1e3,
+            p50_us as f64 * 1e-3,
+            p99_us as f64 * 1e-3
+        );
+        if let Some(b) = self.freshness_s {
+            why.push_str(&format!(
+                ": beyond the freshness budget {:.0} ms of its inputs (worst input age {:.0} ms)",
+                b * 1e3,
+                age_s * 1e3
+            ));
+        }
+        Some(why)
+    }
+}
+
+/// How long a link must be back within its budget before its slow fault clears, s: the
+/// period window itself (`quality::PERIOD_WINDOW_S`), so one quick answer among slow ones
+/// does not clear it.
+const SLOW_CLEARS_AFTER_S: f64 = crate::io::modbus::link::quality::PERIOD_WINDOW_S;
+
 /// Follow a Modbus link's state and write health and report every transition through a
 /// [`FieldLinkReporter`]: link up/down, exception answers with their code, failed writes
 /// (raised at the first failure, with the exception code or the timeout) and the safe
-/// state the link takes when they last.
+/// state the link takes when they last; and its quality against `budget` every 100 ms
+/// (`field_link_slow`, see [`QualityBudget::slow`]).
 pub async fn report_modbus(
     monitor: Arc<LinkMonitor>,
     mut reporter: FieldLinkReporter,
+    budget: QualityBudget,
     shutdown: watch::Receiver<bool>,
 ) {
     let mut states = monitor.subscribe();
     let mut writes = monitor.subscribe_writes();
     let stop = until_true(shutdown);
     tokio::pin!(stop);
+    let mut tick = tokio::time::interval(std::time::Duration::from_millis(100));
+    tick.set_missed_tick_behavior(tokio::time::MissedTickBehavior::Delay);
+    let mut slow = false;
+    let mut fine_since: Option<tokio::time::Instant> = None;
     loop {
+        // (not judged while the link is down: that is the root cause then, reported once; a
+        // slow fault raised before stays until the link answers within budget again)
+        if !matches!(monitor.state(), LinkState::Down { .. }) {
+            let c = monitor.counters().snapshot();
+            match budget.slow(c.poll_period_us, c.latency_p50_us, c.latency_p99_us) {
+                Some(why) => {
+                    fine_since = None;
+                    slow = true;
+                    reporter.fault(FaultCategory::FieldLinkSlow, true, &why);
+                }
+                None if slow => {
+                    let since = *fine_since.get_or_insert_with(tokio::time::Instant::now);
+                    if since.elapsed().as_secs_f64() >= SLOW_CLEARS_AFTER_S {
+                        slow = false;
+                        fine_since = None;
+                        reporter.fault(
+                            FaultCategory::FieldLinkSlow,
+                            false,
+                            "poll period and answer latency back within budget",
+                        );
+                    }
+                }
+                None => {}
+            }
+        }
         let state = *states.borrow_and_update();
         match state {
             LinkState::Up => {
@@ -212,6 +294,7 @@ pub async fn report_modbus(
             () = &mut stop => return,
             r = states.changed() => if r.is_err() { return },
             r = writes.changed() => if r.is_err() { return },
+            _ = tick.tick() => {}
         }
     }
 }
@@ -301,10 +384,21 @@ pub fn spawn_controller_links(
         let map = map.clone();
         let monitor = Arc::new(LinkMonitor::new());
         counters.modbus = Some(Arc::clone(&monitor));
+        crate::live::metrics::register_modbus_link(modbus_link_name(&cfg), Arc::clone(&monitor));
         let reporter = FieldLinkReporter::new(modbus_link_name(&cfg), event_sink(events.clone()));
+        let freshness_s = map
+            .modbus_sensors()
+            .iter()
+            .filter_map(|(id, _)| l.core.supervisor.limits[id.index()].map(|lim| lim.timeout_s))
+            .reduce(f64::min);
+        let budget = QualityBudget {
+            period_s: 1.0 / cfg.poll_rate_hz,
+            freshness_s,
+        };
         tasks.spawn(report_modbus(
             Arc::clone(&monitor),
             reporter,
+            budget,
             shutdown.clone(),
         ));
         tracing::info!(target: "modbus", "controller polling at {} Hz", cfg.poll_rate_hz);
@@ -381,4 +475,36 @@ pub fn spawn_plant_links(
         });
     }
     Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::QualityBudget;
+
+    #[test]
+    fn a_link_is_slow_when_its_period_exceeds_its_inputs_freshness_not_its_rate() {
+        let b = QualityBudget {
+            period_s: 0.01,
+            freshness_s: Some(0.05),
+        };
+        // a device 14 ms away polled at 100 Hz: 28 ms achieved, within the 50-ms budget
+        assert_eq!(b.slow(28_000, 14_000, 19_000), None);
+        // 90 ms late: 200 ms per poll, every input stale between two answers
+        let why = b.slow(200_000, 95_000, 105_000).expect("slow");
+        assert!(
+            why.contains("achieved poll period 200 ms against 10 ms configured")
+                && why.contains("freshness budget 50 ms")
+                && why.contains("worst input age 305 ms"),
+            "{why}"
+        );
+        // nothing measured yet
+        assert_eq!(b.slow(0, 0, 0), None);
+        // no supervised input on the link: twice the configured period
+        let w = QualityBudget {
+            period_s: 0.01,
+            freshness_s: None,
+        };
+        assert_eq!(w.slow(20_000, 1_000, 2_000), None);
+        assert!(w.slow(21_000, 1_000, 2_000).is_some());
+    }
 }

@@ -78,6 +78,7 @@ impl Collector for LiveCollector {
             }
         }
         dcs_counters(&mut e)?;
+        link_metrics(&mut e)?;
         let Some(s) = self.live.latest() else {
             return Ok(());
         };
@@ -162,6 +163,99 @@ impl Collector for LiveCollector {
 }
 
 /// The DCS block's server counters (only while the block is on).
+/// The controller's Modbus link, as the daemon started it: its name in events and its
+/// monitor (a scrape reads the monitor's atomics; `None` without a Modbus link).
+type ModbusLinkSlot = std::sync::Mutex<Option<(String, Arc<crate::io::modbus::LinkMonitor>)>>;
+static MODBUS_LINK: ModbusLinkSlot = std::sync::Mutex::new(None);
+
+/// Expose the controller's Modbus link in the metrics (the daemon, when it starts the link).
+pub fn register_modbus_link(name: String, monitor: Arc<crate::io::modbus::LinkMonitor>) {
+    *MODBUS_LINK
+        .lock()
+        .unwrap_or_else(std::sync::PoisonError::into_inner) = Some((name, monitor));
+}
+
+/// Link quality and counters of the controller's Modbus link, labelled with its name.
+fn link_metrics(e: &mut DescriptorEncoder) -> std::fmt::Result {
+    let Some((name, monitor)) = MODBUS_LINK
+        .lock()
+        .unwrap_or_else(std::sync::PoisonError::into_inner)
+        .clone()
+    else {
+        return Ok(());
+    };
+    let c = monitor.counters().snapshot();
+    let up = matches!(monitor.state(), crate::io::modbus::LinkState::Up);
+    let link = [("link", name.as_str())];
+    let g = ConstGauge::new(i64::from(up));
+    g.encode(
+        e.encode_descriptor(
+            "antisurge_link_up",
+            "Field link up and answering (1)",
+            None,
+            g.metric_type(),
+        )?
+        .encode_family(&link)?,
+    )?;
+    let g = ConstGauge::new(c.poll_period_us as f64 * 1e-6);
+    g.encode(
+        e.encode_descriptor(
+            "antisurge_link_poll_period_seconds",
+            "Field link: achieved poll period (interval between polls answered in full) over the last second",
+            None,
+            g.metric_type(),
+        )?
+        .encode_family(&link)?,
+    )?;
+    {
+        let g = ConstGauge::new(0.0);
+        let mut fam = e.encode_descriptor(
+            "antisurge_link_latency_seconds",
+            "Field link: answer latency over the last ten seconds, by quantile",
+            None,
+            g.metric_type(),
+        )?;
+        for (q, v) in [("0.5", c.latency_p50_us), ("0.99", c.latency_p99_us)] {
+            ConstGauge::new(v as f64 * 1e-6)
+                .encode(fam.encode_family(&[("link", name.as_str()), ("quantile", q)])?)?;
+        }
+    }
+    for (metric, help, v) in [
+        (
+            "antisurge_link_requests",
+            "Field link: requests sent",
+            c.requests,
+        ),
+        (
+            "antisurge_link_timeouts",
+            "Field link: requests without an answer within the timeout",
+            c.timeouts,
+        ),
+        (
+            "antisurge_link_exceptions",
+            "Field link: exception answers",
+            c.exceptions,
+        ),
+        (
+            "antisurge_link_reconnects",
+            "Field link: reconnects after the first connect",
+            c.reconnects,
+        ),
+        (
+            "antisurge_link_heartbeats",
+            "Field link: heartbeats (watchdog beats) written and acknowledged",
+            c.heartbeats,
+        ),
+    ] {
+        let k = ConstCounter::new(v);
+        k.encode(
+            e.encode_descriptor(metric, help, None, k.metric_type())?
+                .encode_family(&link)?,
+        )?;
+    }
+    Ok(())
+}
+
 fn dcs_counters(e: &mut DescriptorEncoder) -> std::fmt::Result {
     let c = super::dcs::counters();
     if !c.serving.load(std::sync::atomic::Ordering::Relaxed) {
@@ -318,6 +412,25 @@ pub async fn serve(
 mod tests {
     use super::*;
     use crate::live::snapshot::LiveSnapshot;
+
+    #[test]
+    fn the_modbus_links_quality_is_exposed_with_its_name() {
+        let monitor = Arc::new(crate::io::modbus::LinkMonitor::new());
+        register_modbus_link("modbus:10.0.0.5:502".into(), monitor);
+        let live = Arc::new(LiveBoard::default());
+        let stats = Arc::new(CycleStats::default());
+        let text = render_classic(&live, &stats);
+        for want in [
+            "antisurge_link_up{link=\"modbus:10.0.0.5:502\"} 0",
+            "antisurge_link_poll_period_seconds{link=\"modbus:10.0.0.5:502\"} 0",
+            "antisurge_link_latency_seconds{link=\"modbus:10.0.0.5:502\",quantile=\"0.99\"} 0",
+            "antisurge_link_timeouts_total{link=\"modbus:10.0.0.5:502\"} 0",
+            "antisurge_link_exceptions_total{link=\"modbus:10.0.0.5:502\"} 0",
+            "antisurge_link_heartbeats_total{link=\"modbus:10.0.0.5:502\"} 0",
+        ] {
+            assert!(text.contains(want), "{want} missing from\n{text}");
+        }
+    }
 
     #[test]
     fn loopback_by_default_and_remote_only_when_allowed() {

@@ -223,6 +223,20 @@ pub fn human(r: &StatusReport) -> String {
             .join(", ")
     };
     o += &format!("faults        {lamps}\n");
+    if let Some(m) = r.links.get("modbus").filter(|m| m.is_object()) {
+        let n = |k: &str| m.get(k).and_then(serde_json::Value::as_u64).unwrap_or(0);
+        let ms = |k: &str| n(k) as f64 * 1e-3;
+        o += &format!(
+            "modbus link   poll period {:.0} ms, latency p50 {:.1} ms p99 {:.1} ms, timeouts {}, exceptions {}, reconnects {}, heartbeats {}\n",
+            ms("poll_period_us"),
+            ms("latency_p50_us"),
+            ms("latency_p99_us"),
+            n("timeouts"),
+            n("exceptions"),
+            n("reconnects"),
+            n("heartbeats")
+        );
+    }
     if let Some(j) = r.cycle_stats.get("wake_jitter_us") {
         o += &format!(
             "cycle         {} cycles, jitter p99 {} µs, overruns {}\n",

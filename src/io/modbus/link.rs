@@ -37,6 +37,7 @@
 //! the controller die instead of a link task replaying its last setpoints.
 
 mod plant;
+pub mod quality;
 
 pub use plant::{run_plant_server, PlantCounters, PlantCounts, PlantServer};
 
@@ -634,6 +635,12 @@ counters! {
         transport_errors,
         /// Malformed or mismatched answers (client counter).
         protocol_errors,
+        /// Achieved poll period over the last second, µs (gauge; see [`quality`]).
+        poll_period_us,
+        /// Answer latency over the last ten seconds, median, µs (gauge).
+        latency_p50_us,
+        /// Answer latency over the last ten seconds, 99th percentile, µs (gauge).
+        latency_p99_us,
         /// Connect attempts (client counter).
         connect_attempts,
         /// Failed connect attempts (client counter).
@@ -759,6 +766,17 @@ struct Outcome {
     write: Option<Option<WriteFailure>>,
 }
 
+/// Whether a request's outcome is a latency sample: an answer (normal or exception), or a
+/// timeout, counted with the time waited (a lower bound of its latency, so that the p99 does
+/// not hide a device that answers after the timeout). A refused connection or a reset is no
+/// latency.
+fn counts_for_latency<T>(r: &Result<T, ModbusError>) -> bool {
+    match r {
+        Ok(_) => true,
+        Err(e) => ExceptionInfo::of(e).is_some() || matches!(e, ModbusError::Timeout { .. }),
+    }
+}
+
 /// The controller link's state between cycles.
 struct Controller {
     client: ModbusClient,
@@ -798,6 +816,8 @@ struct Controller {
     sensors: Arc<SensorBoard>,
     outputs: Arc<OutputBoard>,
     monitor: Arc<LinkMonitor>,
+    /// Achieved poll period and answer latency.
+    quality: quality::QualityWindow,
 }
 
 impl Controller {
@@ -866,6 +886,7 @@ impl Controller {
             sensors,
             outputs,
             monitor,
+            quality: quality::QualityWindow::default(),
         })
     }
 
@@ -905,8 +926,12 @@ impl Controller {
         let latest_cycle = self.outputs.latest().map_or(0, |o| o.cycle);
         for k in 0..self.groups.len() {
             let g = &mut self.groups[k];
+            let sent_ns = monotonic_ns();
             let result = self.client.read(&g.plan, &mut g.values).await;
             let t_ns = monotonic_ns();
+            if counts_for_latency(&result) {
+                self.quality.answered(sent_ns, t_ns);
+            }
             match result {
                 Ok(()) => {
                     for (id, v) in g.ids.iter().zip(&g.values) {
@@ -931,6 +956,7 @@ impl Controller {
         LinkCounters::add(&c.values_published, published);
         if all_ok {
             LinkCounters::add(&c.polls_ok, 1);
+            self.quality.poll_answered(monotonic_ns());
         }
     }
 
@@ -1024,11 +1050,15 @@ impl Controller {
             return;
         }
         LinkCounters::add(&c.writes, 1);
-        match self
+        let sent_ns = monotonic_ns();
+        let result = self
             .client
             .write(&self.write_plan, &self.write_values)
-            .await
-        {
+            .await;
+        if counts_for_latency(&result) {
+            self.quality.answered(sent_ns, monotonic_ns());
+        }
+        match result {
             Ok(report) => {
                 out.write = Some(None);
                 let c = &self.monitor.counters;
@@ -1095,6 +1125,10 @@ impl Controller {
         let us = u64::try_from(elapsed.as_micros()).unwrap_or(u64::MAX);
         c.last_cycle_us.store(us, Ordering::Relaxed);
         c.max_cycle_us.fetch_max(us, Ordering::Relaxed);
+        let q = self.quality.quality(monotonic_ns());
+        c.poll_period_us.store(q.poll_period_us, Ordering::Relaxed);
+        c.latency_p50_us.store(q.latency_p50_us, Ordering::Relaxed);
+        c.latency_p99_us.store(q.latency_p99_us, Ordering::Relaxed);
         self.mirror_client_counters();
         if out.link_failed {
             self.acknowledged_valid = false;
