@@ -666,6 +666,8 @@ struct Case {
     dp_frozen: Option<(f64, f64)>,
     /// The link dropped over [from, to), plant time, s.
     outage: Option<(f64, f64)>,
+    /// Repeated outages: (first at, every, each lasting, how many), plant time, s.
+    outages: Option<(f64, f64, f64, u32)>,
     /// Another Modbus master writes the valve's setpoint to 0 over [from, to), plant time, s.
     second_writer: Option<(f64, f64)>,
     /// No daemon; the valve held (the sanity case).
@@ -675,6 +677,16 @@ struct Case {
 }
 
 impl Case {
+    /// Whether the link is down at plant time `t`.
+    fn link_down_at(&self, t: f64) -> bool {
+        let single = self.outage.is_some_and(|(from, to)| t >= from && t < to);
+        let repeated = self.outages.is_some_and(|(first, every, lasting, n)| {
+            let k = ((t - first) / every).floor();
+            t >= first && k < f64::from(n) && t - first - k * every < lasting
+        });
+        single || repeated
+    }
+
     fn new(name: &'static str, poll_hz: f64, throttle: Throttle, end_s: f64) -> Case {
         Case {
             name,
@@ -686,6 +698,7 @@ impl Case {
             latency_seed: 1,
             dp_frozen: None,
             outage: None,
+            outages: None,
             second_writer: None,
             no_daemon: false,
             slow: None,
@@ -837,8 +850,8 @@ fn run_case(case: Case) -> Outcome {
                 max_lag_s = max_lag_s.max((elapsed - due).as_secs_f64());
             }
             let t = p.t_s();
-            if let Some((from, to)) = case.outage {
-                let down = t >= from && t < to;
+            if case.outage.is_some() || case.outages.is_some() {
+                let down = case.link_down_at(t);
                 if down && !link_down {
                     // stop answering: listener and connections closed
                     if let Some(h) = lock_server(&server).take() {
@@ -1496,4 +1509,47 @@ fn a_device_answering_90_ms_late_for_8_s_is_reported_as_a_slow_link() {
             "a fail-safe not rooted in a stale input: {l}"
         );
     }
+}
+
+/// Issue 23: "every resume raises a false `actuator_feedback_mismatch`". Ten link outages of
+/// 0.6 s, 2 s apart, each long enough for the inputs to go stale (fail-safe, valve commanded
+/// open) and each followed by a resume from the measured position: ten fail-safe exits, zero
+/// feedback mismatches (the valve follows its positioner model through every resume).
+#[test]
+fn ten_fail_safe_exits_and_resumes_raise_no_feedback_mismatch() {
+    let _rt = real_time();
+    let mut case = Case::new(
+        "ten 0.6-s outages",
+        100.0,
+        Throttle::Ramp {
+            at_s: DISTURBANCE_AT_S,
+            over_s: 3.0,
+            to: 0.2,
+        },
+        DISTURBANCE_AT_S + 25.0,
+    );
+    case.outages = Some((DISTURBANCE_AT_S + 4.0, 2.0, 0.6, 10));
+    let o = run_case(case);
+    report(&case, &o);
+    assert_in_control(&case, &o);
+    let events = events_until_shutdown(o.dir.path());
+    let exits = events
+        .lines()
+        .filter(|l| {
+            l.contains("\"event\":\"mode_changed\"") && l.contains("\"from\":\"fail_safe\"")
+        })
+        .count();
+    let mismatches = events
+        .lines()
+        .filter(|l| l.contains("actuator_feedback_mismatch"))
+        .count();
+    eprintln!(
+        "[{}] fail-safe exits {exits}, actuator_feedback_mismatch events {mismatches}",
+        case.name
+    );
+    assert!(
+        exits >= 10,
+        "{exits} fail-safe exits (10 outages):\n{events}"
+    );
+    assert_eq!(mismatches, 0, "mismatch events:\n{events}");
 }
