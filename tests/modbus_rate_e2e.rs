@@ -674,6 +674,9 @@ struct Case {
     no_daemon: bool,
     /// The device answers this much later over [from, to), plant time: (from, to, late), s.
     slow: Option<(f64, f64, f64)>,
+    /// Plant time at which a side thread takes `antisurge status --json` and `antisurge
+    /// status`, s.
+    status_at_s: Option<f64>,
 }
 
 impl Case {
@@ -702,6 +705,7 @@ impl Case {
             second_writer: None,
             no_daemon: false,
             slow: None,
+            status_at_s: None,
         }
     }
 }
@@ -722,6 +726,8 @@ struct Outcome {
     status_slow: Option<serde_json::Value>,
     /// When the device went slow (this machine's clock).
     slow_started: Option<std::time::SystemTime>,
+    /// `antisurge status --json` and `antisurge status` at `Case::status_at_s`.
+    status_mid: Option<(serde_json::Value, String)>,
 }
 
 /// The daemon's config: defaults except what the skid needs (bus and map, the machine,
@@ -831,7 +837,7 @@ fn run_case(case: Case) -> Outcome {
     });
 
     // the plant thread, paced by the wall clock; the link outage is switched from here
-    let (figures, max_lag_s, slow_started) = {
+    let (figures, max_lag_s, slow_started, status_mid) = {
         let shared = Arc::clone(&shared);
         let mut p = PlantLoop::new(&desc, case.throttle);
         let mut noise = Rng::new(case.noise_seed);
@@ -840,6 +846,22 @@ fn run_case(case: Case) -> Outcome {
         let mut slow_started = None;
         let n = (case.end_s / PLANT_STEP_S).round() as u64;
         let t0 = Instant::now();
+        let status_side = case.status_at_s.map(|at_s| {
+            let dir = dir.clone();
+            std::thread::spawn(move || {
+                let due = Duration::from_secs_f64(at_s);
+                if let Some(wait) = due.checked_sub(t0.elapsed()) {
+                    std::thread::sleep(wait);
+                }
+                let sock = dir.join("status.sock").display().to_string();
+                let human = std::process::Command::new(env!("CARGO_BIN_EXE_antisurge"))
+                    .args(["status", "--socket", &sock])
+                    .output()
+                    .map(|o| String::from_utf8_lossy(&o.stdout).into_owned())
+                    .unwrap_or_default();
+                (status_json(&dir), human)
+            })
+        });
         let mut max_lag_s: f64 = 0.0;
         for k in 0..n {
             let due = Duration::from_secs_f64(k as f64 * PLANT_STEP_S);
@@ -905,7 +927,8 @@ fn run_case(case: Case) -> Outcome {
             st.t_s = t;
             st.pos = s.get(SensorId::RecycleValvePosition);
         }
-        (p.figures, max_lag_s, slow_started)
+        let status_mid = status_side.map(|h| h.join().expect("status thread"));
+        (p.figures, max_lag_s, slow_started, status_mid)
     };
 
     // the device still answers (its last values): the status, then an acknowledgement
@@ -952,6 +975,7 @@ fn run_case(case: Case) -> Outcome {
         status_at_end,
         status_slow,
         slow_started,
+        status_mid,
     }
 }
 
@@ -1298,7 +1322,33 @@ fn after_a_3_s_link_outage_the_first_valve_command_matches_the_measured_position
     );
     let (down, up) = (DISTURBANCE_AT_S + 4.0, DISTURBANCE_AT_S + 7.0);
     case.outage = Some((down, up));
+    // the status 1 s into the outage names the link, down
+    case.status_at_s = Some(down + 1.0);
     let o = run_case(case);
+    let (st, human) = o.status_mid.clone().expect("status during the outage");
+    eprintln!(
+        "[{}] status 1 s into the outage: links.modbus = {}, field_faults = {}\n{human}",
+        case.name, st["links"]["modbus"], st["field_faults"]
+    );
+    assert_eq!(st["links"]["modbus"]["state"], "down", "{st}");
+    assert!(
+        st["links"]["modbus"]["name"]
+            .as_str()
+            .is_some_and(|n| n.starts_with("modbus:127.0.0.1:")),
+        "{st}"
+    );
+    assert!(
+        st["field_faults"]
+            .as_array()
+            .is_some_and(|a| a.iter().any(|f| f == "field_link_down")),
+        "{st}"
+    );
+    assert!(
+        human.lines().any(|l| l.starts_with("modbus link")
+            && l.contains("modbus:127.0.0.1:")
+            && l.contains(" down")),
+        "{human}"
+    );
     report(&case, &o);
     assert_in_control(&case, &o);
     let last_before = o.writes.iter().rev().find(|w| w.t_s < down).copied();

@@ -299,6 +299,17 @@ pub async fn report_modbus(
     }
 }
 
+/// A link state's name in the status (`up`, `down`, `exception`, `idle`, `stopped`).
+fn link_state_name(s: LinkState) -> &'static str {
+    match s {
+        LinkState::Up => "up",
+        LinkState::Down { .. } => "down",
+        LinkState::Exception(_) => "exception",
+        LinkState::Idle => "idle",
+        LinkState::Stopped => "stopped",
+    }
+}
+
 /// Counters of the controller's links, for the statistics written at exit.
 #[derive(Debug, Clone, Default)]
 pub struct LinkCounters {
@@ -306,6 +317,8 @@ pub struct LinkCounters {
     pub can: Option<Arc<crate::io::can::bus::CanCounters>>,
     /// Modbus link monitor.
     pub modbus: Option<Arc<LinkMonitor>>,
+    /// The Modbus link's name in events (`modbus:<address>`).
+    pub modbus_name: Option<String>,
 }
 
 impl LinkCounters {
@@ -313,7 +326,14 @@ impl LinkCounters {
     pub fn to_json(&self) -> serde_json::Value {
         serde_json::json!({
             "can": self.can.as_ref().map(|c| serde_json::to_value(c.snapshot()).unwrap_or_default()),
-            "modbus": self.modbus.as_ref().map(|m| serde_json::to_value(m.counters().snapshot()).unwrap_or_default()),
+            "modbus": self.modbus.as_ref().map(|m| {
+                let mut v = serde_json::to_value(m.counters().snapshot()).unwrap_or_default();
+                if let Some(o) = v.as_object_mut() {
+                    o.insert("name".into(), self.modbus_name.clone().unwrap_or_else(|| "modbus".into()).into());
+                    o.insert("state".into(), link_state_name(m.state()).into());
+                }
+                v
+            }),
         })
     }
 }
@@ -384,6 +404,7 @@ pub fn spawn_controller_links(
         let map = map.clone();
         let monitor = Arc::new(LinkMonitor::new());
         counters.modbus = Some(Arc::clone(&monitor));
+        counters.modbus_name = Some(modbus_link_name(&cfg));
         crate::live::metrics::register_modbus_link(modbus_link_name(&cfg), Arc::clone(&monitor));
         let reporter = FieldLinkReporter::new(modbus_link_name(&cfg), event_sink(events.clone()));
         let freshness_s = map

@@ -226,8 +226,11 @@ pub fn human(r: &StatusReport) -> String {
     if let Some(m) = r.links.get("modbus").filter(|m| m.is_object()) {
         let n = |k: &str| m.get(k).and_then(serde_json::Value::as_u64).unwrap_or(0);
         let ms = |k: &str| n(k) as f64 * 1e-3;
+        let text = |k: &str| m.get(k).and_then(serde_json::Value::as_str).unwrap_or("?");
         o += &format!(
-            "modbus link   poll period {:.0} ms, latency p50 {:.1} ms p99 {:.1} ms, timeouts {}, exceptions {}, reconnects {}, heartbeats {}\n",
+            "modbus link   {} {}, poll period {:.0} ms, latency p50 {:.1} ms p99 {:.1} ms, timeouts {}, exceptions {}, reconnects {}, heartbeats {}\n",
+            text("name"),
+            text("state"),
             ms("poll_period_us"),
             ms("latency_p50_us"),
             ms("latency_p99_us"),
