@@ -40,11 +40,14 @@ pub enum FaultCategory {
     /// A field link answers, but slower than its configured rate or than its inputs'
     /// freshness allows (achieved poll period, answer latency).
     FieldLinkSlow,
+    /// An actuator's command register, read back, holds a value this controller did not
+    /// write: another master writes it (latched until acknowledged).
+    AnotherWriter,
 }
 
 impl FaultCategory {
     /// Every category, in bit order.
-    pub const ALL: [FaultCategory; 12] = [
+    pub const ALL: [FaultCategory; 13] = [
         FaultCategory::SensorTimeout,
         FaultCategory::SensorAliveError,
         FaultCategory::SensorCrcError,
@@ -57,6 +60,7 @@ impl FaultCategory {
         FaultCategory::FieldWriteFailed,
         FaultCategory::FieldLinkDown,
         FaultCategory::FieldLinkSlow,
+        FaultCategory::AnotherWriter,
     ];
 
     /// Bit number on the wire (the DBC's `Faults` documentation).
@@ -84,6 +88,7 @@ impl FaultCategory {
             FaultCategory::FieldWriteFailed => "field_write_failed",
             FaultCategory::FieldLinkDown => "field_link_down",
             FaultCategory::FieldLinkSlow => "field_link_slow",
+            FaultCategory::AnotherWriter => "another_writer",
         }
     }
 
@@ -104,6 +109,7 @@ impl FaultCategory {
             FaultCategory::FieldLinkSlow => {
                 "a field link answers slower than its rate or its inputs' freshness allows"
             }
+            FaultCategory::AnotherWriter => "another master writes an actuator's command register",
         }
     }
 

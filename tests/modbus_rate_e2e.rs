@@ -179,7 +179,7 @@ throttle_position = { modbus = { unit_id = 1, table = "input", address = 10, dat
 recycle_valve = { modbus = { unit_id = 1, table = "holding", address = 102, data_type = "u16", scale = 1e-4 } }
 
 [feedback]
-recycle_valve = { tolerance = 0.05, time_ms = 100 }
+recycle_valve = { tolerance = 0.05, time_ms = 100, readback = true }
 "#;
 
 /// One real-time case at a time (see the module comment).
@@ -590,6 +590,19 @@ impl tokio_modbus::server::Service for DeviceService {
                     }
                     s.reads += 1;
                     Ok(Some(Response::ReadInputRegisters(words)))
+                })
+            }
+            Request::ReadHoldingRegisters(addr, 1) if addr == VALVE_HOLDING => {
+                // the setpoint register reads back what was last written (by anyone)
+                Box::pin(async move {
+                    tokio::time::sleep(delay).await;
+                    let cmd = lock(&shared).valve_cmd;
+                    let word = if cmd.is_finite() {
+                        fraction_word(cmd)
+                    } else {
+                        0
+                    };
+                    Ok(Some(Response::ReadHoldingRegisters(vec![word])))
                 })
             }
             Request::WriteSingleRegister(addr, word) if addr == VALVE_HOLDING => {
@@ -1444,8 +1457,38 @@ fn a_second_writer_is_a_latched_feedback_mismatch_until_acknowledged() {
     let (before, after) = o.status_at_end.expect("status at the end");
     assert_eq!(
         before["field_faults"],
-        serde_json::json!(["actuator_feedback_mismatch"]),
+        serde_json::json!(["actuator_feedback_mismatch", "another_writer"]),
         "latched 2 s after the writes stopped: {before:#}"
+    );
+    // the read-back of the setpoint register names another writer, once, with the register
+    let others: Vec<&str> = events
+        .lines()
+        .filter(|l| l.contains("\"fault\":\"another_writer\"") && l.contains("\"active\":true"))
+        .collect();
+    assert_eq!(others.len(), 1, "another writer raised once:\n{events}");
+    assert!(
+        others[0].contains("holding register 102 (unit 1) reads 0.0000"),
+        "{}",
+        others[0]
+    );
+    eprintln!("[{}] {}", case.name, others[0]);
+    let mismatch_seq = |l: &str| -> u64 {
+        l.split("\"seq\":")
+            .nth(1)
+            .and_then(|r| r.split(',').next())
+            .and_then(|n| n.parse().ok())
+            .unwrap_or(0)
+    };
+    eprintln!(
+        "[{}] another_writer (seq {}) {} the feedback mismatch (seq {})",
+        case.name,
+        mismatch_seq(others[0]),
+        if mismatch_seq(others[0]) < mismatch_seq(raised[0]) {
+            "before"
+        } else {
+            "after"
+        },
+        mismatch_seq(raised[0])
     );
     assert_eq!(
         after["field_faults"],
@@ -1459,6 +1502,12 @@ fn a_second_writer_is_a_latched_feedback_mismatch_until_acknowledged() {
         })
         .count();
     assert_eq!(cleared, 1, "{events}");
+    let all = std::fs::read_to_string(o.dir.path().join("events.jsonl")).expect("event log");
+    assert!(
+        all.lines()
+            .any(|l| l.contains("\"fault\":\"another_writer\"") && l.contains("\"active\":false")),
+        "another_writer cleared by the ack:\n{all}"
+    );
 }
 
 /// The event log up to the daemon's shutdown (after it the test's device no longer moves the

@@ -206,10 +206,15 @@ pub async fn report_modbus(
     monitor: Arc<LinkMonitor>,
     mut reporter: FieldLinkReporter,
     budget: QualityBudget,
+    health: Arc<super::control_node::Health>,
     shutdown: watch::Receiver<bool>,
 ) {
     let mut states = monitor.subscribe();
     let mut writes = monitor.subscribe_writes();
+    let mut others = monitor.subscribe_another_writer();
+    // another writer: latched until the operator acknowledges and the read-back is clean
+    let mut another_latched = false;
+    let mut acks_at_raise = 0u64;
     let stop = until_true(shutdown);
     tokio::pin!(stop);
     let mut tick = tokio::time::interval(std::time::Duration::from_millis(100));
@@ -273,8 +278,34 @@ pub async fn report_modbus(
             ),
             LinkState::Idle | LinkState::Stopped => {}
         }
-        let health = *writes.borrow_and_update();
-        match health {
+        let seen = *others.borrow_and_update();
+        let acks = health
+            .acknowledgements
+            .load(std::sync::atomic::Ordering::Relaxed);
+        match seen {
+            Some(w) => {
+                if !another_latched {
+                    // raised once, with the first value seen; the latch holds it
+                    acks_at_raise = acks;
+                    another_latched = true;
+                    reporter.fault(FaultCategory::AnotherWriter, true, &w.to_string());
+                } else if acks != acks_at_raise {
+                    // acknowledged while the other master still writes: stays raised
+                    acks_at_raise = acks;
+                }
+            }
+            None if another_latched && acks != acks_at_raise => {
+                another_latched = false;
+                reporter.fault(
+                    FaultCategory::AnotherWriter,
+                    false,
+                    "acknowledged; the command registers read back what this controller wrote",
+                );
+            }
+            None => {}
+        }
+        let write_health = *writes.borrow_and_update();
+        match write_health {
             WriteHealth::Ok => reporter.fault(
                 FaultCategory::FieldWriteFailed,
                 false,
@@ -294,6 +325,7 @@ pub async fn report_modbus(
             () = &mut stop => return,
             r = states.changed() => if r.is_err() { return },
             r = writes.changed() => if r.is_err() { return },
+            r = others.changed() => if r.is_err() { return },
             _ = tick.tick() => {}
         }
     }
@@ -376,7 +408,7 @@ pub fn spawn_controller_links(
             timeouts_s,
             events.clone(),
             shutdown.clone(),
-            health,
+            Arc::clone(&health),
         ));
     }
     if map.uses_can() {
@@ -420,6 +452,7 @@ pub fn spawn_controller_links(
             Arc::clone(&monitor),
             reporter,
             budget,
+            Arc::clone(&health),
             shutdown.clone(),
         ));
         tracing::info!(target: "modbus", "controller polling at {} Hz", cfg.poll_rate_hz);

@@ -48,6 +48,11 @@ pub struct FeedbackLimit {
     pub tolerance: f64,
     /// How long the difference must last before it is a fault, ms.
     pub time_ms: f64,
+    /// Read the actuator's own command register back (a Modbus holding register the device
+    /// lets the controller read) every 100 ms: a value this controller did not write is
+    /// "another writer", named with the register. Default false.
+    #[serde(default)]
+    pub readback: bool,
 }
 
 /// The sensor that reports what an actuator did.
@@ -286,6 +291,7 @@ mod tests {
         limits.insert(
             ActuatorId::RecycleValve,
             FeedbackLimit {
+                readback: false,
                 tolerance: 0.05,
                 time_ms: 300.0,
             },
@@ -329,6 +335,7 @@ mod tests {
         limits.insert(
             ActuatorId::RecycleValve,
             FeedbackLimit {
+                readback: false,
                 tolerance: 0.05,
                 time_ms,
             },

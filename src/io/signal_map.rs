@@ -238,6 +238,18 @@ impl SignalMap {
         }
         for (a, l) in &self.feedback {
             let key = format!("feedback.{}", a.name());
+            if l.readback
+                && !matches!(self.actuators.get(a), Some(Binding::Modbus(r)) if r.table == super::modbus::RegisterTable::Holding)
+            {
+                problems.push(MapProblem {
+                    key: format!("{key}.readback"),
+                    message: format!(
+                        "readback needs {} bound to a Modbus holding register (the controller reads its own command back with function 3)",
+                        a.name()
+                    ),
+                    warning: false,
+                });
+            }
             match super::feedback::feedback_sensor(*a) {
                 None => problems.push(MapProblem {
                     key: key.clone(),
@@ -316,6 +328,28 @@ mod tests {
         assert_eq!(m.modbus_sensors().len(), 1);
         assert!(m.uses_can() && m.uses_modbus());
         assert!(m.check().is_empty());
+    }
+
+    #[test]
+    fn readback_needs_a_modbus_holding_register() {
+        let can = parse(
+            "[sensors.recycle_valve_position]\ncan = { message = \"PLANT_Valves\", signal = \"RecycleValvePos\" }\n\
+             [actuators.recycle_valve]\ncan = { message = \"CTRL_ActuatorCmd1\", signal = \"RecycleValveCmd\" }\n\
+             [feedback]\nrecycle_valve = { tolerance = 0.05, time_ms = 100, readback = true }\n",
+        );
+        let p = can.check();
+        assert!(
+            p.iter().any(|x| x.key == "feedback.recycle_valve.readback"
+                && x.message.contains("holding register")),
+            "{p:?}"
+        );
+        let modbus = parse(
+            "[sensors.recycle_valve_position]\nmodbus = { unit_id = 1, table = \"input\", address = 9, data_type = \"u16\", scale = 1e-4 }\n\
+             [actuators.recycle_valve]\nmodbus = { unit_id = 1, table = \"holding\", address = 102, data_type = \"u16\", scale = 1e-4 }\n\
+             [feedback]\nrecycle_valve = { tolerance = 0.05, time_ms = 100, readback = true }\n",
+        );
+        assert!(modbus.check().is_empty(), "{:?}", modbus.check());
+        assert!(modbus.feedback[&ActuatorId::RecycleValve].readback);
     }
 
     #[test]

@@ -665,6 +665,36 @@ pub struct LinkMonitor {
     counters: LinkCounters,
     state: watch::Sender<LinkState>,
     writes: watch::Sender<WriteHealth>,
+    another_writer: watch::Sender<Option<AnotherWriter>>,
+}
+
+/// An actuator's command register, read back, holds a value this controller did not write.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct AnotherWriter {
+    /// The actuator.
+    pub actuator: ActuatorId,
+    /// Its register: unit, table and protocol address.
+    pub unit_id: u8,
+    /// Protocol address (0-based) of the holding register.
+    pub address: u16,
+    /// The value read back, SI units of the actuator.
+    pub read: f64,
+    /// The value this controller last wrote and the device acknowledged.
+    pub written: f64,
+}
+
+impl std::fmt::Display for AnotherWriter {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        write!(
+            f,
+            "another writer: {}'s holding register {} (unit {}) reads {:.4}, this controller last wrote {:.4}",
+            self.actuator.name(),
+            self.address,
+            self.unit_id,
+            self.read,
+            self.written
+        )
+    }
 }
 
 impl Default for LinkMonitor {
@@ -680,7 +710,25 @@ impl LinkMonitor {
             counters: LinkCounters::default(),
             state: watch::Sender::new(LinkState::Idle),
             writes: watch::Sender::new(WriteHealth::Ok),
+            another_writer: watch::Sender::new(None),
         }
+    }
+
+    /// A receiver that sees every change of the read-back verdict (`Some`: another writer
+    /// seen on the last read-back).
+    pub fn subscribe_another_writer(&self) -> watch::Receiver<Option<AnotherWriter>> {
+        self.another_writer.subscribe()
+    }
+
+    fn set_another_writer(&self, new: Option<AnotherWriter>) {
+        self.another_writer.send_if_modified(|s| {
+            if *s == new {
+                false
+            } else {
+                *s = new;
+                true
+            }
+        });
     }
 
     /// A receiver that sees every change of the write health.
@@ -818,7 +866,16 @@ struct Controller {
     monitor: Arc<LinkMonitor>,
     /// Achieved poll period and answer latency.
     quality: quality::QualityWindow,
+    /// Actuators whose command register is read back: (index in `actuators`, plan, value).
+    readbacks: Vec<(usize, ReadPlan, [f64; 1])>,
+    /// When the next read-back is due (monotonic ns).
+    next_readback_ns: u64,
 }
+
+/// How often the command registers with `readback` are read back, ns: 100 ms, a third of the
+/// 300 ms within which another writer must be found (issue 23), so the first or second
+/// read-back after a foreign write finds it.
+const READBACK_PERIOD_NS: u64 = 100_000_000;
 
 impl Controller {
     fn new(
@@ -848,6 +905,13 @@ impl Controller {
         }
         let actuator_bindings = map.modbus_actuators();
         let actuators: Vec<ActuatorId> = actuator_bindings.iter().map(|(id, _)| *id).collect();
+        let mut readbacks = Vec::new();
+        for (k, (id, b)) in actuator_bindings.iter().enumerate() {
+            if map.feedback.get(id).is_some_and(|l| l.readback) && b.table == RegisterTable::Holding
+            {
+                readbacks.push((k, ReadPlan::new(&[*b])?, [f64::NAN]));
+            }
+        }
         let mut writes: Vec<RegisterBinding> = actuator_bindings.iter().map(|(_, b)| *b).collect();
         if let Some(hb) = &cfg.heartbeat_register {
             writes.extend(hb.bindings());
@@ -887,7 +951,55 @@ impl Controller {
             outputs,
             monitor,
             quality: quality::QualityWindow::default(),
+            readbacks,
+            next_readback_ns: 0,
         })
+    }
+
+    /// Read back the command registers with `readback` (every [`READBACK_PERIOD_NS`]) and
+    /// report a value this controller did not write.
+    async fn read_back(&mut self, out: &mut Outcome) {
+        if self.readbacks.is_empty() {
+            return;
+        }
+        let now = monotonic_ns();
+        if now < self.next_readback_ns {
+            return;
+        }
+        self.next_readback_ns = now + READBACK_PERIOD_NS;
+        let mut found = None;
+        for i in 0..self.readbacks.len() {
+            let (k, plan, value) = &mut self.readbacks[i];
+            let k = *k;
+            match self.client.read(plan, value).await {
+                Ok(()) => {
+                    out.answered = true;
+                    let bits = self.acknowledged[k];
+                    if !self.acknowledged_valid || f64::from_bits(bits).is_nan() {
+                        continue;
+                    }
+                    let written = f64::from_bits(bits);
+                    let b = plan.bindings()[0];
+                    // one register step of the encoding, and a hair for the decode's rounding
+                    let tol = 1.01 * b.resolution(written) + 1e-12 * written.abs().max(1.0);
+                    if (value[0] - written).abs() > tol {
+                        found = Some(AnotherWriter {
+                            actuator: self.actuators[k],
+                            unit_id: b.unit_id,
+                            address: b.address,
+                            read: value[0],
+                            written,
+                        });
+                    }
+                }
+                Err(e) => {
+                    if self.note_error(&e, out) {
+                        return;
+                    }
+                }
+            }
+        }
+        self.monitor.set_another_writer(found);
     }
 
     /// Nothing to read and nothing to write.
@@ -1098,7 +1210,9 @@ impl Controller {
         }
     }
 
-    /// One link cycle. `write_first`: outputs before sensors (wakeup pacing).
+    /// One link cycle. `write_first`: outputs before sensors (wakeup pacing). The command
+    /// registers are read back before the write, so a read-back sees the last write of this
+    /// controller unless another master wrote since.
     async fn cycle(&mut self, write_first: bool) -> Outcome {
         let mut out = Outcome::default();
         if write_first {
@@ -1106,8 +1220,14 @@ impl Controller {
             if !out.link_failed {
                 self.read(&mut out).await;
             }
+            if !out.link_failed {
+                self.read_back(&mut out).await;
+            }
         } else {
             self.read(&mut out).await;
+            if !out.link_failed {
+                self.read_back(&mut out).await;
+            }
             if !out.link_failed {
                 self.write(&mut out).await;
             }
