@@ -221,16 +221,27 @@ pub async fn report_modbus(
     tick.set_missed_tick_behavior(tokio::time::MissedTickBehavior::Delay);
     let mut slow = false;
     let mut fine_since: Option<tokio::time::Instant> = None;
+    let mut last_ok = (0u64, tokio::time::Instant::now());
     loop {
-        // (not judged while the link is down: that is the root cause then, reported once; a
-        // slow fault raised before stays until the link answers within budget again)
-        if !matches!(monitor.state(), LinkState::Down { .. }) {
-            let c = monitor.counters().snapshot();
+        // judged while the link is alive, i.e. answered a poll in full within the period
+        // window (a link that answers nothing is down, the root cause then, reported once; one
+        // that times out and reconnects between late answers is slow); a slow fault raised
+        // before stays until the link answers within budget again
+        let c = monitor.counters().snapshot();
+        if c.polls_ok != last_ok.0 {
+            last_ok = (c.polls_ok, tokio::time::Instant::now());
+        }
+        let alive = c.polls_ok > 0 && last_ok.1.elapsed().as_secs_f64() <= SLOW_CLEARS_AFTER_S;
+        if alive {
             match budget.slow(c.poll_period_us, c.latency_p50_us, c.latency_p99_us) {
                 Some(why) => {
                     fine_since = None;
-                    slow = true;
-                    reporter.fault(FaultCategory::FieldLinkSlow, true, &why);
+                    if !slow {
+                        // raised once, with the figures of the moment (they move on in the
+                        // status and the metrics)
+                        slow = true;
+                        reporter.fault(FaultCategory::FieldLinkSlow, true, &why);
+                    }
                 }
                 None if slow => {
                     let since = *fine_since.get_or_insert_with(tokio::time::Instant::now);
