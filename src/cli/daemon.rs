@@ -29,7 +29,9 @@ pub fn init_logging() {
         .unwrap_or_else(|_| tracing_subscriber::EnvFilter::new("info"));
     let under_systemd = std::env::var_os("JOURNAL_STREAM").is_some();
     if under_systemd {
-        if let Ok(j) = tracing_journald::layer() {
+        // journald's native protocol, fields unprefixed (INPUT=…): antisurge::events::journald
+        let socket = antisurge::events::journald::socket_path();
+        if let Ok(j) = antisurge::events::journald::JournalLayer::connect(&socket) {
             let _ = tracing_subscriber::registry()
                 .with(filter)
                 .with(j)
