@@ -126,7 +126,12 @@ fn a_kp_times_100_edit_is_refused_by_the_dry_run_and_the_valve_does_not_step() {
     // kp × 100: statically valid (within 100 × the seed default), refused by the dry run
     write_atomically(&cfg, &base.replace("KP", "1000.0"));
     let (code, text) = exec_reload(&cfg, dir, &d, &[]);
-    assert_ne!(code, 0, "the unit's ExecReload accepted kp × 100:\n{text}");
+    assert_ne!(
+        code,
+        0,
+        "the unit's ExecReload accepted kp × 100:\n{text}\n{}",
+        logs(dir)
+    );
     assert!(
         text.contains("step the recycle valve") && text.contains("bumpless limit"),
         "{text}"

@@ -42,10 +42,10 @@ pub const BUMPLESS_STEP_LIMIT: f64 = 0.02;
 
 /// How long the live inputs are sampled for the trial, s (at least [`TRIAL_MIN_SAMPLES`]
 /// control periods): the cycles right after the switch, where a gain edit acts.
-pub const TRIAL_WINDOW_S: f64 = 0.1;
+pub const TRIAL_WINDOW_S: f64 = 0.2;
 
 /// The fewest samples the trial takes (slow control rates).
-pub const TRIAL_MIN_SAMPLES: usize = 10;
+pub const TRIAL_MIN_SAMPLES: usize = 20;
 
 /// One live input sample: time since the trial began, s, and the readings with their ages.
 #[derive(Debug, Clone, Copy)]
@@ -112,7 +112,33 @@ fn shadow(model: &ControlModel, l: &Loaded) -> Option<ControlCore> {
 /// Run the running and the new configuration as shadows over `samples` and measure how far
 /// apart their recycle valve commands go. `None` when a shadow cannot be built (the caller's
 /// other checks refuse such a configuration) or the machine has no recycle valve.
+///
+/// The pair is started at several samples of the window ([`TRIAL_STARTS`]) and the largest
+/// step of all is kept: a pair started on a noisy sample that happens to be the window's
+/// extreme sees every later sample on one side of it, and if that side asks the valve to
+/// close, the closing-rate limit hides the step a gain edit makes on the other side.
 pub fn valve_step(
+    model: &ControlModel,
+    running: &Loaded,
+    new: &Loaded,
+    samples: &[Sample],
+) -> Option<StepTrial> {
+    let n = samples.len();
+    let mut worst: Option<StepTrial> = None;
+    for k in 0..TRIAL_STARTS {
+        let t = valve_step_from(model, running, new, &samples[k * n / (2 * TRIAL_STARTS)..])?;
+        if worst.is_none_or(|w| t.step > w.step) {
+            worst = Some(t);
+        }
+    }
+    worst
+}
+
+/// Shadow pairs started per trial, at samples 0, n/(2s), 2n/(2s) … (all in the first half
+/// of the window, so each pair runs at least half of it).
+pub const TRIAL_STARTS: usize = 4;
+
+fn valve_step_from(
     model: &ControlModel,
     running: &Loaded,
     new: &Loaded,

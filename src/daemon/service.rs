@@ -113,6 +113,7 @@ fn spawn_control(
 ) -> Result<std::thread::JoinHandle<()>> {
     std::thread::Builder::new()
         .name("antisurge-ctl".into())
+        .stack_size(crate::runtime::rt_loop::CONTROL_THREAD_STACK_BYTES)
         .spawn(move || {
             let granted = setup_current_thread(&rt);
             tracing::info!(target: "rt", "control thread at {} Hz: {granted}", rt.rate_hz);
@@ -157,8 +158,15 @@ fn spawn_in_process_plant(
     let st = Arc::clone(&status);
     let handle = std::thread::Builder::new()
         .name("antisurge-plant".into())
+        .stack_size(crate::runtime::rt_loop::WORKER_THREAD_STACK_BYTES)
         .spawn(move || -> Result<Option<PathBuf>> {
             let run = PlantRun::new(&desc, &scenario).map_err(|e| anyhow!("{e}"))?;
+            // a trace no one writes is not kept (issue 25: 3 MB of the default run's RSS)
+            let run = if out_dir.is_some() {
+                run
+            } else {
+                run.without_trace()
+            };
             let mut node = PlantNode::new(
                 &desc,
                 run,
