@@ -689,6 +689,11 @@ async fn serve(loaded: Loaded, opts: RunOptions) -> Result<()> {
                     }]),
                     Err(e) => {
                         tracing::error!(target: "config", "reload: the loader failed: {e}");
+                        verdict.seq += 1;
+                        verdict.outcome = "refused".into();
+                        verdict.message = format!("the loader failed: {e}");
+                        verdict.overridden = false;
+                        let _ = verdict.save(&verdict_file);
                         continue;
                     }
                 };
