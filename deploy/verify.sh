@@ -77,7 +77,7 @@ chmod 0755 "$TMP/bin/antisurge"
 sed -E "s#^(ExecStart|ExecReload)=/usr/local/bin/antisurge #\1=$TMP/bin/antisurge #" \
     "$UNIT" >"$TMP/unit/antisurge.service"
 changed=$(diff "$UNIT" "$TMP/unit/antisurge.service" | grep -c '^>' || true)
-check "only the ExecStart and check-config ExecReload paths differ in the copy (2 lines, got $changed)" test "$changed" = 2
+check "only the ExecStart and the two ExecReload paths differ in the copy (3 lines, got $changed)" test "$changed" = 3
 verify_rc=0
 verify_out=$(systemd-analyze verify "$TMP/unit/antisurge.service" 2>&1) || verify_rc=$?
 [[ -n $verify_out ]] && printf '%s\n' "$verify_out" | indent
@@ -93,9 +93,9 @@ check "NotifyAccess=main, WatchdogSec=2s, TimeoutStartSec=30s" \
     bash -c 'grep -qx NotifyAccess=main "$1" && grep -qx WatchdogSec=2s "$1" && grep -qx TimeoutStartSec=30s "$1"' _ "$UNIT"
 check "ExecStart runs the daemon with /etc/antisurge/antisurge.toml" \
     has 'ExecStart=/usr/local/bin/antisurge run --config /etc/antisurge/antisurge.toml'
-check "ExecReload sends SIGHUP" has 'ExecReload=/bin/kill -HUP \$MAINPID'
-check "ExecReload runs check-config before the SIGHUP (a bad file fails systemctl reload)" \
-    bash -c '[[ $(grep -E "^ExecReload=" "$1" | head -1) == "ExecReload=/usr/local/bin/antisurge check-config --against-running /etc/antisurge/antisurge.toml" && $(grep -E "^ExecReload=" "$1" | tail -1) == "ExecReload=/bin/kill -HUP \$MAINPID" ]]' _ "$UNIT"
+check "ExecReload signals the daemon and waits for its answer" has 'ExecReload=/usr/local/bin/antisurge reload --pid \$MAINPID /etc/antisurge/antisurge.toml'
+check "ExecReload runs check-config before the reload (a bad file fails systemctl reload)" \
+    bash -c '[[ $(grep -E "^ExecReload=" "$1" | head -1) == "ExecReload=/usr/local/bin/antisurge check-config --against-running /etc/antisurge/antisurge.toml" && $(grep -E "^ExecReload=" "$1" | tail -1) == "ExecReload=/usr/local/bin/antisurge reload --pid \$MAINPID /etc/antisurge/antisurge.toml" ]]' _ "$UNIT"
 check "Restart=always with RestartPreventExitStatus=78 (EX_CONFIG stops the restart loop)" \
     bash -c 'grep -qx "Restart=always" "$1" && grep -qx "RestartPreventExitStatus=78" "$1"' _ "$UNIT"
 

@@ -36,6 +36,10 @@ enum Command {
     Plant(cli::daemon::PlantArgs),
     /// Check a configuration (the same checks as start-up and reload); exit status 78 (EX_CONFIG) on errors.
     CheckConfig(cli::daemon::CheckArgs),
+    /// Reload the running controller (`systemctl reload` runs it): check the files against
+    /// the running configuration, signal the daemon and wait for its answer; non-zero when
+    /// it refused them (`--override` passes the valve-step dry run).
+    Reload(cli::daemon::ReloadArgs),
     /// Print the event log readably.
     Events(cli::daemon::EventsArgs),
     /// Show the running controller's live status (mode, cause, deviation, valve, surges).
@@ -74,6 +78,10 @@ fn main() -> std::process::ExitCode {
         Some(Command::Run(args)) => cli::daemon::run(&args),
         Some(Command::Plant(args)) => cli::daemon::plant(&args),
         Some(Command::CheckConfig(args)) => match cli::daemon::check(&args) {
+            Ok(code) => return code,
+            Err(e) => Err(e),
+        },
+        Some(Command::Reload(args)) => match cli::daemon::reload(&args) {
             Ok(code) => return code,
             Err(e) => Err(e),
         },

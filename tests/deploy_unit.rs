@@ -35,7 +35,7 @@ fn the_package_drop_in_replaces_every_usr_local_line() {
                     // /bin/kill is procps, not in a minimal Debian: the shell's kill
                     .replace(
                         "/bin/kill -HUP $MAINPID",
-                        "/bin/sh -c 'kill -HUP \"$$MAINPID\"'",
+                        "/usr/bin/antisurge reload --pid $MAINPID /etc/antisurge/antisurge.toml",
                     )
             })
             .collect();
@@ -61,13 +61,14 @@ fn the_package_drop_in_replaces_every_usr_local_line() {
             "Cargo.toml [package.metadata.deb] lacks {asset}"
         );
     }
-    // the reload checks against the running configuration, then signals
+    // the reload checks against the running configuration, then signals and waits for the
+    // daemon's answer
     let reload = lines(DROP_IN, "ExecReload");
     assert_eq!(
         reload[1..],
         [
             "/usr/bin/antisurge check-config --against-running /etc/antisurge/antisurge.toml",
-            "/bin/sh -c 'kill -HUP \"$$MAINPID\"'"
+            "/usr/bin/antisurge reload --pid $MAINPID /etc/antisurge/antisurge.toml"
         ]
     );
     // the package grants no more than the unit

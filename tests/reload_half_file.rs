@@ -10,7 +10,7 @@
 
 mod common;
 
-use common::daemon::{logs, shipped, signal, spawn, wait, write_atomically};
+use common::daemon::{embedded_config, logs, signal, spawn, wait, write_atomically};
 use std::path::Path;
 use std::process::Command;
 use std::time::{Duration, Instant};
@@ -73,36 +73,6 @@ fn check_against_running_as_the_unit(cfg: &Path, dir: &Path) -> (i32, String) {
     )
 }
 
-/// The daemon config both cases run: kvangardsnes2009's recycle plant in process at 100 Hz,
-/// event log and status socket in `dir`, with `control` added to `[control]` and `rest` after
-/// the shared sections.
-fn embedded_config(dir: &Path, control: &str, rest: &str) -> String {
-    format!(
-        r#"[plant]
-file = "{plant}"
-[control]
-law = "recycle-pi"
-{control}[cycle]
-rate_hz = 100.0
-lock_memory = false
-[event_log]
-path = "{events}"
-fsync = "always"
-[simulation]
-scenario = "throttle-closure"
-hold_after_end = true
-[status]
-log_interval_s = 0.0
-socket = "{socket}"
-metrics_listen = ""
-hmi_listen = ""
-{rest}"#,
-        plant = shipped("plants/kvangardsnes2009_recycle.toml"),
-        events = dir.join("events.jsonl").display(),
-        socket = dir.join("status.sock").display(),
-    )
-}
-
 #[test]
 fn a_config_cut_anywhere_is_refused() {
     let tmp = tempfile::tempdir().expect("tmp");
@@ -111,6 +81,7 @@ fn a_config_cut_anywhere_is_refused() {
     // the last line sets a key: a cut anywhere loses at least part of a key
     let full = embedded_config(
         dir,
+        "throttle-closure",
         "failsafe_recycle_opening_pct = 100.0\n",
         "[reload]\nwatch_files = false\n[controller.recycle_pi.pi]\nkp_per_map_flow = KP\n",
     );
@@ -211,6 +182,7 @@ fn a_range_that_refuses_the_live_reading_is_not_applied() {
     let events = dir.join("events.jsonl");
     let base = embedded_config(
         dir,
+        "throttle-closure",
         "",
         "[inputs.p_discharge]\nmin = 1.0e4\nmax = MAX\ntimeout_ms = 200.0\n",
     );

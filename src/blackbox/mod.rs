@@ -164,6 +164,7 @@ impl Recorder {
         let dr = Arc::clone(&dropped);
         let handle = std::thread::Builder::new()
             .name("antisurge-bbox".into())
+            .stack_size(crate::runtime::rt_loop::WORKER_THREAD_STACK_BYTES)
             .spawn(move || recorder_loop(rx, dir, header, capacity.max(1), &st, &dr))?;
         Ok((BlackBoxTx { tx, dropped }, Recorder { handle, stop }))
     }

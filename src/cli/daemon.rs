@@ -29,7 +29,9 @@ pub fn init_logging() {
         .unwrap_or_else(|_| tracing_subscriber::EnvFilter::new("info"));
     let under_systemd = std::env::var_os("JOURNAL_STREAM").is_some();
     if under_systemd {
-        if let Ok(j) = tracing_journald::layer() {
+        // journald's native protocol, fields unprefixed (INPUT=…): antisurge::events::journald
+        let socket = antisurge::events::journald::socket_path();
+        if let Ok(j) = antisurge::events::journald::JournalLayer::connect(&socket) {
             let _ = tracing_subscriber::registry()
                 .with(filter)
                 .with(j)
@@ -243,6 +245,118 @@ pub fn check(args: &CheckArgs) -> Result<std::process::ExitCode> {
             );
             Ok(std::process::ExitCode::from(antisurge::config::EX_CONFIG))
         }
+    }
+}
+
+/// `antisurge reload`: what the shipped unit's `systemctl reload` runs.
+#[derive(Debug, clap::Args)]
+pub struct ReloadArgs {
+    /// Config file (default: ./config/antisurge.toml, else /etc/antisurge/antisurge.toml).
+    pub file: Option<PathBuf>,
+    /// The daemon's process id (the unit passes `$MAINPID`; default: the pid in its
+    /// `running-config.json`).
+    #[arg(long)]
+    pub pid: Option<i32>,
+    /// Apply even if the daemon's dry run finds that the new settings would step the
+    /// recycle valve by more than the bumpless limit (2 % of stroke). Every other check
+    /// still refuses.
+    #[arg(long = "override")]
+    pub override_step: bool,
+    /// The daemon's record, if not the one beside the status socket.
+    #[arg(long, value_name = "RECORD")]
+    pub running_record: Option<PathBuf>,
+    /// How long to wait for the daemon's answer, s.
+    #[arg(long, default_value_t = 20.0)]
+    pub timeout_s: f64,
+}
+
+/// Check the files against the running configuration, SIGHUP the daemon and wait for its
+/// answer (`reload-result.json` beside its record): exit 0 when it applied them (or nothing
+/// changed), 78 (EX_CONFIG) when the check or the daemon refused them (the reason printed),
+/// 69 (EX_UNAVAILABLE) when no daemon runs, 75 (EX_TEMPFAIL) when it did not answer in time.
+pub fn reload(args: &ReloadArgs) -> Result<std::process::ExitCode> {
+    use antisurge::daemon::reload_trial::{Verdict, OVERRIDE_FILE, VERDICT_FILE};
+    use std::process::ExitCode;
+    let file = args.file.clone().unwrap_or_else(default_config);
+    let given = args.running_record.clone().unwrap_or_default();
+    let loaded = config::load(&file).and_then(|l| {
+        let p = against_running(&l, &given);
+        if p.is_empty() {
+            Ok(l)
+        } else {
+            Err(p)
+        }
+    });
+    let l = match loaded {
+        Ok(l) => l,
+        Err(problems) => {
+            for p in &problems {
+                eprintln!("{p}");
+            }
+            eprintln!(
+                "{}: not reloaded; the running configuration stays",
+                file.display()
+            );
+            return Ok(ExitCode::from(antisurge::config::EX_CONFIG));
+        }
+    };
+    let record = running_record(&l, &given);
+    let verdict_file = record.with_file_name(VERDICT_FILE);
+    let pid = match args.pid {
+        Some(p) => p,
+        None => match config::running::RunningConfig::load(&record) {
+            Ok(r) => r.pid as i32,
+            Err(e) => {
+                eprintln!(
+                    "no running daemon found ({}: {e}); give --pid",
+                    record.display()
+                );
+                return Ok(ExitCode::from(69));
+            }
+        },
+    };
+    let before = Verdict::load(&verdict_file).filter(|v| v.pid as i32 == pid);
+    if args.override_step {
+        let o = record.with_file_name(OVERRIDE_FILE);
+        std::fs::write(&o, "antisurge reload --override\n")
+            .map_err(|e| anyhow!("cannot write {}: {e}", o.display()))?;
+    }
+    // SAFETY: kill(2) with a pid and a signal number; no memory is shared
+    if unsafe { libc::kill(pid, libc::SIGHUP) } != 0 {
+        eprintln!(
+            "cannot signal the daemon (pid {pid}): {}",
+            std::io::Error::last_os_error()
+        );
+        return Ok(ExitCode::from(69));
+    }
+    let seq0 = before.map_or(0, |v| v.seq);
+    let t0 = std::time::Instant::now();
+    loop {
+        if let Some(v) =
+            Verdict::load(&verdict_file).filter(|v| v.pid as i32 == pid && v.seq > seq0)
+        {
+            let over = if v.overridden {
+                " (valve-step dry run overridden)"
+            } else {
+                ""
+            };
+            return Ok(if v.ok() {
+                println!("reload {}{over}: {}", v.outcome, v.message);
+                ExitCode::SUCCESS
+            } else {
+                eprintln!("reload refused by the daemon{over}:\n{}", v.message);
+                ExitCode::from(antisurge::config::EX_CONFIG)
+            });
+        }
+        if t0.elapsed().as_secs_f64() > args.timeout_s {
+            eprintln!(
+                "the daemon (pid {pid}) did not answer within {} s ({}); see `journalctl -u antisurge`",
+                args.timeout_s,
+                verdict_file.display()
+            );
+            return Ok(ExitCode::from(75));
+        }
+        std::thread::sleep(std::time::Duration::from_millis(20));
     }
 }
 

@@ -13,6 +13,7 @@ pub mod field;
 pub mod notify;
 pub mod plant_node;
 pub mod plant_service;
+pub mod reload_trial;
 pub mod reload_watch;
 pub mod service;
 

@@ -77,6 +77,7 @@ pub fn spawn_watchdog(
 ) -> std::io::Result<std::thread::JoinHandle<()>> {
     std::thread::Builder::new()
         .name("antisurge-wd".into())
+        .stack_size(crate::runtime::rt_loop::SMALL_THREAD_STACK_BYTES)
         .spawn(move || {
             let mut n = Notifier::new();
             while !stop.load(Ordering::Relaxed) {

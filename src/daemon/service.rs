@@ -113,6 +113,7 @@ fn spawn_control(
 ) -> Result<std::thread::JoinHandle<()>> {
     std::thread::Builder::new()
         .name("antisurge-ctl".into())
+        .stack_size(crate::runtime::rt_loop::CONTROL_THREAD_STACK_BYTES)
         .spawn(move || {
             let granted = setup_current_thread(&rt);
             tracing::info!(target: "rt", "control thread at {} Hz: {granted}", rt.rate_hz);
@@ -157,8 +158,15 @@ fn spawn_in_process_plant(
     let st = Arc::clone(&status);
     let handle = std::thread::Builder::new()
         .name("antisurge-plant".into())
+        .stack_size(crate::runtime::rt_loop::WORKER_THREAD_STACK_BYTES)
         .spawn(move || -> Result<Option<PathBuf>> {
             let run = PlantRun::new(&desc, &scenario).map_err(|e| anyhow!("{e}"))?;
+            // a trace no one writes is not kept (issue 25: 3 MB of the default run's RSS)
+            let run = if out_dir.is_some() {
+                run
+            } else {
+                run.without_trace()
+            };
             let mut node = PlantNode::new(
                 &desc,
                 run,
@@ -204,7 +212,7 @@ pub fn blackbox_header(loaded: &Loaded) -> crate::blackbox::Header {
     }
 }
 
-fn initial_torque_nm(l: &Loaded) -> f64 {
+pub(crate) fn initial_torque_nm(l: &Loaded) -> f64 {
     let Some(plant) = &l.plant else {
         return 0.0; // no simulated plant: the torque is not the controller's to start from
     };
@@ -229,7 +237,7 @@ fn reload(
     loaded: Result<Loaded, Vec<config::Problem>>,
     updates: &mut rtrb::Producer<ControlUpdate>,
     events: &EventSender,
-) -> Option<Loaded> {
+) -> (Option<Loaded>, &'static str, String) {
     let file = current.main_path.display().to_string();
     match loaded {
         Err(problems) => {
@@ -243,7 +251,8 @@ fn reload(
                     message: p.error.message.clone(),
                 });
             }
-            None
+            let why = first.map(|p| p.to_string()).unwrap_or_default();
+            (None, "refused", why)
         }
         Ok(new) => {
             let mut diff = Vec::new();
@@ -268,7 +277,7 @@ fn reload(
             let controller_changed = new.controller != current.controller;
             if diff.is_empty() && !controller_changed && restart.is_empty() {
                 tracing::info!(target: "config", "reload: nothing changed");
-                return None;
+                return (None, "unchanged", "nothing changed".into());
             }
             for w in &new.warnings {
                 tracing::warn!(target: "config", "{w}");
@@ -290,17 +299,32 @@ fn reload(
                             line: None,
                             message: e.to_string(),
                         });
-                        return None;
+                        return (None, "refused", e.to_string());
                     }
                 };
                 if updates.push(update).is_err() {
                     tracing::error!(target: "config", "reload: the control thread has not taken the previous update yet; try again");
-                    return None;
+                    return (
+                        None,
+                        "refused",
+                        "the control thread has not taken the previous update yet; try again"
+                            .into(),
+                    );
                 }
                 tracing::info!(target: "config", "reload applied: {} key(s) changed", diff.len());
+                let keys = diff
+                    .iter()
+                    .map(|c| c.key.as_str())
+                    .collect::<Vec<_>>()
+                    .join(", ");
                 let _ = events.send(Event::ConfigApplied { file, diff });
+                return (Some(new), "applied", keys);
             }
-            Some(new)
+            (
+                Some(new),
+                "applied",
+                format!("keys that need a restart: {}", restart.join(", ")),
+            )
         }
     }
 }
@@ -612,6 +636,20 @@ async fn serve(loaded: Loaded, opts: RunOptions) -> Result<()> {
         }
     };
     record(&loaded);
+    // the answer `antisurge reload` waits for (issue 25: the reload's exit status)
+    let verdict_file = running_file.with_file_name(super::reload_trial::VERDICT_FILE);
+    let override_file = running_file.with_file_name(super::reload_trial::OVERRIDE_FILE);
+    let _ = std::fs::remove_file(&override_file);
+    let mut verdict = super::reload_trial::Verdict {
+        seq: 0,
+        pid: std::process::id(),
+        outcome: "started".into(),
+        message: String::new(),
+        overridden: false,
+    };
+    if let Err(e) = verdict.save(&verdict_file) {
+        tracing::warn!(target: "config", "cannot write {}: {e}; `antisurge reload` will not see the daemon's answer", verdict_file.display());
+    }
     let mut current = loaded;
     let mut ticker = tokio::time::interval(Duration::from_millis(100));
     let started = std::time::Instant::now();
@@ -651,6 +689,11 @@ async fn serve(loaded: Loaded, opts: RunOptions) -> Result<()> {
                     }]),
                     Err(e) => {
                         tracing::error!(target: "config", "reload: the loader failed: {e}");
+                        verdict.seq += 1;
+                        verdict.outcome = "refused".into();
+                        verdict.message = format!("the loader failed: {e}");
+                        verdict.overridden = false;
+                        let _ = verdict.save(&verdict_file);
                         continue;
                     }
                 };
@@ -664,7 +707,35 @@ async fn serve(loaded: Loaded, opts: RunOptions) -> Result<()> {
                     }
                     if p.is_empty() { Ok(new) } else { Err(p) }
                 });
-                if let Some(n) = reload(&current, &model0, result, &mut updates_tx, &events) { current = n; record(&current); }
+                // nor step the recycle valve by more than the bumpless limit (dry run of the
+                // running and the new law on the live inputs), unless the operator overrode it
+                let overridden = std::fs::remove_file(&override_file).is_ok();
+                let result = match result {
+                    Ok(new) if !overridden => {
+                        let samples = super::reload_trial::sample_live(&sensors, 1.0 / current.config.cycle.rate_hz).await;
+                        match super::reload_trial::valve_step(&model0, &current, &new, &samples) {
+                            Some(t) => {
+                                tracing::info!(target: "config", "reload dry run: largest recycle valve step {:.2} % over {} samples (limit {:.1} %)", 100.0 * t.step, t.compared, 100.0 * super::reload_trial::BUMPLESS_STEP_LIMIT);
+                                match super::reload_trial::refusal(&current, &new, &t) { Some(p) => Err(vec![p]), None => Ok(new) }
+                            }
+                            None => Ok(new),
+                        }
+                    }
+                    Ok(new) => {
+                        tracing::warn!(target: "config", "reload: the operator overrode the valve-step dry run ({})", override_file.display());
+                        Ok(new)
+                    }
+                    r => r,
+                };
+                let (applied, outcome, message) = reload(&current, &model0, result, &mut updates_tx, &events);
+                if let Some(n) = applied { current = n; record(&current); }
+                verdict.seq += 1;
+                verdict.outcome = outcome.into();
+                verdict.message = message;
+                verdict.overridden = overridden;
+                if let Err(e) = verdict.save(&verdict_file) {
+                    tracing::warn!(target: "config", "cannot write {}: {e}", verdict_file.display());
+                }
                 if std::mem::take(&mut reload_again) { loading = Some(start_load(&current.main_path)); }
             }
             _ = ticker.tick() => {

@@ -10,6 +10,7 @@
 //! - [`reader`] and [`print`](mod@print): read the rotated set back, report torn and invalid lines,
 //!   filter by time, print for terminals ([`print_events`]).
 //! - [`config`]: [`EventLogConfig`], the `[event_log]` table.
+//! - [`journal`]: the events' journal lines; [`journald`]: the native-protocol writer.
 //! - [`timestamp`]: [`Timestamp`], hand-written RFC 3339 UTC formatting and parsing.
 
 pub mod cause;
@@ -17,6 +18,7 @@ pub mod config;
 pub mod error;
 pub mod event;
 pub mod journal;
+pub mod journald;
 pub mod print;
 pub mod reader;
 pub mod rt_channel;

@@ -205,6 +205,7 @@ impl EventLog {
         };
         let thread = std::thread::Builder::new()
             .name("event-log".into())
+            .stack_size(crate::runtime::rt_loop::SMALL_THREAD_STACK_BYTES)
             .spawn(move || writer.run(rx))
             .map_err(|e| EventLogError::io(path.to_path_buf(), "start writer thread", e))?;
         Ok(EventLog {

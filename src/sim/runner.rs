@@ -168,6 +168,11 @@ fn field_readings(
     raw
 }
 
+/// The most trace rows reserved at the start of a run (about 80 s at the 5-ms trace period);
+/// a longer trace grows as it is written. (Was 1 M rows: the longest allowed scenario
+/// reserved, and under `mlockall` locked, 761 MB at start; issue 25.)
+pub const TRACE_PREALLOC_ROWS: usize = 1 << 14;
+
 /// The plant side of a run: the simulated plant under a scenario timeline, with field
 /// readings (noise, faults), scoring of the true state (surge detection, margins, actuator
 /// peaks, recycle energy) and the trace. `sim::run` pairs it with a control core in the same
@@ -502,13 +507,22 @@ impl<'a> PlantRun<'a> {
             recycle_energy: 0.0,
             last_recycle_pos,
             law_events: LawEventCounts::default(),
-            // preallocation bounded (1 M rows); a longer trace grows as it is written
-            trace: Vec::with_capacity((n_steps / trace_every + 2).min(1 << 20)),
+            // preallocation bounded (TRACE_PREALLOC_ROWS); a longer trace grows as it is
+            // written, so a day-long scenario does not lock its whole trace at start
+            trace: Vec::with_capacity((n_steps / trace_every + 2).min(TRACE_PREALLOC_ROWS)),
             trace_every,
             surge_margin: Box::new(move |q, r| model.surge_margin(q, r)),
             wall: Instant::now(),
             health,
         })
+    }
+
+    /// Keep no trace rows (scores and health are still kept): for a run whose trace is never
+    /// written, such as the daemon's in-process plant without an output directory.
+    pub fn without_trace(mut self) -> Self {
+        self.trace = Vec::new();
+        self.trace_every = usize::MAX;
+        self
     }
 
     /// The plant.

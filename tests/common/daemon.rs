@@ -144,6 +144,36 @@ pub fn column(dir: &Path, name: &str) -> Vec<(f64, f64)> {
         .collect()
 }
 
+/// The daemon config the reload tests run: kvangardsnes2009's recycle plant in process at
+/// 100 Hz running `scenario` (held at its end), event log and status socket in `dir`, with
+/// `control` added to `[control]` and `rest` after the shared sections.
+pub fn embedded_config(dir: &Path, scenario: &str, control: &str, rest: &str) -> String {
+    format!(
+        r#"[plant]
+file = "{plant}"
+[control]
+law = "recycle-pi"
+{control}[cycle]
+rate_hz = 100.0
+lock_memory = false
+[event_log]
+path = "{events}"
+fsync = "always"
+[simulation]
+scenario = "{scenario}"
+hold_after_end = true
+[status]
+log_interval_s = 0.0
+socket = "{socket}"
+metrics_listen = ""
+hmi_listen = ""
+{rest}"#,
+        plant = shipped("plants/kvangardsnes2009_recycle.toml"),
+        events = dir.join("events.jsonl").display(),
+        socket = dir.join("status.sock").display(),
+    )
+}
+
 /// Write `text` to `path` the way editors do: a temporary file renamed over the target.
 pub fn write_atomically(path: &Path, text: &str) {
     let tmp: PathBuf = path.with_extension("toml.tmp~");
