@@ -11,30 +11,12 @@
 
 mod common;
 
-use common::daemon::{column, embedded_config, logs, signal, spawn, wait, write_atomically};
+use common::daemon::{
+    column, count, embedded_config, logs, signal, spawn, until, wait, write_atomically,
+};
 use std::path::Path;
 use std::process::{Child, Command};
-use std::time::{Duration, Instant};
-
-fn count(events: &Path, kind: &str) -> usize {
-    std::fs::read_to_string(events)
-        .unwrap_or_default()
-        .lines()
-        .filter(|l| l.contains(&format!("\"event\":\"{kind}\"")))
-        .count()
-}
-
-fn until(dir: &Path, what: &str, mut f: impl FnMut() -> bool) {
-    let t0 = Instant::now();
-    while !f() {
-        assert!(
-            t0.elapsed() < Duration::from_secs(60),
-            "gave up waiting for {what}:\n{}",
-            logs(dir)
-        );
-        std::thread::sleep(Duration::from_millis(50));
-    }
-}
+use std::time::Duration;
 
 /// The `ExecReload=` command lines of the shipped unit, in order.
 fn unit_reload_lines() -> Vec<String> {

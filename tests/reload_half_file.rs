@@ -10,30 +10,10 @@
 
 mod common;
 
-use common::daemon::{embedded_config, logs, signal, spawn, wait, write_atomically};
+use common::daemon::{count, embedded_config, logs, signal, spawn, until, wait, write_atomically};
 use std::path::Path;
 use std::process::Command;
-use std::time::{Duration, Instant};
-
-fn count(events: &Path, kind: &str) -> usize {
-    std::fs::read_to_string(events)
-        .unwrap_or_default()
-        .lines()
-        .filter(|l| l.contains(&format!("\"event\":\"{kind}\"")))
-        .count()
-}
-
-fn until(dir: &Path, what: &str, mut f: impl FnMut() -> bool) {
-    let t0 = Instant::now();
-    while !f() {
-        assert!(
-            t0.elapsed() < Duration::from_secs(60),
-            "gave up waiting for {what}:\n{}",
-            logs(dir)
-        );
-        std::thread::sleep(Duration::from_millis(50));
-    }
-}
+use std::time::Duration;
 
 fn check_against_running(cfg: &Path, record: &Path) -> (i32, String) {
     let out = Command::new(env!("CARGO_BIN_EXE_antisurge"))

@@ -19,13 +19,13 @@ mod common;
 use antisurge::control::core::{ControlCore, CoreSettings};
 use antisurge::control::LawId;
 use antisurge::daemon::config::SparkplugSection;
-use antisurge::daemon::control_node::{ControlNode, ControlWiring, Health};
+use antisurge::daemon::control_node::ControlNode;
 use antisurge::events::{EventLog, EventLogConfig};
 use antisurge::live::server::LiveContext;
 use antisurge::live::snapshot::LiveBoard;
 use antisurge::plant::{PlantInputs, SimPlant};
-use antisurge::runtime::handoff::{monotonic_ns, OutputBoard, SensorBoard, Wakeup};
-use antisurge::runtime::rt_loop::{CycleStats, Tick};
+use antisurge::runtime::handoff::monotonic_ns;
+use antisurge::runtime::rt_loop::Tick;
 use antisurge::signals::SensorId;
 use antisurge::sparkplug::catalogue::Ranges;
 use antisurge::sparkplug::EdgeInputs;
@@ -111,31 +111,25 @@ fn the_cycle_never_waits_on_a_node_whose_broker_acknowledges_nothing() {
 
     let events_path = dir.path().join("events.jsonl");
     let log = EventLog::start(EventLogConfig::with_path(&events_path)).expect("event log");
-    let sensors = Arc::new(SensorBoard::default());
-    let outputs = Arc::new(OutputBoard::default());
-    let stats = Arc::new(CycleStats::default());
-    let (_tx, updates) = rtrb::RingBuffer::new(4);
-    let (retired, _retired_rx) = rtrb::RingBuffer::new(4);
     let op = antisurge::control::measurements::OperatorInputs {
         speed_setpoint_rad_s: desc.file.drive.nominal_speed_rad_s,
         throttle_demand: f64::NAN,
         flow_setpoint_kg_s: f64::NAN,
         recycle_manual: f64::NAN,
     };
-    let mut node = ControlNode::new(
+    let common::node::BareNode {
+        mut node,
+        sensors,
+        outputs,
+        stats,
+        updates: _updates,
+        retired: _retired,
+        health: _health,
+    } = common::node::bare_node_with_events(
         core,
         op,
-        ControlWiring {
-            sensors: Arc::clone(&sensors),
-            outputs: Arc::clone(&outputs),
-            wake: Arc::new(Wakeup::new().expect("eventfd")),
-            updates,
-            retired,
-            events: Some(log.rt_sender().expect("rt sender")),
-            health: Arc::new(Health::default()),
-            stats: Arc::clone(&stats),
-        },
         1_000_000,
+        Some(log.rt_sender().expect("rt sender")),
     );
     let live = Arc::new(LiveBoard::default());
     let (cmd_tx, cmd_rx) = rtrb::RingBuffer::new(16);

@@ -352,3 +352,25 @@ pub fn kill_controller_and_finish(
     let ctx = format!("{s:#}\n{}", logs(dir));
     (kill_unix_s, s, ctx)
 }
+
+/// Events of `kind` in the event log at `events`.
+pub fn count(events: &Path, kind: &str) -> usize {
+    std::fs::read_to_string(events)
+        .unwrap_or_default()
+        .lines()
+        .filter(|l| l.contains(&format!("\"event\":\"{kind}\"")))
+        .count()
+}
+
+/// Wait until `f` holds (a liveness bound of 60 s, with the daemon's logs in `dir` on failure).
+pub fn until(dir: &Path, what: &str, mut f: impl FnMut() -> bool) {
+    let t0 = Instant::now();
+    while !f() {
+        assert!(
+            t0.elapsed() < Duration::from_secs(60),
+            "gave up waiting for {what}:\n{}",
+            logs(dir)
+        );
+        std::thread::sleep(Duration::from_millis(50));
+    }
+}

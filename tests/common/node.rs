@@ -25,6 +25,16 @@ pub struct BareNode {
 
 /// A node around `core` with a cycle period of `period_ns`.
 pub fn bare_node(core: ControlCore, op: OperatorInputs, period_ns: u64) -> BareNode {
+    bare_node_with_events(core, op, period_ns, None)
+}
+
+/// The same, its events going to `events` (an event log's real-time sender).
+pub fn bare_node_with_events(
+    core: ControlCore,
+    op: OperatorInputs,
+    period_ns: u64,
+    events: Option<antisurge::events::RtSender>,
+) -> BareNode {
     let sensors = Arc::new(SensorBoard::default());
     let outputs = Arc::new(OutputBoard::default());
     let health = Arc::new(Health::default());
@@ -40,7 +50,7 @@ pub fn bare_node(core: ControlCore, op: OperatorInputs, period_ns: u64) -> BareN
             wake: Arc::new(Wakeup::new().expect("eventfd")),
             updates: updates_rx,
             retired: retired_tx,
-            events: None,
+            events,
             health: Arc::clone(&health),
             stats: Arc::clone(&stats),
         },
