@@ -87,8 +87,14 @@ pub fn run(args: &CampaignArgs) -> Result<()> {
             if let Some(r) = args.rate_hz {
                 skid.params.rate_hz = r;
             }
+            let baseline = campaign::runner::run(
+                &skid,
+                campaign::runner::Controller::Law(antisurge::control::law::LawId::BaselinePi),
+                args.margin_pct,
+            )?;
             for c in campaign::runner::CONTROLLERS {
-                let (_, sim) = campaign::runner::run_traced(&skid, c, args.margin_pct, 0.005)?;
+                let on = campaign::skid_for(c, &skid, &baseline);
+                let (_, sim) = campaign::runner::run_traced(&on, c, args.margin_pct, 0.005)?;
                 let out = dir.join(c.name().replace([' ', '+'], ""));
                 antisurge::sim::output::write_data(&out, &sim, &skid.plant.map)
                     .with_context(|| format!("writing {}", out.display()))?;
