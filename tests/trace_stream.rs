@@ -12,7 +12,9 @@ use std::path::PathBuf;
 use std::process::Command;
 
 fn fixture(name: &str) -> PathBuf {
-    common::root().join("tests/fixtures/trace_stream").join(name)
+    common::root()
+        .join("tests/fixtures/trace_stream")
+        .join(name)
 }
 
 fn golden() -> Vec<u8> {
@@ -54,7 +56,10 @@ fn streamed_trace_is_byte_identical_to_the_whole_trace_and_the_golden_file() {
     let streamed = std::fs::read(dir.path().join("trace.csv")).expect("trace.csv");
     assert_eq!(trace.rows, 301, "3 s at 10 ms, both ends");
     assert!(trace.pictures.is_exact() && trace.pictures.len() == 301);
-    assert!(streamed == golden(), "streamed trace.csv differs from the golden file");
+    assert!(
+        streamed == golden(),
+        "streamed trace.csv differs from the golden file"
+    );
     // nothing else is left in the directory (the settle log has no name)
     let names: Vec<String> = std::fs::read_dir(dir.path())
         .expect("dir")
@@ -75,7 +80,10 @@ fn streamed_trace_is_byte_identical_to_the_whole_trace_and_the_golden_file() {
     let kept_dir = tempfile::tempdir().expect("tmp");
     sim::output::write_data(kept_dir.path(), &kept, &desc.map).expect("write");
     let whole = std::fs::read(kept_dir.path().join("trace.csv")).expect("trace.csv");
-    assert!(whole == golden(), "whole-trace trace.csv differs from the golden file");
+    assert!(
+        whole == golden(),
+        "whole-trace trace.csv differs from the golden file"
+    );
     assert_eq!(comparable(&summary), comparable(&kept.summary));
     assert!(summary.settle_time_s.is_some(), "the golden run settles");
     assert_eq!(trace.pictures.map_rows(), &kept.trace[..]);
@@ -112,7 +120,11 @@ fn summary_of_a_streamed_surging_run_is_the_kept_runs() {
         &mut |_, _| {},
     )
     .expect("kept run");
-    assert!(!summary.stable && summary.surge_cycles > 0, "{}", summary.verdict);
+    assert!(
+        !summary.stable && summary.surge_cycles > 0,
+        "{}",
+        summary.verdict
+    );
     assert_eq!(comparable(&summary), comparable(&kept.summary));
     let mut whole = Vec::new();
     antisurge::sim::trace::write_csv(&mut whole, &kept.trace, false).expect("csv");
@@ -124,7 +136,14 @@ fn the_binary_writes_the_golden_trace() {
     let dir = tempfile::tempdir().expect("tmp");
     let out = Command::new(env!("CARGO_BIN_EXE_antisurge"))
         .current_dir(common::root())
-        .args(["sim", "--plant", "kvangardsnes2009", "--law", "recycle-pi", "--scenario"])
+        .args([
+            "sim",
+            "--plant",
+            "kvangardsnes2009",
+            "--law",
+            "recycle-pi",
+            "--scenario",
+        ])
         .arg(fixture("scenario.toml"))
         .arg("--out")
         .arg(dir.path())
@@ -158,5 +177,8 @@ fn an_unwritable_output_directory_is_an_error_naming_it() {
         &mut |_, _| {},
     )
     .expect_err("not a directory");
-    assert!(e.to_string().contains(&blocker.display().to_string()), "{e}");
+    assert!(
+        e.to_string().contains(&blocker.display().to_string()),
+        "{e}"
+    );
 }

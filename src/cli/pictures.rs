@@ -36,9 +36,9 @@ pub fn draw_streamed(
     draw_split(
         dir,
         &machine_of(desc),
-        (pictures.map_rows(), &pictures.series_rows()),
-        &title,
-        &scenario.event_labels(),
+        MapRows::Sampled(pictures.map_rows()),
+        &pictures.series_rows(),
+        (&title, &scenario.event_labels()),
         None,
     )
 }
@@ -79,18 +79,33 @@ pub fn draw_run(
     events: &[(f64, String)],
     recorded: Option<&[TraceRow]>,
 ) -> Result<Vec<PathBuf>> {
-    draw_split(dir, machine, (trace, trace), title, events, recorded)
+    draw_split(
+        dir,
+        machine,
+        MapRows::Whole(trace),
+        trace,
+        (title, events),
+        recorded,
+    )
+}
+
+/// The rows a map is drawn from.
+enum MapRows<'a> {
+    /// The whole trace (the map takes every n-th row of a long one).
+    Whole(&'a [TraceRow]),
+    /// A streamed run's rows already taken at that stride.
+    Sampled(&'a [TraceRow]),
 }
 
 /// [`draw_run`] with the map's trajectory and the time series drawn from rows of their own
-/// (a long streamed run: evenly spaced real rows for the map, the min/max envelope for the
-/// time series).
+/// (a long streamed run: the rows the map would take of the whole trace, and the min/max
+/// envelope for the time series).
 fn draw_split(
     dir: &Path,
     machine: &Machine<'_>,
-    (map_trace, trace): (&[TraceRow], &[TraceRow]),
-    title: &str,
-    events: &[(f64, String)],
+    map_rows: MapRows<'_>,
+    trace: &[TraceRow],
+    (title, events): (&str, &[(f64, String)]),
     recorded: Option<&[TraceRow]>,
 ) -> Result<Vec<PathBuf>> {
     let mut files = Vec::new();
@@ -102,8 +117,11 @@ fn draw_split(
         let scl_fn = scl.map(|s| move |r: f64| s.flow_at_ratio(r));
         let scl_ref: Option<&dyn Fn(f64) -> f64> =
             scl_fn.as_ref().map(|f| f as &dyn Fn(f64) -> f64);
-        plot::map_svg(&map_path, map, map_trace, scl_ref, title)
-            .with_context(|| format!("drawing {}", map_path.display()))?;
+        match map_rows {
+            MapRows::Whole(rows) => plot::map_svg(&map_path, map, rows, scl_ref, title),
+            MapRows::Sampled(rows) => plot::map_svg_sampled(&map_path, map, rows, scl_ref, title),
+        }
+        .with_context(|| format!("drawing {}", map_path.display()))?;
         files.push(map_path);
     }
     // the control and trip lines as surge margins (fraction of surge-line flow, as the

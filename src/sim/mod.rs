@@ -11,8 +11,8 @@ pub mod trace;
 
 pub use case::PlantCase;
 pub use runner::{
-    operator_inputs, run, run_streamed, run_with, run_with_model, ControllerView, PlantRun, SimError,
-    SimOptions, SimResult, StreamedTrace,
+    operator_inputs, run, run_streamed, run_with, run_with_model, ControllerView, PlantRun,
+    SimError, SimOptions, SimResult, StreamedTrace,
 };
 pub use summary::Summary;
 

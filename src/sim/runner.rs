@@ -2,8 +2,8 @@
 
 use super::stream::{PictureTrace, TailStats};
 use super::summary::{
-    verdict, ActuatorPeaks, ClosestApproach, FlowFallback,
-    FlowSourceReport, Health, LawEventCounts, ModeEpisode, Summary,
+    verdict, ActuatorPeaks, ClosestApproach, FlowFallback, FlowSourceReport, Health,
+    LawEventCounts, ModeEpisode, Summary,
 };
 use super::trace::{CsvTraceWriter, TraceRow};
 use crate::control::core::{ControlCore, CoreSettings, Mode};
@@ -585,7 +585,8 @@ impl<'a> PlantRun<'a> {
         self.trace = TraceSink::Stream(Box::new(StreamSink {
             csv: CsvTraceWriter::new(file, volumetric),
             path,
-            pictures: PictureTrace::new(),
+            // the rows of the whole run: n_steps + 1 steps, one row every trace_every
+            pictures: PictureTrace::with_rows(self.n_steps() / self.trace_every + 1),
         }));
         Ok(self)
     }
@@ -986,8 +987,8 @@ pub fn run_streamed(
     progress: &mut dyn FnMut(f64),
     before_cycle: &mut dyn FnMut(f64, &mut ControlCore),
 ) -> Result<(super::Summary, StreamedTrace), SimError> {
-    let volumetric = desc.map.flow_coordinate
-        == crate::physics::compressor_map::FlowCoordinate::InletVolumeM3S;
+    let volumetric =
+        desc.map.flow_coordinate == crate::physics::compressor_map::FlowCoordinate::InletVolumeM3S;
     let mut pr = PlantRun::new(desc, scenario)?.stream_to(dir, volumetric)?;
     let run = drive(&mut pr, model, scenario, options, progress, before_cycle)
         .and_then(|law| pr.try_finish(law.name()))

@@ -10,9 +10,10 @@ use std::io::Write;
 use std::path::Path;
 
 /// Rows the picture keeps exactly: a run of up to this many trace rows (82 s at the default
-/// 5-ms trace period) is drawn from every row, as the whole trace was. A longer run keeps at
-/// most this many real rows, evenly spaced, for the map, and the min/max envelope of
-/// [`ENVELOPE_BUCKETS`] time buckets for the time series. 16 384 rows are 4.5 MB.
+/// 5-ms trace period) is drawn from every row, as the whole trace was. A longer run keeps the
+/// rows the map takes of a whole trace (at most [`crate::plot::MAX_TRAJ_POINTS`], 5.4 MB),
+/// and the min/max envelope of at most [`ENVELOPE_BUCKETS`] time buckets for the time series.
+/// 16 384 rows are 4.5 MB.
 pub const PICTURE_ROWS: usize = 1 << 14;
 
 /// Most envelope buckets of a long run's time series (2 rows each): when full, neighbours merge
@@ -114,13 +115,18 @@ struct Envelopes {
 }
 
 impl Envelopes {
-    /// The envelope of `rows` (all rows of the run so far), in half the most buckets.
-    fn of(rows: &[TraceRow]) -> Envelopes {
-        let mut e = Envelopes {
+    /// No bucket yet; buckets of `per_bucket` rows.
+    fn new(per_bucket: usize) -> Envelopes {
+        Envelopes {
             buckets: Vec::with_capacity(ENVELOPE_BUCKETS),
             open: None,
-            per_bucket: PICTURE_ROWS.div_ceil(ENVELOPE_BUCKETS / 2).max(2),
-        };
+            per_bucket: per_bucket.max(2),
+        }
+    }
+
+    /// The envelope of `rows` (all rows of the run so far), in half the most buckets.
+    fn of(rows: &[TraceRow]) -> Envelopes {
+        let mut e = Envelopes::new(rows.len().div_ceil(ENVELOPE_BUCKETS / 2));
         for r in rows {
             e.push(r);
         }
@@ -165,13 +171,16 @@ impl Envelopes {
 
 /// What the pictures of a streamed run are drawn from, in bounded memory: every row of a run of
 /// up to [`PICTURE_ROWS`] rows (the pictures are then those of the whole trace); beyond, real
-/// rows at an even stride for the map's trajectory, and the per-column min/max envelope of time
-/// buckets for the time series (the oscillation envelope, peaks and mode changes survive; the
-/// time series thin to min/max per pixel column anyway).
+/// rows at an even stride for the map's trajectory (for a run of known length, the very rows
+/// the map takes of the whole trace: the same map), and the per-column min/max envelope of
+/// time buckets for the time series (the oscillation envelope, peaks and mode changes survive;
+/// the time series thin to min/max per pixel column anyway).
 #[derive(Debug)]
 pub struct PictureTrace {
     /// Every `every`-th row of the run, then the run's last row if it is not one of them.
     sample: Vec<TraceRow>,
+    /// Most `every`-th rows kept: one more and every other one is dropped, `every` doubles.
+    sample_cap: usize,
     every: usize,
     /// Whether the sample's last row is the run's last row and not an `every`-th one.
     tentative: bool,
@@ -187,15 +196,45 @@ impl Default for PictureTrace {
 }
 
 impl PictureTrace {
-    /// An empty picture, its row store reserved (no allocation as rows come until the first
-    /// thinning).
+    /// An empty picture of a run of unknown length, its row store reserved (no allocation as
+    /// rows come until the first thinning, and one then).
     pub fn new() -> Self {
         PictureTrace {
             sample: Vec::with_capacity(PICTURE_ROWS + 1),
+            ..Self::new_empty()
+        }
+    }
+
+    fn new_empty() -> Self {
+        PictureTrace {
+            sample: Vec::new(),
+            sample_cap: PICTURE_ROWS,
             every: 1,
             tentative: false,
             n: 0,
             envelope: None,
+        }
+    }
+
+    /// An empty picture of a run of `rows` rows, everything reserved: the map's rows are those
+    /// [`crate::plot::map_svg`] takes of the whole trace, the envelope's buckets are sized to
+    /// the run (rows beyond `rows` are thinned as in [`PictureTrace::new`]).
+    pub fn with_rows(rows: usize) -> Self {
+        if rows <= PICTURE_ROWS {
+            return PictureTrace {
+                sample: Vec::with_capacity(rows + 1),
+                ..Self::new_empty()
+            };
+        }
+        let every = rows.div_ceil(crate::plot::MAX_TRAJ_POINTS).max(1);
+        let sample_cap = rows.div_ceil(every);
+        PictureTrace {
+            sample: Vec::with_capacity(sample_cap + 1),
+            sample_cap,
+            every,
+            tentative: false,
+            n: 0,
+            envelope: Some(Envelopes::new(rows.div_ceil(ENVELOPE_BUCKETS))),
         }
     }
 
@@ -207,14 +246,14 @@ impl PictureTrace {
             self.sample.pop();
             self.tentative = false;
         }
-        if self.envelope.is_none() && self.sample.len() == PICTURE_ROWS {
+        if self.envelope.is_none() && self.sample.len() == self.sample_cap {
             // the first thinning: until now every row was kept
             self.envelope = Some(Envelopes::of(&self.sample));
         }
         if let Some(e) = &mut self.envelope {
             e.push(r);
         }
-        if i.is_multiple_of(self.every) && self.sample.len() == PICTURE_ROWS {
+        if i.is_multiple_of(self.every) && self.sample.len() == self.sample_cap {
             let mut k = 0;
             self.sample.retain(|_| {
                 k += 1;
@@ -242,7 +281,8 @@ impl PictureTrace {
         self.envelope.is_none()
     }
 
-    /// Rows for the map: real rows at an even stride, the last row of the run included.
+    /// Rows for the map ([`crate::plot::map_svg_sampled`]): real rows at an even stride, the
+    /// last row of the run included.
     pub fn map_rows(&self) -> &[TraceRow] {
         &self.sample
     }
@@ -442,7 +482,11 @@ mod tests {
             t_s: t,
             m_kg_s: 10.0 + (1.0 + t / 100.0) * (2.0 * std::f64::consts::PI * 2.0 * t).sin(),
             cmd_recycle_valve: if k == 20_000 { 1.0 } else { 0.2 },
-            mode: if (150.0..150.1).contains(&t) { 3.0 } else { 2.0 },
+            mode: if (150.0..150.1).contains(&t) {
+                3.0
+            } else {
+                2.0
+            },
             law_diagnostic: f64::NAN,
             p_discharge_pa: 4e6 - t,
             ..Default::default()
@@ -496,26 +540,64 @@ mod tests {
             let (lo, hi) = ext(&all);
             let (tlo, thi) = ext(&s);
             // bucket edges may move an extreme into the neighbouring stretch
-            assert!((tlo - lo).abs() < 0.05 && (thi - hi).abs() < 0.05, "{w}: {tlo} {lo}");
+            assert!(
+                (tlo - lo).abs() < 0.05 && (thi - hi).abs() < 0.05,
+                "{w}: {tlo} {lo}"
+            );
         }
         // a one-row spike and a 0.1-s fail-safe stretch survive
         assert!(s.iter().any(|r| r.cmd_recycle_valve == 1.0));
         let fs: Vec<f64> = s.iter().filter(|r| r.mode == 3.0).map(|r| r.t_s).collect();
-        assert!(!fs.is_empty() && fs.iter().all(|t| (149.3..150.8).contains(t)), "{fs:?}");
+        assert!(
+            !fs.is_empty() && fs.iter().all(|t| (149.3..150.8).contains(t)),
+            "{fs:?}"
+        );
         // a column with no value stays without
         assert!(s.iter().all(|r| r.law_diagnostic.is_nan()));
         // a falling pressure falls in the envelope rows too
-        assert!(s.windows(2).all(|w| w[1].p_discharge_pa <= w[0].p_discharge_pa));
+        assert!(s
+            .windows(2)
+            .all(|w| w[1].p_discharge_pa <= w[0].p_discharge_pa));
+    }
+
+    #[test]
+    fn a_run_of_known_length_keeps_the_rows_the_map_takes_of_the_whole_trace() {
+        for n in [
+            100,
+            PICTURE_ROWS,
+            PICTURE_ROWS + 1,
+            20_000,
+            20_001,
+            120_001,
+            720_001,
+        ] {
+            let mut p = PictureTrace::with_rows(n);
+            let cap = p.sample.capacity();
+            for k in 0..n {
+                p.push(&row(k));
+            }
+            assert_eq!(p.sample.capacity(), cap, "{n}: the sample never grew");
+            // what map_svg takes of the whole trace
+            let stride = n.div_ceil(crate::plot::MAX_TRAJ_POINTS).max(1);
+            let mut taken: Vec<usize> = (0..n).step_by(stride).collect();
+            if (n - 1) % stride != 0 {
+                taken.push(n - 1);
+            }
+            let kept: Vec<f64> = p.map_rows().iter().map(|r| r.t_s).collect();
+            let want: Vec<f64> = taken.iter().map(|&k| row(k).t_s).collect();
+            assert_eq!(kept, want, "{n}");
+            assert_eq!(p.is_exact(), n <= PICTURE_ROWS, "{n}");
+            let s = p.series_rows();
+            assert!(s.len() <= 2 * ENVELOPE_BUCKETS + 2, "{n}: {}", s.len());
+            assert_eq!(s[s.len() - 1].t_s, row(n - 1).t_s);
+        }
     }
 
     #[test]
     fn tail_statistics_match_the_whole_trace() {
         let dir = std::env::temp_dir();
         for (f, end) in [
-            (
-                (|t: f64| 5.0 + 2.0 * (-t).exp()) as fn(f64) -> f64,
-                20.0,
-            ),
+            ((|t: f64| 5.0 + 2.0 * (-t).exp()) as fn(f64) -> f64, 20.0),
             (|t: f64| 5.0 + (3.0 * t).sin(), 20.0),
             (|t: f64| if t < 12.0 { 3.0 } else { 3.5 }, 30.0),
         ] {
@@ -534,7 +616,10 @@ mod tests {
                 logged.push(r);
             }
             let window = (0.25 * end).clamp(1.0, 3.0);
-            assert_eq!(kept.is_steady(window, 0.02, 1e-4), is_steady(&rows, window, 0.02, 1e-4));
+            assert_eq!(
+                kept.is_steady(window, 0.02, 1e-4),
+                is_steady(&rows, window, 0.02, 1e-4)
+            );
             let whole = settle_time(&rows, 1.0, 0.02, 1e-4);
             assert_eq!(kept.settle_time(&rows, 0.02, 1e-4).expect("kept"), whole);
             assert_eq!(logged.settle_time(&[], 0.02, 1e-4).expect("logged"), whole);

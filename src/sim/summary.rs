@@ -301,7 +301,12 @@ pub struct Settle {
 
 impl Settle {
     /// Flows of the last [`SETTLE_FINAL_WINDOW_S`] of the run in `final_window`.
-    pub fn new(final_window: impl Iterator<Item = f64>, t_event: f64, rel: f64, abs_floor: f64) -> Self {
+    pub fn new(
+        final_window: impl Iterator<Item = f64>,
+        t_event: f64,
+        rel: f64,
+        abs_floor: f64,
+    ) -> Self {
         let tail: Vec<f64> = final_window.collect();
         let fin = tail.iter().sum::<f64>() / tail.len().max(1) as f64;
         Settle {

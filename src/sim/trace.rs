@@ -307,7 +307,10 @@ mod tests {
     fn from_values_inverts_values() {
         let r = row(3);
         let back = TraceRow::from_values(r.values());
-        assert_eq!(back.values().map(f64::to_bits), r.values().map(f64::to_bits));
+        assert_eq!(
+            back.values().map(f64::to_bits),
+            r.values().map(f64::to_bits)
+        );
     }
 
     #[test]
@@ -324,7 +327,10 @@ mod tests {
             let streamed = w.finish().expect("finish");
             assert_eq!(streamed, whole);
             let text = String::from_utf8(whole).expect("utf8");
-            assert!(text.lines().nth(1).expect("row").contains(",,"), "NaN is an empty field");
+            assert!(
+                text.lines().nth(1).expect("row").contains(",,"),
+                "NaN is an empty field"
+            );
         }
     }
 
