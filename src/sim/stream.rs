@@ -591,7 +591,11 @@ mod tests {
             assert_eq!(kept, want, "{n}");
             assert_eq!(p.is_exact(), n <= PICTURE_ROWS, "{n}");
             let s = p.series_rows();
-            let most = if p.is_exact() { n } else { 2 * ENVELOPE_BUCKETS + 2 };
+            let most = if p.is_exact() {
+                n
+            } else {
+                2 * ENVELOPE_BUCKETS + 2
+            };
             assert!(s.len() <= most, "{n}: {}", s.len());
             assert_eq!(s[s.len() - 1].t_s, row(n - 1).t_s);
         }
@@ -601,7 +605,10 @@ mod tests {
     fn tail_statistics_match_the_whole_trace() {
         let dir = std::env::temp_dir();
         for (f, end) in [
-            ((|t: f64| 5.0 + 2.0 * (-t).exp()) as fn(f64) -> f64, 20.0_f64),
+            (
+                (|t: f64| 5.0 + 2.0 * (-t).exp()) as fn(f64) -> f64,
+                20.0_f64,
+            ),
             (|t: f64| 5.0 + (3.0 * t).sin(), 20.0),
             (|t: f64| if t < 12.0 { 3.0 } else { 3.5 }, 30.0),
         ] {
