@@ -87,13 +87,15 @@ pub fn run(args: &CampaignArgs) -> Result<()> {
             if let Some(r) = args.rate_hz {
                 skid.params.rate_hz = r;
             }
-            let baseline = campaign::runner::run(
-                &skid,
-                campaign::runner::Controller::Law(antisurge::control::law::LawId::BaselinePi),
-                args.margin_pct,
-            )?;
+            let law = |l| {
+                campaign::runner::run(&skid, campaign::runner::Controller::Law(l), args.margin_pct)
+            };
+            let laws = [
+                law(antisurge::control::law::LawId::RecyclePi)?,
+                law(antisurge::control::law::LawId::BaselinePi)?,
+            ];
             for c in campaign::runner::CONTROLLERS {
-                let on = campaign::skid_for(c, &skid, &baseline);
+                let on = campaign::skid_for(c, &skid, [&laws[0], &laws[1]]);
                 let (_, sim) = campaign::runner::run_traced(&on, c, args.margin_pct, 0.005)?;
                 let out = dir.join(c.name().replace([' ', '+'], ""));
                 antisurge::sim::output::write_data(&out, &sim, &skid.plant.map)
