@@ -1716,4 +1716,61 @@ mod tests {
         stale.age_s = [0.2; SensorId::COUNT];
         assert_eq!(core.cycle(0.2, &stale, &op).mode, Mode::FailSafe);
     }
+
+    /// Redundant Δp transmitters: a vote of three feeds the core like one transmitter; two
+    /// of them failing leave a hold-last vote (no fail-safe), and the degraded policy widens
+    /// the control line at 1 %/s up to 5 %, acting on the law's flow only; back to three,
+    /// the shift goes out at the same rate. A slow link asks for the same 5 %.
+    #[test]
+    fn a_vote_feeds_the_core_and_a_degraded_vote_widens_the_control_line_at_its_rate() {
+        use crate::control::vote::{VoteLimits, VoteRule};
+        let (mut core, raw, op) = started(1.0);
+        let mut s = *core.settings();
+        s.vote.per_sensor[SensorId::OrificeDp.index()] = Some(VoteLimits::defaults(3));
+        core.set_settings(s);
+        let dp = raw.values.get(SensorId::OrificeDp);
+        let pd = raw.values.get(SensorId::PDischarge);
+        let sample = |k: usize, b: f64, c: f64| {
+            let mut r = raw;
+            r.values.set(SensorId::PDischarge, pd + (k % 2) as f64);
+            r.spare.set(SensorId::OrificeDp, 1, b, 0.0);
+            r.spare.set(SensorId::OrificeDp, 2, c, 0.0);
+            r
+        };
+        let first = core.cycle(0.0, &sample(0, dp * 1.2, dp * 1.001), &op);
+        assert_eq!(first.mode, Mode::Auto);
+        let v = *core.vote().of(SensorId::OrificeDp).expect("voted");
+        assert_eq!((v.rule, v.valid, v.value), (VoteRule::Median, 3, dp * 1.001));
+        assert_eq!(core.margin_shift().now, 0.0);
+        let dt = 1e-3;
+        let mut t = 0.0;
+        for k in 1..=7000 {
+            t = k as f64 * dt;
+            let out = core.cycle(t, &sample(k, f64::NAN, f64::NAN), &op);
+            assert_eq!(out.mode, Mode::Auto, "{t}");
+            assert!(out.measurements.m_kg_s.is_finite());
+            if k == 1000 {
+                let sh = core.margin_shift().now;
+                assert!((sh - 0.01).abs() < 2e-3, "{sh} after 1 s");
+            }
+        }
+        let v = *core.vote().of(SensorId::OrificeDp).expect("voted");
+        assert_eq!((v.rule, v.valid, v.degraded), (VoteRule::HoldLast, 1, true));
+        let sh = core.margin_shift();
+        assert!((sh.now - 0.05).abs() < 1e-9 && sh.vote == 0.05, "{sh:?}");
+        // the law's flow, not the measured one
+        let m = core.last_meas;
+        let law = core.law_measurements(&m);
+        assert!((law.flow_map * 1.05 - m.flow_map).abs() < 1e-9 * m.flow_map.abs());
+        // three again: the shift goes out at 1 %/s
+        for k in 1..=2000 {
+            core.cycle(t + k as f64 * dt, &sample(k, dp, dp), &op);
+        }
+        let sh = core.margin_shift();
+        assert!(sh.target == 0.0 && (sh.now - 0.03).abs() < 2e-3, "{sh:?}");
+        // a slow link asks for the slow-link margin
+        core.set_link_slow(true);
+        core.cycle(t + 2.001, &sample(1, dp, dp), &op);
+        assert_eq!(core.margin_shift().target, SLOW_LINK_MARGIN);
+    }
 }
