@@ -227,8 +227,13 @@ impl FaultSet {
     /// Faults of the votes of redundant transmitters: `transmitter_deviation` while one is
     /// deviating, `vote_degraded` while a vote is degraded. Allocation-free.
     pub fn from_vote(vote: &crate::control::vote::Vote) -> FaultSet {
+        Self::from_votes(&vote.status())
+    }
+
+    /// [`from_vote`](Self::from_vote) of votes as published (the live snapshot's).
+    pub fn from_votes(votes: &[crate::control::vote::VoteStatus]) -> FaultSet {
         let mut f = FaultSet::NONE;
-        for s in vote.status().iter().filter(|s| s.bound > 0) {
+        for s in votes.iter().filter(|s| s.bound > 0) {
             if s.deviating() {
                 f.set(FaultCategory::TransmitterDeviation);
             }

@@ -499,6 +499,41 @@ mod tests {
     }
 
     #[test]
+    fn votes_bind_b_and_c_beside_a_and_are_checked() {
+        let m = parse(
+            "[sensors.orifice_dp]\nmodbus = { unit_id = 1, table = \"input\", address = 10, data_type = \"f32\" }\n\
+             [vote.orifice_dp]\nb = { modbus = { unit_id = 1, table = \"input\", address = 12, data_type = \"f32\", unit = \"kPa\" } }\n\
+             c = { modbus = { unit_id = 1, table = \"input\", address = 14, data_type = \"f32\" } }\ndeviation_pct = 3.0\n",
+        );
+        assert!(m.check().is_empty(), "{:?}", m.check());
+        let spares = m.modbus_spares();
+        assert_eq!(spares.len(), 2);
+        // b in kPa: 2 kPa reads 2000 Pa
+        let (_, slot, b) = spares[0];
+        assert_eq!(slot, 1);
+        let mut w = [0u16; 2];
+        let _ = b.encode(2000.0, &mut w).unwrap();
+        assert!((b.decode(&w).unwrap() - 2000.0).abs() < 1e-6);
+        let v = m.vote_settings().per_sensor[SensorId::OrificeDp.index()].expect("voted");
+        assert_eq!((v.transmitters, v.deviation, v.deviation_s), (3, 0.03, 0.5));
+        // a vote without a, on a measurement without a vote, overlapping a, on CAN
+        let bad = parse(
+            "[sensors.orifice_dp]\nmodbus = { unit_id = 1, table = \"input\", address = 10, data_type = \"f32\" }\n\
+             [vote.p_suction]\nb = { modbus = { unit_id = 1, table = \"input\", address = 20, data_type = \"f32\" } }\n\
+             [vote.shaft_speed]\nb = { modbus = { unit_id = 1, table = \"input\", address = 22, data_type = \"f32\" } }\n\
+             [vote.orifice_dp]\nb = { modbus = { unit_id = 1, table = \"input\", address = 11, data_type = \"f32\" } }\n\
+             c = { can = { message = \"M\", signal = \"S\" } }\ndeviation_s = 0\n",
+        );
+        let p = bad.check();
+        let has = |key: &str, text: &str| p.iter().any(|x| x.key == key && x.message.contains(text));
+        assert!(has("vote.p_suction", "not bound in [sensors]"), "{p:?}");
+        assert!(has("vote.shaft_speed", "takes no vote"), "{p:?}");
+        assert!(has("vote.orifice_dp.b.modbus", "overlaps"), "{p:?}");
+        assert!(has("vote.orifice_dp.c.can", "Modbus"), "{p:?}");
+        assert!(has("vote.orifice_dp.deviation_s", "seconds"), "{p:?}");
+    }
+
+    #[test]
     fn overlapping_registers_and_readonly_actuators_are_reported() {
         let m = parse(
             "[sensors.p_suction]\nmodbus = { unit_id = 1, table = \"holding\", address = 10, data_type = \"f32\" }\n\

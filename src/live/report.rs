@@ -141,6 +141,10 @@ pub struct StatusReport {
     /// The degraded policy in force (a degraded vote, a slow field link).
     #[serde(default)]
     pub degraded_policy: DegradedPolicy,
+    /// Faults of the votes now, by category name (`transmitter_deviation`,
+    /// `vote_degraded`): the bits the control thread adds to the fault word on the wire.
+    #[serde(default)]
+    pub vote_faults: Vec<String>,
 }
 
 /// The transmitters, votes and degraded policy of a snapshot.
@@ -258,12 +262,17 @@ impl StatusReport {
             transmitters: Vec::new(),
             votes: Vec::new(),
             degraded_policy: DegradedPolicy::default(),
+            vote_faults: Vec::new(),
         }
         .with_votes(s)
     }
 
     fn with_votes(mut self, s: &LiveSnapshot) -> StatusReport {
         (self.transmitters, self.votes, self.degraded_policy) = vote_reports(s);
+        self.vote_faults = crate::faults::FaultSet::from_votes(&s.votes.votes)
+            .categories()
+            .map(|c| c.name().to_string())
+            .collect();
         self
     }
 }
@@ -370,6 +379,9 @@ pub fn human(r: &StatusReport) -> String {
     );
     if !r.field_faults.is_empty() {
         o += &format!("field faults  {}\n", r.field_faults.join(", "));
+    }
+    if !r.vote_faults.is_empty() {
+        o += &format!("vote faults   {}\n", r.vote_faults.join(", "));
     }
     let lamps = if r.faults.is_empty() {
         "none".to_string()
@@ -522,6 +534,10 @@ mod tests {
                 "unit": "Pa", "state": "voted_out", "reason": "frozen"})
         );
         assert_eq!(json["votes"][0]["rule"], "conservative");
+        assert_eq!(
+            json["vote_faults"],
+            serde_json::json!(["transmitter_deviation", "vote_degraded"])
+        );
         assert_eq!(json["degraded_policy"]["in_force"], true);
         assert_eq!(json["degraded_policy"]["causes"][0], "vote_degraded: orifice_dp");
         let text = human(&r);
