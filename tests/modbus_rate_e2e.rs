@@ -196,13 +196,12 @@ fn vote_map(three: bool) -> String {
     )
 }
 
-/// What a redundant Δp transmitter of the device does.
+/// What a redundant Δp transmitter of the device does (outside its fault: the Δp with its
+/// own noise).
 #[derive(Debug, Clone, Copy, PartialEq)]
 enum Transmitter {
     /// Not bound (the case's map has no vote).
     Absent,
-    /// Reads the Δp with its own noise.
-    Healthy,
     /// Repeats the value it read at `from` until `to`, plant time, s.
     Frozen(f64, f64),
     /// Reads `factor` × the Δp.
