@@ -34,8 +34,11 @@
 //! **Deviation alarm**: while at least two transmitters are valid, a transmitter that passes
 //! the supervisor's checks (frozen ones included) and stays further than `deviation_pct` of the
 //! vote from it for `deviation_s` is *deviating* (`transmitter_deviation` fault, an event
-//! naming it). Of three, the median leaves it out anyway; of two, the alarm cannot tell which
-//! one is wrong: it names the one the vote left aside, and the vote keeps the conservative one.
+//! naming it). When two other valid transmitters agree meanwhile, the deviation is the
+//! transmitter's: it is voted out (check `deviation`) until it has been back within the
+//! threshold for `deviation_s`, so a later failure of one of the two leaves the healthy one,
+//! not the biased one, in the vote. Of two, the alarm cannot tell which one is wrong: it names
+//! the one the vote left aside, both stay in, and the vote keeps the conservative one.
 //!
 //! **Degraded**: fewer valid transmitters than bound, or fewer than two valid ones that agree.
 //! While any vote is degraded the core shifts the control line right by the measurement's
@@ -332,9 +335,9 @@ impl VoteStatus {
         }
     }
 
-    /// Whether a transmitter is deviating.
+    /// Whether a transmitter is deviating (alarmed, or voted out for it).
     pub fn deviating(&self) -> bool {
-        self.states.contains(&TransmitterState::Deviating)
+        self.states.iter().any(|s| s.reason() == Some(TransmitterCheck::Deviation))
     }
 }
 
@@ -344,6 +347,10 @@ struct SensorVote {
     frozen: [FrozenDpCheck; MAX_TRANSMITTERS],
     /// Since when each transmitter has been further from the vote than the threshold, s.
     off_since_s: [f64; MAX_TRANSMITTERS],
+    /// Voted out for a deviation the others agreed against, and since when it has been back
+    /// within the threshold (s; NaN: not).
+    out_for_deviation: [bool; MAX_TRANSMITTERS],
+    back_since_s: [f64; MAX_TRANSMITTERS],
     /// The last value at least two transmitters agreed on (NaN: none yet).
     held: f64,
     status: VoteStatus,
@@ -354,6 +361,8 @@ impl SensorVote {
         SensorVote {
             frozen: [FrozenDpCheck::new(); MAX_TRANSMITTERS],
             off_since_s: [f64::NAN; MAX_TRANSMITTERS],
+            out_for_deviation: [false; MAX_TRANSMITTERS],
+            back_since_s: [f64::NAN; MAX_TRANSMITTERS],
             held: f64::NAN,
             status: VoteStatus::none(input),
         }
@@ -464,11 +473,12 @@ impl Vote {
                     }
                 }
             }
-            // the valid ones, in slot order
+            // the valid ones, in slot order (one voted out for a deviation stays out until it
+            // has been back within the threshold for the confirmation time)
             let mut idx = [0usize; MAX_TRANSMITTERS];
             let mut valid = 0usize;
             for k in 0..n {
-                if check[k] == InputFault::None {
+                if check[k] == InputFault::None && !v.out_for_deviation[k] {
                     idx[valid] = k;
                     valid += 1;
                 }
@@ -510,13 +520,14 @@ impl Vote {
                 v.held = value;
             }
             // deviation: against a vote of at least two, every transmitter that passes the
-            // supervisor's checks (a frozen one too)
+            // supervisor's checks (a frozen one, one voted out for a deviation too)
             let mut deviating = [false; MAX_TRANSMITTERS];
+            let mut off = [false; MAX_TRANSMITTERS];
             for k in 0..n {
-                let off = valid >= 2
+                off[k] = valid >= 2
                     && base[k] == InputFault::None
                     && (values[k] - value).abs() > lim.deviation * value.abs();
-                if !off {
+                if !off[k] {
                     v.off_since_s[k] = f64::NAN;
                     continue;
                 }
@@ -525,11 +536,41 @@ impl Vote {
                 }
                 deviating[k] = t_s - v.off_since_s[k] >= lim.deviation_s;
             }
+            // a confirmed deviation against two others that agree is the transmitter's: voted
+            // out (from the next cycle; of two, the alarm cannot tell, and both stay in)
+            for k in 0..n {
+                if v.out_for_deviation[k] {
+                    // back: within the threshold of the vote (of any rule, hold-last too)
+                    let near = base[k] == InputFault::None
+                        && value.is_finite()
+                        && (values[k] - value).abs() <= lim.deviation * value.abs();
+                    if !near {
+                        v.back_since_s[k] = f64::NAN;
+                    } else if v.back_since_s[k].is_nan() {
+                        v.back_since_s[k] = t_s;
+                    }
+                    if t_s - v.back_since_s[k] >= lim.deviation_s {
+                        v.out_for_deviation[k] = false;
+                        v.back_since_s[k] = f64::NAN;
+                    }
+                    continue;
+                }
+                let others_agree = (0..n)
+                    .filter(|&j| j != k && check[j] == InputFault::None && !off[j])
+                    .count();
+                if deviating[k] && check[k] == InputFault::None && others_agree >= 2 {
+                    v.out_for_deviation[k] = true;
+                    v.back_since_s[k] = f64::NAN;
+                }
+            }
             let mut states = [TransmitterState::Unbound; MAX_TRANSMITTERS];
             let mut agreeing = 0u8;
             for k in 0..n {
                 states[k] = match TransmitterCheck::of(check[k]) {
                     Some(c) => TransmitterState::VotedOut(c),
+                    None if v.out_for_deviation[k] => {
+                        TransmitterState::VotedOut(TransmitterCheck::Deviation)
+                    }
                     None if deviating[k] => TransmitterState::Deviating,
                     None => {
                         agreeing += 1;
@@ -666,7 +707,7 @@ mod tests {
     }
 
     #[test]
-    fn a_biased_transmitter_is_named_after_the_confirmation_and_not_before() {
+    fn a_biased_transmitter_is_voted_out_after_the_confirmation_and_not_before() {
         let s = settings(SensorId::OrificeDp, 3);
         let mut v = Vote::new();
         let mut t = 0.0;
@@ -679,15 +720,42 @@ mod tests {
         let mut named = false;
         while t < DEFAULT_DEVIATION_S + 0.05 {
             let (_, st, _) = run(&mut v, t, &raw([1000.0, 1001.0, 1200.0]), &s);
-            named |= st.states[2] == TransmitterState::Deviating;
+            named |= st.states[2] == TransmitterState::VotedOut(TransmitterCheck::Deviation);
             assert_eq!(st.states[0], TransmitterState::Healthy);
-            assert!(!st.degraded, "two agree");
             t += 0.01;
         }
         assert!(named);
-        // back within the threshold: healthy again at once
-        let (_, st, _) = run(&mut v, t, &raw([1000.0, 1001.0, 1020.0]), &s);
-        assert_eq!(st.states[2], TransmitterState::Healthy);
+        // out: b fails, and the vote is a's (not the conservative pick of a and c), also
+        // after the confirmation time
+        for _ in 0..100 {
+            t += 0.01;
+            let (x, st, _) = run(&mut v, t, &raw([1000.0, f64::NAN, 900.0]), &s);
+            assert_eq!((x, st.rule, st.valid), (1000.0, VoteRule::HoldLast, 1));
+        }
+        // back within the threshold: healthy again after the confirmation time
+        let mut back = f64::NAN;
+        for _ in 0..100 {
+            t += 0.01;
+            let (_, st, _) = run(&mut v, t, &raw([1000.0, 1001.0, 1020.0]), &s);
+            if st.states[2] == TransmitterState::Healthy {
+                back = t;
+                break;
+            }
+        }
+        assert!(back.is_finite(), "c back in the vote");
+        // of two, a deviation is named, and both stay in
+        let s2 = settings(SensorId::OrificeDp, 2);
+        let mut v = Vote::new();
+        let mut t = 0.0;
+        let mut last = None;
+        while t < DEFAULT_DEVIATION_S + 0.05 {
+            last = Some(run(&mut v, t, &raw([1000.0, 1200.0, f64::NAN]), &s2));
+            t += 0.01;
+        }
+        let (x, st, _) = last.expect("ran");
+        assert_eq!((x, st.valid), (1000.0, 2));
+        assert_eq!(st.states[1], TransmitterState::Deviating);
+        assert!(st.degraded, "two that disagree");
     }
 
     #[test]
