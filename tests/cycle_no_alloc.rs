@@ -96,8 +96,7 @@ fn voting_redundant_transmitters_does_not_allocate() {
     settings.vote.per_sensor[SensorId::PDischarge.index()] = Some(VoteLimits::defaults(2));
     let cfg = model.controller.clone();
     let torque = plant.truth().load_torque_nm;
-    let mut core =
-        ControlCore::new(model, cfg, settings, LawId::RecyclePi, torque).expect("core");
+    let mut core = ControlCore::new(model, cfg, settings, LawId::RecyclePi, torque).expect("core");
     let op = OperatorInputs {
         speed_setpoint_rad_s: desc.file.drive.nominal_speed_rad_s,
         throttle_demand: init.throttle,

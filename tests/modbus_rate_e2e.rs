@@ -1411,7 +1411,11 @@ impl BlackBox {
             .map(str::to_string)
             .collect();
         let rows = lines
-            .map(|l| l.split(',').map(|x| x.parse().unwrap_or(f64::NAN)).collect())
+            .map(|l| {
+                l.split(',')
+                    .map(|x| x.parse().unwrap_or(f64::NAN))
+                    .collect()
+            })
             .collect();
         BlackBox { cols, rows }
     }
@@ -1489,13 +1493,19 @@ fn three_dp_transmitters_one_frozen_one_biased_the_vote_follows_the_healthy_one(
         let biased = transmitter_event(&events, "c", "voted_out", "deviation");
         eprintln!("[{}] {poll_hz} Hz: {frozen:?}\n{biased:?}", case.name);
         assert!(frozen.is_some(), "b not voted out as frozen:\n{events}");
-        assert!(biased.is_some(), "c not voted out for its deviation:\n{events}");
+        assert!(
+            biased.is_some(),
+            "c not voted out for its deviation:\n{events}"
+        );
         let named_a = events.lines().find(|l| {
             l.contains("\"event\":\"transmitter\"")
                 && l.contains("\"transmitter\":\"a\"")
                 && !l.contains("\"state\":\"healthy\"")
         });
-        assert!(named_a.is_none(), "the healthy transmitter named: {named_a:?}");
+        assert!(
+            named_a.is_none(),
+            "the healthy transmitter named: {named_a:?}"
+        );
         assert_no_flow_failsafe(case.name, &events);
         // the vote against b's freeze, on the controller's clock
         let bb = BlackBox::read(dir);
@@ -1532,12 +1542,18 @@ fn three_dp_transmitters_one_frozen_one_biased_the_vote_follows_the_healthy_one(
             k_end - follows_from
         );
         if after_s > 0.3 {
-            for l in events.lines().filter(|l| l.contains("\"event\":\"transmitter\"")) {
+            for l in events
+                .lines()
+                .filter(|l| l.contains("\"event\":\"transmitter\""))
+            {
                 eprintln!("{l}");
             }
             for k in k0..k_end {
                 if !follows(k) {
-                    eprintln!("t {:.3} a {} b {} c {} vote {}", t[k], a[k], b[k], c[k], vote[k]);
+                    eprintln!(
+                        "t {:.3} a {} b {} c {} vote {}",
+                        t[k], a[k], b[k], c[k], vote[k]
+                    );
                 }
             }
         }
@@ -1548,7 +1564,10 @@ fn three_dp_transmitters_one_frozen_one_biased_the_vote_follows_the_healthy_one(
             1e3 * after_s
         );
         assert!(t[k_end - 1] - t[k0] > 0.8, "the freeze is in the black box");
-        assert!(after_s <= 0.3, "the vote follows a {after_s:.3} s after the freeze");
+        assert!(
+            after_s <= 0.3,
+            "the vote follows a {after_s:.3} s after the freeze"
+        );
         assert_eq!(
             o.figures.surge_cycles, 0,
             "[{}] {poll_hz} Hz: {}",
@@ -1599,11 +1618,21 @@ fn two_dp_transmitters_one_failed_hold_last_with_a_fault_and_a_wider_margin() {
     );
     assert_eq!(vote["measurement"], "orifice_dp", "{st}");
     assert_eq!(vote["rule"], "hold_last", "{st}");
-    assert_eq!((vote["valid"].as_u64(), vote["bound"].as_u64()), (Some(1), Some(2)));
+    assert_eq!(
+        (vote["valid"].as_u64(), vote["bound"].as_u64()),
+        (Some(1), Some(2))
+    );
     assert_eq!(vote["degraded"], true);
     let b = &st["transmitters"][1];
-    assert_eq!((b["binding"].as_str(), b["state"].as_str(), b["reason"].as_str()),
-        (Some("b"), Some("voted_out"), Some("nan")), "{st}");
+    assert_eq!(
+        (
+            b["binding"].as_str(),
+            b["state"].as_str(),
+            b["reason"].as_str()
+        ),
+        (Some("b"), Some("voted_out"), Some("nan")),
+        "{st}"
+    );
     assert!(
         st["vote_faults"]
             .as_array()
@@ -1612,7 +1641,10 @@ fn two_dp_transmitters_one_failed_hold_last_with_a_fault_and_a_wider_margin() {
     );
     let policy = &st["degraded_policy"];
     let shift = policy["margin_shift_pct"].as_f64().unwrap_or(0.0);
-    assert!(policy["in_force"] == true && shift > 1.0 && shift <= 5.0, "{policy}");
+    assert!(
+        policy["in_force"] == true && shift > 1.0 && shift <= 5.0,
+        "{policy}"
+    );
     assert!(
         human.contains("vote          orifice_dp 1 of 2 valid, hold-last (degraded)")
             && human.contains("degraded      hold and widen"),

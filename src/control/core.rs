@@ -440,7 +440,11 @@ impl ControlCore {
     /// Move the margin shift towards its target (at most [`MARGIN_SHIFT_RATE_PER_S`]).
     fn update_margin_shift(&mut self, dt: f64) {
         let vote = self.vote.degraded_margin(&self.settings.vote);
-        let slow_link = if self.link_slow { SLOW_LINK_MARGIN } else { 0.0 };
+        let slow_link = if self.link_slow {
+            SLOW_LINK_MARGIN
+        } else {
+            0.0
+        };
         let target = vote.max(slow_link);
         let step = MARGIN_SHIFT_RATE_PER_S * dt.max(0.0);
         let now = self.shift.now + (target - self.shift.now).clamp(-step, step);
@@ -1740,7 +1744,10 @@ mod tests {
         let first = core.cycle(0.0, &sample(0, dp * 1.2, dp * 1.001), &op);
         assert_eq!(first.mode, Mode::Auto);
         let v = *core.vote().of(SensorId::OrificeDp).expect("voted");
-        assert_eq!((v.rule, v.valid, v.value), (VoteRule::Median, 3, dp * 1.001));
+        assert_eq!(
+            (v.rule, v.valid, v.value),
+            (VoteRule::Median, 3, dp * 1.001)
+        );
         assert_eq!(core.margin_shift().now, 0.0);
         let dt = 1e-3;
         let mut t = 0.0;

@@ -337,7 +337,9 @@ impl VoteStatus {
 
     /// Whether a transmitter is deviating (alarmed, or voted out for it).
     pub fn deviating(&self) -> bool {
-        self.states.iter().any(|s| s.reason() == Some(TransmitterCheck::Deviation))
+        self.states
+            .iter()
+            .any(|s| s.reason() == Some(TransmitterCheck::Deviation))
     }
 }
 
@@ -425,6 +427,8 @@ impl Vote {
     /// vote (transmitter `a` as read where none is valid). `fault` gets, per voted
     /// measurement, the fault the core must take for it: `None` when the vote has a value,
     /// else transmitter `a`'s (the frozen check's included). Allocation-free.
+    // (parallel per-slot arrays: indexing by slot reads better than zipped iterators)
+    #[allow(clippy::needless_range_loop)]
     pub fn apply(
         &mut self,
         t_s: f64,
@@ -663,7 +667,10 @@ mod tests {
         let s = settings(SensorId::OrificeDp, 3);
         let mut v = Vote::new();
         let (x, st, f) = run(&mut v, 0.0, &raw([1000.0, 1200.0, 1010.0]), &s);
-        assert_eq!((x, st.rule, st.valid, f), (1010.0, VoteRule::Median, 3, None));
+        assert_eq!(
+            (x, st.rule, st.valid, f),
+            (1010.0, VoteRule::Median, 3, None)
+        );
         assert!(!st.degraded);
         // b fails (NaN): of the two left, the lower Δp (less flow, less margin)
         let (x, st, _) = run(&mut v, 0.01, &raw([1000.0, f64::NAN, 1010.0]), &s);
@@ -674,9 +681,22 @@ mod tests {
         );
         assert!(st.degraded);
         // the discharge pressure's conservative side is the higher one
-        assert_eq!(Conservative::of(SensorId::PDischarge).unwrap().pick(1.0, 2.0), 2.0);
-        assert_eq!(Conservative::of(SensorId::TSuction).unwrap().pick(300.0, 301.0), 301.0);
-        assert_eq!(Conservative::of(SensorId::PSuction).unwrap().pick(1.0, 2.0), 1.0);
+        assert_eq!(
+            Conservative::of(SensorId::PDischarge)
+                .unwrap()
+                .pick(1.0, 2.0),
+            2.0
+        );
+        assert_eq!(
+            Conservative::of(SensorId::TSuction)
+                .unwrap()
+                .pick(300.0, 301.0),
+            301.0
+        );
+        assert_eq!(
+            Conservative::of(SensorId::PSuction).unwrap().pick(1.0, 2.0),
+            1.0
+        );
         assert_eq!(Conservative::of(SensorId::ShaftSpeed), None);
     }
 
@@ -690,7 +710,10 @@ mod tests {
         let mut r = raw([1100.0, 1001.0, f64::NAN]);
         r.spare.age_s[SensorId::OrificeDp.index()][0] = 1.0;
         let (x, st, f) = run(&mut v, 0.01, &r, &s);
-        assert_eq!((x, st.rule, st.valid, f), (1000.0, VoteRule::HoldLast, 1, None));
+        assert_eq!(
+            (x, st.rule, st.valid, f),
+            (1000.0, VoteRule::HoldLast, 1, None)
+        );
         assert_eq!(
             st.states[1],
             TransmitterState::VotedOut(TransmitterCheck::Stale)
@@ -703,7 +726,10 @@ mod tests {
         // none valid: a as read, with its fault for the core
         r.values.set(SensorId::OrificeDp, f64::NAN);
         let (_, st, f) = run(&mut v, 0.03, &r, &s);
-        assert_eq!((st.rule, st.valid, f), (VoteRule::None, 0, Some(InputFault::Nan)));
+        assert_eq!(
+            (st.rule, st.valid, f),
+            (VoteRule::None, 0, Some(InputFault::Nan))
+        );
     }
 
     #[test]
@@ -774,9 +800,14 @@ mod tests {
         for k in 0..200 {
             let t = k as f64 * 0.01; // 100 Hz samples
             let dp = 1000.0 - 100.0 * t;
-            let mut r = raw([dp + 20.0 * noise(), dp + 20.0 * noise(), dp + 20.0 * noise()]);
+            let mut r = raw([
+                dp + 20.0 * noise(),
+                dp + 20.0 * noise(),
+                dp + 20.0 * noise(),
+            ]);
             r.values.set(SensorId::PSuction, 1e5 + 50.0 * noise());
-            r.values.set(SensorId::PDischarge, 2e5 - 1e3 * t + 50.0 * noise());
+            r.values
+                .set(SensorId::PDischarge, 2e5 - 1e3 * t + 50.0 * noise());
             if t >= 1.0 {
                 if frozen_at.is_nan() {
                     frozen_at = r.spare.values[SensorId::OrificeDp.index()][0];
@@ -784,7 +815,8 @@ mod tests {
                 r.spare.values[SensorId::OrificeDp.index()][0] = frozen_at;
             }
             let (_, st, _) = run(&mut v, t, &r, &s);
-            if found.is_nan() && st.states[1] == TransmitterState::VotedOut(TransmitterCheck::Frozen)
+            if found.is_nan()
+                && st.states[1] == TransmitterState::VotedOut(TransmitterCheck::Frozen)
             {
                 found = t;
             }
@@ -792,7 +824,7 @@ mod tests {
                 assert_eq!(st.states[1], TransmitterState::Healthy, "{t}");
             }
         }
-        assert!(found >= 1.0 && found <= 1.3, "found at {found}");
+        assert!((1.0..=1.3).contains(&found), "found at {found}");
     }
 
     #[test]

@@ -457,13 +457,15 @@ impl ControlNode {
                     Detection::SurgeStarted | Detection::ReversalStarted
                 ),
                 updates_applied: self.health.updates_applied.load(Ordering::Relaxed),
-                voted: self.core.vote().status().map(|v| {
-                    if v.bound > 0 {
-                        v.value
-                    } else {
-                        f64::NAN
-                    }
-                }),
+                voted: self.core.vote().status().map(
+                    |v| {
+                        if v.bound > 0 {
+                            v.value
+                        } else {
+                            f64::NAN
+                        }
+                    },
+                ),
             });
         }
         self.outputs.publish(&Outputs {

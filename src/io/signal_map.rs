@@ -103,7 +103,9 @@ impl VoteBinding {
             transmitters: d.transmitters,
             deviation: self.deviation_pct.map_or(d.deviation, |p| 0.01 * p),
             deviation_s: self.deviation_s.unwrap_or(d.deviation_s),
-            degraded_margin: self.degraded_margin_pct.map_or(d.degraded_margin, |p| 0.01 * p),
+            degraded_margin: self
+                .degraded_margin_pct
+                .map_or(d.degraded_margin, |p| 0.01 * p),
         }
     }
 }
@@ -294,11 +296,31 @@ impl SignalMap {
                     warning: false,
                 });
             }
-            let pct_ok = |x: Option<f64>, lo: f64, hi: f64| x.is_none_or(|x| x.is_finite() && x > lo && x <= hi);
+            let pct_ok = |x: Option<f64>, lo: f64, hi: f64| {
+                x.is_none_or(|x| x.is_finite() && x > lo && x <= hi)
+            };
             for (name, x, lo, hi, what) in [
-                ("deviation_pct", v.deviation_pct, 0.0, 100.0, "a percentage of the vote in (0, 100]"),
-                ("deviation_s", v.deviation_s, 0.0, 60.0, "seconds in (0, 60]"),
-                ("degraded_margin_pct", v.degraded_margin_pct, -1e-300, 50.0, "a percentage of the control-line flow in [0, 50]"),
+                (
+                    "deviation_pct",
+                    v.deviation_pct,
+                    0.0,
+                    100.0,
+                    "a percentage of the vote in (0, 100]",
+                ),
+                (
+                    "deviation_s",
+                    v.deviation_s,
+                    0.0,
+                    60.0,
+                    "seconds in (0, 60]",
+                ),
+                (
+                    "degraded_margin_pct",
+                    v.degraded_margin_pct,
+                    -1e-300,
+                    50.0,
+                    "a percentage of the control-line flow in [0, 50]",
+                ),
             ] {
                 if !pct_ok(x, lo, hi) {
                     problems.push(MapProblem {
@@ -525,7 +547,8 @@ mod tests {
              c = { can = { message = \"M\", signal = \"S\" } }\ndeviation_s = 0\n",
         );
         let p = bad.check();
-        let has = |key: &str, text: &str| p.iter().any(|x| x.key == key && x.message.contains(text));
+        let has =
+            |key: &str, text: &str| p.iter().any(|x| x.key == key && x.message.contains(text));
         assert!(has("vote.p_suction", "not bound in [sensors]"), "{p:?}");
         assert!(has("vote.shaft_speed", "takes no vote"), "{p:?}");
         assert!(has("vote.orifice_dp.b.modbus", "overlaps"), "{p:?}");

@@ -182,7 +182,6 @@ impl Collector for LiveCollector {
                     ConstGauge::new(v.values[t]).encode(fam.encode_family(&labels)?)?;
                 }
             }
-            drop(fam);
             let g = ConstGauge::new(0i64);
             let mut fam = e.encode_descriptor(
                 "antisurge_transmitter_state",
@@ -203,7 +202,6 @@ impl Collector for LiveCollector {
                     }
                 }
             }
-            drop(fam);
             let g = ConstGauge::new(0i64);
             let mut fam = e.encode_descriptor(
                 "antisurge_vote_valid_transmitters",

@@ -401,7 +401,11 @@ pub fn human(r: &StatusReport) -> String {
             .map(|t| {
                 let value = t.value.map_or("–".into(), |x| format!("{x:.6}"));
                 match &t.reason {
-                    Some(why) => format!("{} {value} {} ({why})", t.binding, t.state.replace('_', " ")),
+                    Some(why) => format!(
+                        "{} {value} {} ({why})",
+                        t.binding,
+                        t.state.replace('_', " ")
+                    ),
                     None => format!("{} {value} {}", t.binding, t.state),
                 }
             })
@@ -539,17 +543,25 @@ mod tests {
             serde_json::json!(["transmitter_deviation", "vote_degraded"])
         );
         assert_eq!(json["degraded_policy"]["in_force"], true);
-        assert_eq!(json["degraded_policy"]["causes"][0], "vote_degraded: orifice_dp");
+        assert_eq!(
+            json["degraded_policy"]["causes"][0],
+            "vote_degraded: orifice_dp"
+        );
         let text = human(&r);
         assert!(
             text.contains("vote          orifice_dp 2 of 3 valid, conservative (degraded)"),
             "{text}"
         );
         assert!(text.contains("c 1100.000000 voted out (frozen)"), "{text}");
-        assert!(text.contains("degraded      hold and widen: control line +2.0 %"), "{text}");
+        assert!(
+            text.contains("degraded      hold and widen: control line +2.0 %"),
+            "{text}"
+        );
         let line = status_line(&s);
         assert!(
-            line.contains("transmitters: orifice_dp.b deviating (deviation), orifice_dp.c voted out (frozen)"),
+            line.contains(
+                "transmitters: orifice_dp.b deviating (deviation), orifice_dp.c voted out (frozen)"
+            ),
             "{line}"
         );
     }
