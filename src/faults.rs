@@ -43,11 +43,17 @@ pub enum FaultCategory {
     /// An actuator's command register, read back, holds a value this controller did not
     /// write: another master writes it (latched until acknowledged).
     AnotherWriter,
+    /// Redundant transmitters of one measurement disagree: one stays further from the vote
+    /// than its deviation threshold for the confirmation time ([`crate::control::vote`]).
+    TransmitterDeviation,
+    /// A redundant measurement's vote runs on fewer transmitters than bound (or fewer than
+    /// two that agree): the control line is shifted by the degraded margin.
+    VoteDegraded,
 }
 
 impl FaultCategory {
     /// Every category, in bit order.
-    pub const ALL: [FaultCategory; 13] = [
+    pub const ALL: [FaultCategory; 15] = [
         FaultCategory::SensorTimeout,
         FaultCategory::SensorAliveError,
         FaultCategory::SensorCrcError,
@@ -61,6 +67,8 @@ impl FaultCategory {
         FaultCategory::FieldLinkDown,
         FaultCategory::FieldLinkSlow,
         FaultCategory::AnotherWriter,
+        FaultCategory::TransmitterDeviation,
+        FaultCategory::VoteDegraded,
     ];
 
     /// Bit number on the wire (the DBC's `Faults` documentation).
@@ -89,6 +97,8 @@ impl FaultCategory {
             FaultCategory::FieldLinkDown => "field_link_down",
             FaultCategory::FieldLinkSlow => "field_link_slow",
             FaultCategory::AnotherWriter => "another_writer",
+            FaultCategory::TransmitterDeviation => "transmitter_deviation",
+            FaultCategory::VoteDegraded => "vote_degraded",
         }
     }
 
@@ -110,6 +120,12 @@ impl FaultCategory {
                 "a field link answers slower than its rate or its inputs' freshness allows"
             }
             FaultCategory::AnotherWriter => "another master writes an actuator's command register",
+            FaultCategory::TransmitterDeviation => {
+                "redundant transmitters of one measurement disagree"
+            }
+            FaultCategory::VoteDegraded => {
+                "a redundant measurement is voted on fewer transmitters than bound"
+            }
         }
     }
 
@@ -203,6 +219,26 @@ impl FaultSet {
                 | InputFault::OutOfRange
                 | InputFault::Frozen
                 | InputFault::Drift => f.set(FaultCategory::SensorImplausible),
+            }
+        }
+        f
+    }
+
+    /// Faults of the votes of redundant transmitters: `transmitter_deviation` while one is
+    /// deviating, `vote_degraded` while a vote is degraded. Allocation-free.
+    pub fn from_vote(vote: &crate::control::vote::Vote) -> FaultSet {
+        Self::from_votes(&vote.status())
+    }
+
+    /// [`from_vote`](Self::from_vote) of votes as published (the live snapshot's).
+    pub fn from_votes(votes: &[crate::control::vote::VoteStatus]) -> FaultSet {
+        let mut f = FaultSet::NONE;
+        for s in votes.iter().filter(|s| s.bound > 0) {
+            if s.deviating() {
+                f.set(FaultCategory::TransmitterDeviation);
+            }
+            if s.degraded {
+                f.set(FaultCategory::VoteDegraded);
             }
         }
         f

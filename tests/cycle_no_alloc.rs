@@ -75,6 +75,66 @@ fn control_cycle_does_not_allocate_for_any_law() {
     assert!(checked >= 10, "plant × law pairs checked: {checked}");
 }
 
+/// Issue 23: the vote of redundant transmitters is allocation-free: three Δp transmitters
+/// (one frozen, one biased, then one failing), two voted pressures, through a closure.
+#[test]
+fn voting_redundant_transmitters_does_not_allocate() {
+    use antisurge::control::vote::VoteLimits;
+    use antisurge::signals::SensorId;
+    let desc = common::plant("kvangardsnes2009_recycle");
+    let init = desc.file.initial;
+    let inputs = PlantInputs {
+        throttle_process: init.throttle,
+        recycle_manual: init.recycle_valve,
+        feed: init.feed,
+        ..PlantInputs::default()
+    };
+    let mut plant = SimPlant::new(&desc, &inputs).expect("plant");
+    let model = antisurge::sim::control_model(&desc);
+    let mut settings = CoreSettings::defaults_for(&model);
+    settings.vote.per_sensor[SensorId::OrificeDp.index()] = Some(VoteLimits::defaults(3));
+    settings.vote.per_sensor[SensorId::PDischarge.index()] = Some(VoteLimits::defaults(2));
+    let cfg = model.controller.clone();
+    let torque = plant.truth().load_torque_nm;
+    let mut core = ControlCore::new(model, cfg, settings, LawId::RecyclePi, torque).expect("core");
+    let op = OperatorInputs {
+        speed_setpoint_rad_s: desc.file.drive.nominal_speed_rad_s,
+        throttle_demand: init.throttle,
+        flow_setpoint_kg_s: f64::NAN,
+        recycle_manual: init.recycle_valve,
+    };
+    let dt = 1e-3;
+    let mut plant_inputs = inputs;
+    let mut frozen = f64::NAN;
+    let mut degraded = false;
+    for k in 0..4000 {
+        let t = k as f64 * dt;
+        let s = plant.sensors();
+        let mut raw = RawSensors::fresh(s);
+        let dp = s.get(SensorId::OrificeDp);
+        if k == 1000 {
+            frozen = dp;
+        }
+        let b = if k >= 1000 { frozen } else { dp * 1.001 };
+        let c = if k >= 3000 { f64::NAN } else { dp * 1.2 };
+        raw.spare.set(SensorId::OrificeDp, 1, b, 0.0);
+        raw.spare.set(SensorId::OrificeDp, 2, c, 0.0);
+        raw.spare
+            .set(SensorId::PDischarge, 1, s.get(SensorId::PDischarge), 0.0);
+        let before = allocations();
+        let out = core.cycle(t, &raw, &op);
+        let after = allocations();
+        if k >= 10 {
+            assert_eq!(after, before, "allocation in cycle {k}");
+        }
+        degraded |= core.margin_shift().target > 0.0;
+        plant_inputs.commands = out.commands;
+        plant_inputs.throttle_process = (init.throttle - 0.1 * t).max(0.45);
+        plant.step(&plant_inputs, dt);
+    }
+    assert!(degraded, "the vote went degraded (its branches ran)");
+}
+
 #[test]
 fn the_cycle_trigger_and_the_triggered_loop_do_not_allocate() {
     use antisurge::runtime::handoff::monotonic_ns;

@@ -44,8 +44,9 @@ const DISTURBANCE_AT_S: f64 = 4.0;
 /// The request latency range of the device, s.
 const LATENCY_MIN_S: f64 = 0.005;
 const LATENCY_MAX_S: f64 = 0.020;
-/// Register addresses of the device (input table, then the valve's holding register).
-const INPUT_WORDS: usize = 11;
+/// Register addresses of the device (input table, then the valve's holding register):
+/// 0–10 as the shipped map, 11–14 two more Δp transmitters (f32, for the vote cases).
+const INPUT_WORDS: usize = 15;
 const VALVE_HOLDING: u16 = 102;
 
 /// The fast machine: hemchi2016_recycle.toml (seed 001's supercharger recycle system) with a
@@ -181,6 +182,33 @@ recycle_valve = { modbus = { unit_id = 1, table = "holding", address = 102, data
 [feedback]
 recycle_valve = { tolerance = 0.05, time_ms = 100, readback = true }
 "#;
+
+/// The vote cases' map: [`SIGNAL_MAP`] with Δp transmitters `b` (input 11) and, for three,
+/// `c` (input 13) voting with `a` (input 6): issue 23, item 5.
+fn vote_map(three: bool) -> String {
+    let c = if three {
+        "c = { modbus = { unit_id = 1, table = \"input\", address = 13, data_type = \"f32\" } }\n"
+    } else {
+        ""
+    };
+    format!(
+        "{SIGNAL_MAP}\n[vote.orifice_dp]\nb = {{ modbus = {{ unit_id = 1, table = \"input\", address = 11, data_type = \"f32\" }} }}\n{c}"
+    )
+}
+
+/// What a redundant Δp transmitter of the device does (outside its fault: the Δp with its
+/// own noise).
+#[derive(Debug, Clone, Copy, PartialEq)]
+enum Transmitter {
+    /// Not bound (the case's map has no vote).
+    Absent,
+    /// Repeats the value it read at `from` until `to`, plant time, s.
+    Frozen(f64, f64),
+    /// Reads `factor` × the Δp.
+    Biased(f64),
+    /// Reads no value (an f32 NaN) from plant time `from` on.
+    Failed(f64),
+}
 
 /// One real-time case at a time (see the module comment).
 static REAL_TIME: Mutex<()> = Mutex::new(());
@@ -692,6 +720,9 @@ struct Case {
     status_at_s: Option<f64>,
     /// The daemon's Modbus request timeout, ms (None: the default, 100 ms).
     client_timeout_ms: Option<u64>,
+    /// The redundant Δp transmitters `b` and `c` (Absent: no vote).
+    dp_b: Transmitter,
+    dp_c: Transmitter,
 }
 
 impl Case {
@@ -722,6 +753,8 @@ impl Case {
             slow: None,
             status_at_s: None,
             client_timeout_ms: None,
+            dp_b: Transmitter::Absent,
+            dp_c: Transmitter::Absent,
         }
     }
 }
@@ -819,7 +852,12 @@ fn run_case(case: Case) -> Outcome {
     let dir = tmp.path().to_path_buf();
     let (machine_path, desc) = machine(&dir);
     let map_path = dir.join("signal_map.toml");
-    std::fs::write(&map_path, SIGNAL_MAP).expect("write map");
+    let map = match (case.dp_b, case.dp_c) {
+        (Transmitter::Absent, _) => SIGNAL_MAP.to_string(),
+        (_, Transmitter::Absent) => vote_map(false),
+        _ => vote_map(true),
+    };
+    std::fs::write(&map_path, map).expect("write map");
     {
         use std::os::unix::fs::PermissionsExt;
         let token = dir.join("operator.token");
@@ -867,6 +905,7 @@ fn run_case(case: Case) -> Outcome {
         let mut p = PlantLoop::new(&desc, case.throttle);
         let mut noise = Rng::new(case.noise_seed);
         let mut frozen_dp = f64::NAN;
+        let mut frozen_spare = [f64::NAN; 2];
         let mut link_down = false;
         let mut slow_started = None;
         let n = (case.end_s / PLANT_STEP_S).round() as u64;
@@ -947,6 +986,28 @@ fn run_case(case: Case) -> Outcome {
             w[8] = ((s.get(SensorId::TSuction) - 273.15) * 100.0).round() as i16 as u16;
             w[9] = fraction_word(s.get(SensorId::RecycleValvePosition));
             w[10] = fraction_word(s.get(SensorId::ThrottlePosition));
+            // the redundant Δp transmitters, each with its own noise and fault
+            for (k, tx) in [case.dp_b, case.dp_c].into_iter().enumerate() {
+                if tx == Transmitter::Absent {
+                    continue;
+                }
+                let own = s.get(SensorId::OrificeDp) + case.dp_noise_pa * noise.symmetric();
+                let v = match tx {
+                    Transmitter::Frozen(from, to) if t >= from && t < to => {
+                        if frozen_spare[k].is_nan() {
+                            frozen_spare[k] = own;
+                        }
+                        frozen_spare[k]
+                    }
+                    Transmitter::Biased(f) => f * own,
+                    Transmitter::Failed(from) if t >= from => f64::NAN,
+                    _ => {
+                        frozen_spare[k] = f64::NAN;
+                        own
+                    }
+                };
+                w[11 + 2 * k..13 + 2 * k].copy_from_slice(&f32_words(v));
+            }
             let mut st = lock(&shared);
             st.words = w;
             st.t_s = t;
@@ -1340,6 +1401,277 @@ fn noisy_closure_with_dp_frozen_for_1_s_at_50_hz_is_found_and_does_not_surge_ove
 }
 
 // ---------------------------------------------------------------------------------------------
+// Redundant Δp transmitters (issue 23, item 5)
+
+/// The black box the daemon wrote at exit: its columns and rows, on the controller's clock.
+struct BlackBox {
+    cols: Vec<String>,
+    rows: Vec<Vec<f64>>,
+}
+
+impl BlackBox {
+    fn read(dir: &Path) -> BlackBox {
+        let bb = std::fs::read_dir(dir.join("blackbox"))
+            .expect("black-box directory")
+            .filter_map(Result::ok)
+            .map(|e| e.path())
+            .find(|p| {
+                p.file_name()
+                    .is_some_and(|n| n.to_string_lossy().starts_with("blackbox-exit"))
+            })
+            .expect("black box written at exit");
+        let text = std::fs::read_to_string(&bb).expect("black box");
+        let mut lines = text.lines().filter(|l| !l.starts_with('#'));
+        let cols = lines
+            .next()
+            .expect("header")
+            .split(',')
+            .map(str::to_string)
+            .collect();
+        let rows = lines
+            .map(|l| {
+                l.split(',')
+                    .map(|x| x.parse().unwrap_or(f64::NAN))
+                    .collect()
+            })
+            .collect();
+        BlackBox { cols, rows }
+    }
+
+    fn col(&self, name: &str) -> Vec<f64> {
+        let i = self
+            .cols
+            .iter()
+            .position(|c| c == name)
+            .unwrap_or_else(|| panic!("no column {name}"));
+        self.rows.iter().map(|r| r[i]).collect()
+    }
+}
+
+/// The `transmitter` event of `orifice_dp`'s transmitter `t` in `state` by `check`, if any.
+fn transmitter_event<'a>(events: &'a str, t: &str, state: &str, check: &str) -> Option<&'a str> {
+    events.lines().find(|l| {
+        l.contains("\"event\":\"transmitter\"")
+            && l.contains("\"input\":\"orifice_dp\"")
+            && l.contains(&format!("\"transmitter\":\"{t}\""))
+            && l.contains(&format!("\"state\":\"{state}\""))
+            && l.contains(&format!("\"check\":\"{check}\""))
+    })
+}
+
+/// No fail-safe of the run is the flow element's doing (a fail-safe rooted in the link, when
+/// a busy test machine starves the device, is not what the vote cases are about).
+fn assert_no_flow_failsafe(name: &str, events: &str) {
+    let flow_failsafe = events.lines().find(|l| {
+        l.contains("\"to\":\"fail_safe\"")
+            && (l.contains("\"kind\":\"flow_unavailable\"")
+                || l.contains("\"input\":\"orifice_dp\""))
+    });
+    assert!(
+        flow_failsafe.is_none(),
+        "[{name}] fail-safe caused by the flow element: {flow_failsafe:?}"
+    );
+}
+
+/// Issue 23 acceptance: three Δp transmitters on the device, voted by the daemon: `a`
+/// healthy, `b` frozen for 1 s during the noisy closure (as the single-transmitter case above),
+/// `c` reading 20 % high all along. Asserted at 100 and 50 Hz polling: the vote follows `a`
+/// within 300 ms of `b`'s freeze (controller clock, from the black box: the first cycle that
+/// read the frozen value to the first cycle from which, until the freeze ends, the vote is
+/// `a`'s reading or below it, never `c`'s), `b` is voted out by the frozen check and `c` for
+/// its deviation (while `a` and `b` agreed; events naming the transmitter and the check), `a`
+/// is never named, no fail-safe from the flow element, zero surge cycles on the device's true
+/// flow through the closure.
+#[test]
+fn three_dp_transmitters_one_frozen_one_biased_the_vote_follows_the_healthy_one() {
+    let _rt = real_time();
+    for poll_hz in [100.0, 50.0] {
+        let mut case = Case::new(
+            "three Δp: b frozen 1 s, c +20 %",
+            poll_hz,
+            Throttle::Ramp {
+                at_s: DISTURBANCE_AT_S,
+                over_s: 2.0,
+                to: THROTTLE_END,
+            },
+            DISTURBANCE_AT_S + 4.5,
+        );
+        case.dp_noise_pa = DP_NOISE_PA;
+        case.noise_seed = 3;
+        case.latency_seed = 103;
+        case.dp_b = Transmitter::Frozen(DISTURBANCE_AT_S + 0.5, DISTURBANCE_AT_S + 1.5);
+        case.dp_c = Transmitter::Biased(1.2);
+        let o = run_case(case);
+        report(&case, &o);
+        assert_in_control(&case, &o);
+        let dir = o.dir.path();
+        let events = events_until_shutdown(dir);
+        let frozen = transmitter_event(&events, "b", "voted_out", "frozen");
+        // c deviates while a and b agree: voted out for it (the deviation alarm)
+        let biased = transmitter_event(&events, "c", "voted_out", "deviation");
+        eprintln!("[{}] {poll_hz} Hz: {frozen:?}\n{biased:?}", case.name);
+        assert!(frozen.is_some(), "b not voted out as frozen:\n{events}");
+        assert!(
+            biased.is_some(),
+            "c not voted out for its deviation:\n{events}"
+        );
+        let named_a = events.lines().find(|l| {
+            l.contains("\"event\":\"transmitter\"")
+                && l.contains("\"transmitter\":\"a\"")
+                && !l.contains("\"state\":\"healthy\"")
+        });
+        assert!(
+            named_a.is_none(),
+            "the healthy transmitter named: {named_a:?}"
+        );
+        assert_no_flow_failsafe(case.name, &events);
+        // the vote against b's freeze, on the controller's clock
+        let bb = BlackBox::read(dir);
+        let (t, a, b, vote) = (
+            bb.col("t_s"),
+            bb.col("in_orifice_dp"),
+            bb.col("in_orifice_dp_b"),
+            bb.col("vote_orifice_dp"),
+        );
+        // the freeze: the longest run of one reading of b
+        let (mut k0, mut k_end, mut run_from) = (0, 0, 0);
+        for k in 1..=b.len() {
+            if k == b.len() || b[k] != b[run_from] {
+                if k - run_from > k_end - k0 {
+                    (k0, k_end) = (run_from, k);
+                }
+                run_from = k;
+            }
+        }
+        // following a: the vote is a's reading, or less (the hold-last vote's last agreed
+        // value where a reads more); never more flow than a shows, never c's reading
+        let c = bb.col("in_orifice_dp_c");
+        let follows = |k: usize| vote[k] <= a[k] && vote[k] != c[k];
+        let follows_from = (k0..k_end)
+            .rev()
+            .take_while(|&k| follows(k))
+            .last()
+            .expect("the vote follows a before the freeze ends");
+        let after_s = t[follows_from] - t[k0];
+        let exactly_a = (follows_from..k_end).filter(|&k| vote[k] == a[k]).count();
+        eprintln!(
+            "[{}] {poll_hz} Hz: from then on the vote is a's reading in {exactly_a} of {} cycles, below it in the others",
+            case.name,
+            k_end - follows_from
+        );
+        if after_s > 0.3 {
+            for l in events
+                .lines()
+                .filter(|l| l.contains("\"event\":\"transmitter\""))
+            {
+                eprintln!("{l}");
+            }
+            for k in k0..k_end {
+                if !follows(k) {
+                    eprintln!(
+                        "t {:.3} a {} b {} c {} vote {}",
+                        t[k], a[k], b[k], c[k], vote[k]
+                    );
+                }
+            }
+        }
+        eprintln!(
+            "[{}] {poll_hz} Hz: b frozen for {:.0} ms of controller time; the vote follows a {:.0} ms after the freeze",
+            case.name,
+            1e3 * (t[k_end - 1] - t[k0]),
+            1e3 * after_s
+        );
+        assert!(t[k_end - 1] - t[k0] > 0.8, "the freeze is in the black box");
+        assert!(
+            after_s <= 0.3,
+            "the vote follows a {after_s:.3} s after the freeze"
+        );
+        assert_eq!(
+            o.figures.surge_cycles, 0,
+            "[{}] {poll_hz} Hz: {}",
+            case.name, o.figures
+        );
+    }
+}
+
+/// Issue 23 acceptance: two Δp transmitters, `b` failed (no value) 2.5 s before the noisy
+/// closure. Asserted: `b` voted out (`nan`), the vote holds the last agreed value (rule
+/// `hold_last`, 1 of 2 valid) with the `vote_degraded` fault, the degraded policy's control-line
+/// shift in force (status JSON and text during the closure), no fail-safe from the flow
+/// element, zero surge cycles through the closure.
+#[test]
+fn two_dp_transmitters_one_failed_hold_last_with_a_fault_and_a_wider_margin() {
+    let _rt = real_time();
+    let mut case = Case::new(
+        "two Δp: b failed",
+        100.0,
+        Throttle::Ramp {
+            at_s: DISTURBANCE_AT_S,
+            over_s: 2.0,
+            to: THROTTLE_END,
+        },
+        DISTURBANCE_AT_S + 4.5,
+    );
+    case.dp_noise_pa = DP_NOISE_PA;
+    case.noise_seed = 5;
+    case.latency_seed = 105;
+    case.dp_b = Transmitter::Failed(DISTURBANCE_AT_S - 2.5);
+    case.status_at_s = Some(DISTURBANCE_AT_S + 1.0);
+    let o = run_case(case);
+    report(&case, &o);
+    assert_in_control(&case, &o);
+    let events = events_until_shutdown(o.dir.path());
+    let failed = transmitter_event(&events, "b", "voted_out", "nan");
+    eprintln!("[{}] {failed:?}", case.name);
+    assert!(
+        failed.is_some_and(|l| l.contains("\"rule\":\"hold_last\"")),
+        "b not voted out (nan) with the vote holding:\n{events}"
+    );
+    assert_no_flow_failsafe(case.name, &events);
+    let (st, human) = o.status_mid.as_ref().expect("status during the closure");
+    let vote = &st["votes"][0];
+    eprintln!(
+        "[{}] status during the closure: votes {vote} · transmitters {} · policy {} · vote faults {}",
+        case.name, st["transmitters"], st["degraded_policy"], st["vote_faults"]
+    );
+    assert_eq!(vote["measurement"], "orifice_dp", "{st}");
+    assert_eq!(vote["rule"], "hold_last", "{st}");
+    assert_eq!(
+        (vote["valid"].as_u64(), vote["bound"].as_u64()),
+        (Some(1), Some(2))
+    );
+    assert_eq!(vote["degraded"], true);
+    let b = &st["transmitters"][1];
+    assert_eq!(
+        (
+            b["binding"].as_str(),
+            b["state"].as_str(),
+            b["reason"].as_str()
+        ),
+        (Some("b"), Some("voted_out"), Some("nan")),
+        "{st}"
+    );
+    assert!(
+        st["vote_faults"]
+            .as_array()
+            .is_some_and(|f| f.iter().any(|x| x == "vote_degraded")),
+        "{st}"
+    );
+    let policy = &st["degraded_policy"];
+    let shift = policy["margin_shift_pct"].as_f64().unwrap_or(0.0);
+    assert!(
+        policy["in_force"] == true && shift > 1.0 && shift <= 5.0,
+        "{policy}"
+    );
+    assert!(
+        human.contains("vote          orifice_dp 1 of 2 valid, hold-last (degraded)")
+            && human.contains("degraded      hold and widen"),
+        "{human}"
+    );
+    assert_eq!(o.figures.surge_cycles, 0, "[{}] {}", case.name, o.figures);
+}
+
+// ---------------------------------------------------------------------------------------------
 // Case 4: a 3-s link outage
 
 /// First run: the valve stood at 51.2 % when the link dropped; the first command after the
@@ -1571,6 +1903,8 @@ fn a_device_answering_90_ms_late_for_8_s_is_reported_as_a_slow_link() {
     // request timeout, so the link stays up (with the default 100 ms they time out and the
     // link is down, reported as such)
     case.client_timeout_ms = Some(250);
+    // the degraded policy in force, 3 s into the slowdown
+    case.status_at_s = Some(from + 3.0);
     let o = run_case(case);
     report(&case, &o);
     let events = events_until_shutdown(o.dir.path());
@@ -1638,6 +1972,53 @@ fn a_device_answering_90_ms_late_for_8_s_is_reported_as_a_slow_link() {
             "a fail-safe not rooted in a stale input: {l}"
         );
     }
+    // the documented degraded policy, in the status while the link is slow
+    let (st, human) = o.status_mid.as_ref().expect("status during the slowdown");
+    let policy = &st["degraded_policy"];
+    eprintln!("[{}] status 3 s into the slowdown: {policy}", case.name);
+    assert_eq!(policy["in_force"], true, "{st}");
+    assert!(
+        policy["causes"]
+            .as_array()
+            .is_some_and(|c| c.iter().any(|x| x == "field_link_slow")),
+        "{policy}"
+    );
+    assert!(
+        policy["text"]
+            .as_str()
+            .is_some_and(|t| t.starts_with("hold and widen")),
+        "{policy}"
+    );
+    assert!(human.contains("degraded      hold and widen"), "{human}");
+    // the trace: the valve is commanded fully open only in a fail-safe entered after an
+    // input stayed stale beyond its budget (the test's 200-ms freshness; the core adds its
+    // 250-ms failure hold before it fails safe)
+    let bb = BlackBox::read(o.dir.path());
+    let (cmd, mode) = (bb.col("cmd_recycle_valve"), bb.col("mode"));
+    let age = |name: &str| bb.col(&format!("age_s_{name}"));
+    let ages = [age("p_suction"), age("p_discharge"), age("orifice_dp")];
+    let mut open_rows = 0;
+    let mut stale_since_failsafe = false;
+    for k in 0..cmd.len() {
+        if mode[k] != 3.0 {
+            stale_since_failsafe = false;
+            continue;
+        }
+        stale_since_failsafe |= ages.iter().any(|a| a[k] > 0.2);
+        if cmd[k] >= 0.999 {
+            open_rows += 1;
+            assert!(
+                stale_since_failsafe,
+                "valve at 100 % at t = {:.3} s without an input stale beyond its budget",
+                bb.col("t_s")[k]
+            );
+        }
+    }
+    eprintln!(
+        "[{}] black box: {} cycles, valve commanded 100 % in {open_rows} (each in a fail-safe after a stale input)",
+        case.name,
+        cmd.len()
+    );
 }
 
 /// Issue 23: "every resume raises a false `actuator_feedback_mismatch`". Ten link outages of

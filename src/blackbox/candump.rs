@@ -324,7 +324,11 @@ pub fn import(
             deadline_ns: wake_ns,
             wake_ns,
             t_s: (k * period) as f64 * 1e-9,
-            raw: RawSensors { values, age_s },
+            raw: RawSensors {
+                values,
+                age_s,
+                spare: sensors.spares(wake_ns),
+            },
             op,
             commands: cmd,
             mode: hb.map_or(0, |h| h.mode),
@@ -336,6 +340,7 @@ pub fn import(
             flow_fallback: false,
             surge_started: false,
             updates_applied: 0,
+            voted: [f64::NAN; crate::control::vote::VOTABLE.len()],
         });
         if wake_ns >= end {
             break;

@@ -77,6 +77,9 @@ pub struct CycleRecord {
     pub surge_started: bool,
     /// Configuration updates applied so far (a change means the settings changed here).
     pub updates_applied: u64,
+    /// The voted value of each measurement with redundant transmitters, in
+    /// [`VOTABLE`](crate::control::vote::VOTABLE) order (NaN: not voted, or no valid one).
+    pub voted: [f64; crate::control::vote::VOTABLE.len()],
 }
 
 /// What the control core was built from: enough for `antisurge replay` to build it again.
@@ -283,6 +286,14 @@ pub fn columns() -> Vec<String> {
     for id in SensorId::ALL {
         c.push(format!("age_s_{}", id.name()));
     }
+    // redundant transmitters b and c of the measurements that can take a vote, and the vote
+    for id in crate::control::vote::VOTABLE {
+        for t in ["b", "c"] {
+            c.push(format!("in_{}_{t}", id.name()));
+            c.push(format!("age_s_{}_{t}", id.name()));
+        }
+        c.push(format!("vote_{}", id.name()));
+    }
     for k in [
         "op_speed_setpoint_rad_s",
         "op_throttle_demand",
@@ -317,6 +328,13 @@ fn write_row(w: &mut impl Write, r: &CycleRecord) -> std::io::Result<()> {
     }
     for v in r.raw.age_s {
         write!(w, ",{v}")?;
+    }
+    for (k, id) in crate::control::vote::VOTABLE.into_iter().enumerate() {
+        for slot in 1..=2 {
+            let (v, age) = r.raw.spare.get(id, slot);
+            write!(w, ",{v},{age}")?;
+        }
+        write!(w, ",{}", r.voted[k])?;
     }
     let o = &r.op;
     write!(
@@ -442,6 +460,16 @@ fn parse_row(line: &str, n_cols: usize) -> Result<CycleRecord, String> {
     for v in age_s.iter_mut() {
         *v = x(next())?;
     }
+    let mut spare = crate::control::measurements::SpareReadings::NONE;
+    let mut voted = [f64::NAN; crate::control::vote::VOTABLE.len()];
+    for (k, id) in crate::control::vote::VOTABLE.into_iter().enumerate() {
+        for slot in 1..=2 {
+            let v = x(next())?;
+            let age = x(next())?;
+            spare.set(id, slot, v, age);
+        }
+        voted[k] = x(next())?;
+    }
     let op = OperatorInputs {
         speed_setpoint_rad_s: x(next())?,
         throttle_demand: x(next())?,
@@ -458,7 +486,11 @@ fn parse_row(line: &str, n_cols: usize) -> Result<CycleRecord, String> {
         deadline_ns,
         wake_ns,
         t_s,
-        raw: RawSensors { values, age_s },
+        raw: RawSensors {
+            values,
+            age_s,
+            spare,
+        },
         op,
         commands,
         mode: small(next())?,
@@ -470,6 +502,7 @@ fn parse_row(line: &str, n_cols: usize) -> Result<CycleRecord, String> {
         flow_fallback: small(next())? != 0,
         surge_started: small(next())? != 0,
         updates_applied: u(next())?,
+        voted,
     })
 }
 
@@ -506,6 +539,7 @@ mod tests {
             flow_fallback: k.is_multiple_of(2),
             surge_started: false,
             updates_applied: 0,
+            voted: [f64::NAN, 1.5, f64::NAN, 0.25 + k as f64],
         }
     }
 

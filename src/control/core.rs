@@ -12,6 +12,7 @@ use super::observer::{LowPass, MassFlowObserver};
 use super::speed_loop::SpeedLoop;
 use super::supervisor::{InputFault, InputLimits, Supervisor, Validity};
 use super::surge_control_line::SurgeControlLine;
+use super::vote::{Vote, VoteSettings};
 use crate::signals::{ActuatorCommands, ActuatorId, SensorId};
 use crate::surge::{Detection, SurgeDetector};
 
@@ -73,6 +74,9 @@ pub struct CoreSettings {
     /// Hysteresis on leaving fail-safe: inputs must be healthy this long without a break
     /// before the controller resumes, s (no auto ↔ fail-safe chatter on a marginal link).
     pub failsafe_exit_s: f64,
+    /// Redundant transmitters: which measurements are voted, and how
+    /// ([`crate::control::vote`]); the signal map's `[vote.<sensor>]`.
+    pub vote: VoteSettings,
 }
 
 impl CoreSettings {
@@ -125,6 +129,7 @@ impl CoreSettings {
             startup_grace_s: 1.0,
             failure_hold_s: DEFAULT_FAILURE_HOLD_S,
             failsafe_exit_s: DEFAULT_FAILSAFE_EXIT_S,
+            vote: VoteSettings::default(),
         }
     }
 
@@ -166,6 +171,33 @@ pub const DEFAULT_FAILURE_HOLD_S: f64 = 0.25;
 pub const DEFAULT_FAILSAFE_EXIT_S: f64 = 0.5;
 /// Default freshness timeout in poll periods of a polled bus.
 pub const POLL_PERIODS_PER_TIMEOUT: f64 = 3.0;
+
+/// Control-line shift of the slow-link policy, fraction of the control-line flow: while a
+/// field link is slow but alive (`field_link_slow`), each input arrives up to one achieved
+/// poll period late, and the operating point moves meanwhile. 5 %: a closure that takes a
+/// machine from its control line (10 % margin) to its surge line in ≈ 1 s moves it 5 % of
+/// flow in half a second, the age of an input at 2 Hz polling (a device 0.5 s late is no
+/// longer "slow": its inputs go stale and the failure hold takes over).
+pub const SLOW_LINK_MARGIN: f64 = 0.05;
+/// How fast a degraded margin shift moves in and out, fraction of flow per second. A step
+/// would read to a law's trip as a sudden approach of the surge line and open the valve;
+/// 1 %/s is a third of the slowest approach the recycle trip predicts a crossing from (its
+/// 5 % gap between control and trip line over a 1.5-s horizon), so the shift alone never
+/// trips it. 5 % takes 5 s.
+pub const MARGIN_SHIFT_RATE_PER_S: f64 = 0.01;
+
+/// What widens the control line now (the degraded policy in force).
+#[derive(Debug, Clone, Copy, PartialEq, Default)]
+pub struct MarginShift {
+    /// Shift in force, fraction of the control-line flow (moving towards `target`).
+    pub now: f64,
+    /// Where it is moving: the largest of the causes below, fraction.
+    pub target: f64,
+    /// A redundant measurement's vote is degraded (its `degraded_margin_pct`), fraction.
+    pub vote: f64,
+    /// A field link is slow but alive ([`SLOW_LINK_MARGIN`]), fraction.
+    pub slow_link: f64,
+}
 
 /// What one cycle produced (for traces, the event log and the I/O layer).
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -293,6 +325,12 @@ pub struct ControlCore {
     /// Cross-check of the flow transmitter against the observer and the speed-line flow
     /// (drifting or biased Δp).
     dp_drift: DriftCheck,
+    /// Votes of the measurements with redundant transmitters.
+    vote: Vote,
+    /// A field link is slow but alive (set by the daemon each cycle).
+    link_slow: bool,
+    /// The degraded margin shift.
+    shift: MarginShift,
 }
 
 impl ControlCore {
@@ -343,6 +381,9 @@ impl ControlCore {
             reload_restart: false,
             dp_frozen: FrozenDpCheck::new(),
             dp_drift: DriftCheck::new(),
+            vote: Vote::new(),
+            link_slow: false,
+            shift: MarginShift::default(),
             model,
             config,
             settings,
@@ -378,6 +419,56 @@ impl ControlCore {
     /// residuals for the event log and status).
     pub fn dp_drift_check(&self) -> &DriftCheck {
         &self.dp_drift
+    }
+
+    /// The votes of the measurements with redundant transmitters (this cycle's).
+    pub fn vote(&self) -> &Vote {
+        &self.vote
+    }
+
+    /// The degraded margin shift in force and its causes.
+    pub fn margin_shift(&self) -> MarginShift {
+        self.shift
+    }
+
+    /// Tell the core whether a field link is slow but alive (`field_link_slow`): the
+    /// slow-link policy widens the control line by [`SLOW_LINK_MARGIN`] while it lasts.
+    pub fn set_link_slow(&mut self, slow: bool) {
+        self.link_slow = slow;
+    }
+
+    /// Move the margin shift towards its target (at most [`MARGIN_SHIFT_RATE_PER_S`]).
+    fn update_margin_shift(&mut self, dt: f64) {
+        let vote = self.vote.degraded_margin(&self.settings.vote);
+        let slow_link = if self.link_slow {
+            SLOW_LINK_MARGIN
+        } else {
+            0.0
+        };
+        let target = vote.max(slow_link);
+        let step = MARGIN_SHIFT_RATE_PER_S * dt.max(0.0);
+        let now = self.shift.now + (target - self.shift.now).clamp(-step, step);
+        self.shift = MarginShift {
+            now,
+            target,
+            vote,
+            slow_link,
+        };
+    }
+
+    /// The measurements a law sees: with a control-line law (recycle-pi), the flow scaled
+    /// by 1/(1 + shift), so its control and trip lines act `shift` of their flow further
+    /// right; laws without a control line (active surge control on a model) see the
+    /// measurements as they are.
+    fn law_measurements(&self, m: &Measurements) -> Measurements {
+        let s = self.shift.now;
+        if s <= 0.0 || self.control_line().is_none() {
+            return *m;
+        }
+        let mut out = *m;
+        out.m_kg_s /= 1.0 + s;
+        out.flow_map /= 1.0 + s;
+        out
     }
 
     /// The online surge detector.
@@ -824,8 +915,29 @@ impl ControlCore {
 
     /// One cycle without the ESD override (see [`cycle`](Self::cycle)).
     fn cycle_laws(&mut self, t_s: f64, raw: &RawSensors, op: &OperatorInputs) -> CycleOutput {
+        // redundant transmitters: each checked on its own, voted into one value
+        let voted;
+        let mut vote_fault = [None; SensorId::COUNT];
+        let raw = if self.settings.vote.any() {
+            voted = self.vote.apply(
+                t_s,
+                raw,
+                &self.settings.supervisor,
+                &self.settings.vote,
+                &mut vote_fault,
+            );
+            &voted
+        } else {
+            raw
+        };
         let mut validity = self.settings.supervisor.check(raw);
-        // cross-check: a Δp repeating itself while the pressures move is frozen
+        for (f, v) in validity.fault.iter_mut().zip(vote_fault) {
+            if let Some(v) = v {
+                *f = v;
+            }
+        }
+        // cross-check: a Δp repeating itself while the pressures move is frozen (a voted Δp:
+        // each transmitter has its own check in the vote; the vote itself may hold a value)
         let usable = |id: SensorId| {
             if validity.ok(id) {
                 raw.values.get(id)
@@ -833,12 +945,15 @@ impl ControlCore {
                 f64::NAN
             }
         };
-        if self.dp_frozen.update(
-            t_s,
-            usable(SensorId::OrificeDp),
-            usable(SensorId::PSuction),
-            usable(SensorId::PDischarge),
-        ) {
+        let dp_voted = self.settings.vote.per_sensor[SensorId::OrificeDp.index()].is_some();
+        if !dp_voted
+            && self.dp_frozen.update(
+                t_s,
+                usable(SensorId::OrificeDp),
+                usable(SensorId::PSuction),
+                usable(SensorId::PDischarge),
+            )
+        {
             validity.fault[SensorId::OrificeDp.index()] = InputFault::Frozen;
         }
         self.reported_torque_nm = if validity.ok(SensorId::DriveTorque) {
@@ -892,6 +1007,7 @@ impl ControlCore {
         self.last_t_s = t_s;
         let meas = self.measurements(t_s, dt, raw, &mut validity);
         self.last_meas = meas;
+        self.update_margin_shift(dt);
         let age = essentials
             .iter()
             .map(|s| raw.age_s[s.index()])
@@ -1001,8 +1117,9 @@ impl ControlCore {
         let mut law_torque = f64::NAN;
         let mut diagnostic = f64::NAN;
         let mut law_event = None;
+        let law_meas = self.law_measurements(&meas);
         let inputs = LawInputs {
-            m: &meas,
+            m: &law_meas,
             op,
             model: &self.model,
             history: &self.history,
@@ -1602,5 +1719,70 @@ mod tests {
         let mut stale = next;
         stale.age_s = [0.2; SensorId::COUNT];
         assert_eq!(core.cycle(0.2, &stale, &op).mode, Mode::FailSafe);
+    }
+
+    /// Redundant Δp transmitters: a vote of three feeds the core like one transmitter; two
+    /// of them failing leave a hold-last vote (no fail-safe), and the degraded policy widens
+    /// the control line at 1 %/s up to 5 %, acting on the law's flow only; back to three,
+    /// the shift goes out at the same rate. A slow link asks for the same 5 %.
+    #[test]
+    fn a_vote_feeds_the_core_and_a_degraded_vote_widens_the_control_line_at_its_rate() {
+        use crate::control::vote::{VoteLimits, VoteRule};
+        let (mut core, raw, op) = started(1.0);
+        let mut s = *core.settings();
+        s.vote.per_sensor[SensorId::OrificeDp.index()] = Some(VoteLimits::defaults(3));
+        core.set_settings(s);
+        let dp = raw.values.get(SensorId::OrificeDp);
+        let pd = raw.values.get(SensorId::PDischarge);
+        let sample = |k: usize, b: f64, c: f64| {
+            let mut r = raw;
+            r.values.set(SensorId::PDischarge, pd + (k % 2) as f64);
+            r.spare.set(SensorId::OrificeDp, 1, b, 0.0);
+            r.spare.set(SensorId::OrificeDp, 2, c, 0.0);
+            r
+        };
+        let first = core.cycle(0.0, &sample(0, dp * 1.2, dp * 1.001), &op);
+        assert_eq!(first.mode, Mode::Auto);
+        let v = *core.vote().of(SensorId::OrificeDp).expect("voted");
+        assert_eq!(
+            (v.rule, v.valid, v.value),
+            (VoteRule::Median, 3, dp * 1.001)
+        );
+        assert_eq!(core.margin_shift().now, 0.0);
+        let dt = 1e-3;
+        let mut t = 0.0;
+        for k in 1..=7000 {
+            t = k as f64 * dt;
+            let out = core.cycle(t, &sample(k, f64::NAN, f64::NAN), &op);
+            assert_eq!(out.mode, Mode::Auto, "{t}");
+            assert!(out.measurements.m_kg_s.is_finite());
+            if k == 1000 {
+                let sh = core.margin_shift().now;
+                assert!((sh - 0.01).abs() < 2e-3, "{sh} after 1 s");
+            }
+        }
+        let v = *core.vote().of(SensorId::OrificeDp).expect("voted");
+        assert_eq!((v.rule, v.valid, v.degraded), (VoteRule::HoldLast, 1, true));
+        let sh = core.margin_shift();
+        assert!((sh.now - 0.05).abs() < 1e-9 && sh.vote == 0.05, "{sh:?}");
+        // the law's flow, not the measured one
+        let m = core.last_meas;
+        let law = core.law_measurements(&m);
+        assert!((law.flow_map * 1.05 - m.flow_map).abs() < 1e-9 * m.flow_map.abs());
+        // three again (live transmitters: their readings move): the shift goes out at 1 %/s
+        for k in 1..=2000 {
+            let wobble = 1.0 + 1e-4 * (k % 7) as f64;
+            core.cycle(t + k as f64 * dt, &sample(k, dp * wobble, dp / wobble), &op);
+        }
+        let sh = core.margin_shift();
+        assert!(
+            sh.target == 0.0 && (sh.now - 0.03).abs() < 2e-3,
+            "{sh:?} {:?}",
+            core.vote().of(SensorId::OrificeDp)
+        );
+        // a slow link asks for the slow-link margin
+        core.set_link_slow(true);
+        core.cycle(t + 2.001, &sample(1, dp, dp), &op);
+        assert_eq!(core.margin_shift().target, SLOW_LINK_MARGIN);
     }
 }

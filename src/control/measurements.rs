@@ -6,10 +6,59 @@ use crate::signals::{SensorId, SensorSnapshot};
 /// Sensor readings as they arrived, with the age of each (time since it was last updated).
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct RawSensors {
-    /// Values in SI units (NaN: absent/invalid).
+    /// Values in SI units (NaN: absent/invalid). For a measurement with redundant
+    /// transmitters, transmitter `a` (the `[sensors]` binding).
     pub values: SensorSnapshot,
     /// Age of each value, s (∞: never received).
     pub age_s: [f64; SensorId::COUNT],
+    /// Transmitters `b` and `c` of measurements with redundant transmitters (the signal
+    /// map's `[vote.<sensor>]`), voted with `a` by [`crate::control::vote`].
+    pub spare: SpareReadings,
+}
+
+/// Readings of the redundant transmitters `b` and `c` of each sensor (NaN and ∞ age where
+/// none is bound).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct SpareReadings {
+    /// Values, SI, `[sensor][0]` = `b`, `[sensor][1]` = `c`.
+    pub values: [[f64; 2]; SensorId::COUNT],
+    /// Ages, s.
+    pub age_s: [[f64; 2]; SensorId::COUNT],
+}
+
+impl SpareReadings {
+    /// No spare transmitter.
+    pub const NONE: SpareReadings = SpareReadings {
+        values: [[f64::NAN; 2]; SensorId::COUNT],
+        age_s: [[f64::INFINITY; 2]; SensorId::COUNT],
+    };
+
+    /// Transmitter `slot` (1 = `b`, 2 = `c`) of `id`: value and age.
+    #[inline]
+    pub fn get(&self, id: SensorId, slot: usize) -> (f64, f64) {
+        match slot {
+            1 | 2 => (
+                self.values[id.index()][slot - 1],
+                self.age_s[id.index()][slot - 1],
+            ),
+            _ => (f64::NAN, f64::INFINITY),
+        }
+    }
+
+    /// Set transmitter `slot` (1 = `b`, 2 = `c`) of `id`.
+    #[inline]
+    pub fn set(&mut self, id: SensorId, slot: usize, value: f64, age_s: f64) {
+        if let 1 | 2 = slot {
+            self.values[id.index()][slot - 1] = value;
+            self.age_s[id.index()][slot - 1] = age_s;
+        }
+    }
+}
+
+impl Default for SpareReadings {
+    fn default() -> Self {
+        Self::NONE
+    }
 }
 
 impl RawSensors {
@@ -18,14 +67,35 @@ impl RawSensors {
         RawSensors {
             values: SensorSnapshot::default(),
             age_s: [f64::INFINITY; SensorId::COUNT],
+            spare: SpareReadings::NONE,
         }
     }
 
-    /// Fresh readings (age 0).
+    /// Fresh readings (age 0), no redundant transmitters.
     pub fn fresh(values: SensorSnapshot) -> Self {
         RawSensors {
             values,
             age_s: [0.0; SensorId::COUNT],
+            spare: SpareReadings::NONE,
+        }
+    }
+
+    /// Readings with ages, no redundant transmitters.
+    pub fn new(values: SensorSnapshot, age_s: [f64; SensorId::COUNT]) -> Self {
+        RawSensors {
+            values,
+            age_s,
+            spare: SpareReadings::NONE,
+        }
+    }
+
+    /// Transmitter `slot` of `id` (0 = `a`, the input itself; 1 = `b`; 2 = `c`): value, age.
+    #[inline]
+    pub fn transmitter(&self, id: SensorId, slot: usize) -> (f64, f64) {
+        if slot == 0 {
+            (self.values.get(id), self.age_s[id.index()])
+        } else {
+            self.spare.get(id, slot)
         }
     }
 }

@@ -22,6 +22,7 @@ pub mod spool_laws;
 pub mod supervisor;
 pub mod surge_control_line;
 pub mod tip_sliding;
+pub mod vote;
 
 pub use config::ControllerConfig;
 pub use law::LawId;

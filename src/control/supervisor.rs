@@ -90,22 +90,28 @@ impl Supervisor {
         let mut fault = [InputFault::None; SensorId::COUNT];
         for id in SensorId::ALL {
             let i = id.index();
-            let Some(lim) = self.limits[i] else {
-                fault[i] = InputFault::Nan;
-                continue;
-            };
-            let v = raw.values.values[i];
-            fault[i] = if v.is_nan() {
-                InputFault::Nan
-            } else if raw.age_s[i] > lim.timeout_s {
-                InputFault::Stale
-            } else if v < lim.min || v > lim.max {
-                InputFault::OutOfRange
-            } else {
-                InputFault::None
-            };
+            fault[i] = self.check_one(id, raw.values.values[i], raw.age_s[i]);
         }
         Validity { fault }
+    }
+
+    /// Check one reading of `id` (value, age in s) against its limits: the same rule for an
+    /// input and for each of its redundant transmitters ([`crate::control::vote`]).
+    /// An input without limits (not used) is never usable.
+    #[inline]
+    pub fn check_one(&self, id: SensorId, v: f64, age_s: f64) -> InputFault {
+        let Some(lim) = self.limits[id.index()] else {
+            return InputFault::Nan;
+        };
+        if v.is_nan() {
+            InputFault::Nan
+        } else if age_s > lim.timeout_s {
+            InputFault::Stale
+        } else if v < lim.min || v > lim.max {
+            InputFault::OutOfRange
+        } else {
+            InputFault::None
+        }
     }
 }
 

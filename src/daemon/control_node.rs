@@ -106,6 +106,9 @@ pub struct ControlNode {
     blackbox: Option<crate::blackbox::BlackBoxTx>,
     /// What stands in for the flow element during the current fallback.
     fallback_replacement: Replacement,
+    /// Each redundant transmitter's state as last reported (events on a change).
+    transmitters: [[crate::control::vote::TransmitterState; crate::control::vote::MAX_TRANSMITTERS];
+        crate::control::vote::VOTABLE.len()],
 }
 
 fn ev_mode(m: Mode) -> EvMode {
@@ -187,6 +190,10 @@ impl ControlNode {
             esd_active: false,
             blackbox: None,
             fallback_replacement: Replacement::Observer,
+            // a transmitter is taken as healthy until the first report says otherwise
+            transmitters: [[crate::control::vote::TransmitterState::Healthy;
+                crate::control::vote::MAX_TRANSMITTERS];
+                crate::control::vote::VOTABLE.len()],
         }
     }
 
@@ -293,10 +300,18 @@ impl ControlNode {
         let m = &out.measurements;
         let (q, r) = (m.flow_map, m.pressure_ratio);
         let model = self.core.model();
+        // the degraded policy's shift acts on the law's flow (core::law_measurements): the
+        // control and trip lines it acts on are that much further right
+        let widen = 1.0 + self.core.margin_shift().now;
         let (surge_line, control_line, trip_line, shift) = match self.core.control_line() {
             Some((scl, trip)) => {
                 let j = scl.surge_line().flow_at_ratio(r);
-                (j, scl.flow_at_ratio(r), (1.0 + trip) * j, scl.shift)
+                (
+                    j,
+                    widen * scl.flow_at_ratio(r),
+                    widen * (1.0 + trip) * j,
+                    scl.shift,
+                )
             }
             None => {
                 let j = model
@@ -344,6 +359,10 @@ impl ControlNode {
             valve_position: m.recycle_position,
             manual_output: self.core.manual_output(),
             auto_requested: self.core.auto_requested(),
+            votes: crate::live::snapshot::VoteLamps {
+                votes: self.core.vote().status(),
+                shift: self.core.margin_shift(),
+            },
         });
     }
 
@@ -391,7 +410,11 @@ impl ControlNode {
         self.apply_operator_commands();
         let now = tick.wake_ns;
         let (values, age_s) = self.sensors.snapshot(now);
-        let raw = RawSensors { values, age_s };
+        let raw = RawSensors {
+            values,
+            age_s,
+            spare: self.sensors.spares(now),
+        };
         let oldest = [
             SensorId::PSuction,
             SensorId::PDischarge,
@@ -408,6 +431,9 @@ impl ControlNode {
             self.t0_ns = tick.deadline_ns.saturating_sub(self.period_ns);
         }
         let t_s = now.saturating_sub(self.t0_ns) as f64 * 1e-9;
+        // the slow-link policy: a field link slow but alive widens the control line
+        let slow = crate::faults::field::word() & crate::faults::FaultCategory::FieldLinkSlow.bit();
+        self.core.set_link_slow(slow != 0);
         let out = self.core.cycle(t_s, &raw, &self.op);
         if let Some(bb) = &mut self.blackbox {
             let m = &out.measurements;
@@ -431,13 +457,23 @@ impl ControlNode {
                     Detection::SurgeStarted | Detection::ReversalStarted
                 ),
                 updates_applied: self.health.updates_applied.load(Ordering::Relaxed),
+                voted: self.core.vote().status().map(
+                    |v| {
+                        if v.bound > 0 {
+                            v.value
+                        } else {
+                            f64::NAN
+                        }
+                    },
+                ),
             });
         }
         self.outputs.publish(&Outputs {
             commands: out.commands,
             mode: out.mode.code(),
             law: out.law.code(),
-            faults: fault_bits(&out.validity, &self.core.settings().supervisor),
+            faults: fault_bits(&out.validity, &self.core.settings().supervisor)
+                | crate::faults::FaultSet::from_vote(self.core.vote()).0,
             cycle: tick.cycle,
             t_ns: now,
         });
@@ -463,6 +499,9 @@ impl ControlNode {
         } else if out.mode == Mode::FailSafe {
             // keep the shown cause current (another input may fail, the value moves)
             self.cause = Some(self.cause_now(&out, &raw, out.mode));
+        }
+        if out.mode != Mode::Init {
+            self.report_transmitters();
         }
         if out.law != self.prev_law {
             self.push(LawChanged {
@@ -568,6 +607,27 @@ impl ControlNode {
         };
         if let Some(e) = ev {
             self.push(e);
+        }
+    }
+
+    /// Report every redundant transmitter whose state changed (voted out and by which
+    /// check, deviating, healthy again). Allocation-free.
+    fn report_transmitters(&mut self) {
+        let votes = self.core.vote().status();
+        for (k, v) in votes.iter().enumerate() {
+            if v.bound == 0 {
+                continue;
+            }
+            for slot in 0..usize::from(v.bound) {
+                let st = v.states[slot];
+                if st == self.transmitters[k][slot] {
+                    continue;
+                }
+                self.transmitters[k][slot] = st;
+                if let Some(e) = crate::events::Transmitter::of(v, slot) {
+                    self.push(e);
+                }
+            }
         }
     }
 

@@ -87,7 +87,11 @@ pub async fn sample_live(sensors: &SensorBoard, period_s: f64) -> Vec<Sample> {
         let (values, age_s) = sensors.snapshot(now);
         out.push(Sample {
             t_s: now.saturating_sub(t0) as f64 * 1e-9,
-            raw: RawSensors { values, age_s },
+            raw: RawSensors {
+                values,
+                age_s,
+                spare: sensors.spares(now),
+            },
         });
     }
     out

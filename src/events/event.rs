@@ -231,6 +231,150 @@ pub struct RecycleTrip {
     pub cause: Option<Cause>,
 }
 
+/// A redundant transmitter changed state (voted out and by which check, deviating, healthy
+/// again), with the vote it belongs to.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+pub struct Transmitter {
+    /// The measurement.
+    pub input: SensorId,
+    /// The transmitter: `a` (the `[sensors]` binding), `b` or `c` (the `[vote]` bindings).
+    pub transmitter: TransmitterName,
+    /// `healthy`, `deviating` or `voted_out`.
+    pub state: TransmitterStateName,
+    /// The check that found it (`stale`, `nan`, `out_of_range`, `frozen`, `deviation`).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub check: Option<TransmitterCheckName>,
+    /// Its reading, SI unit of the input (NaN: none).
+    #[serde(deserialize_with = "f64_or_nan")]
+    pub value: f64,
+    /// The vote, same unit (NaN: none).
+    #[serde(deserialize_with = "f64_or_nan")]
+    pub vote: f64,
+    /// Its reading against the vote, % of the vote (NaN: either missing).
+    #[serde(deserialize_with = "f64_or_nan")]
+    pub deviation_pct: f64,
+    /// Valid transmitters and transmitters bound, after the change.
+    pub valid: u8,
+    /// Transmitters bound.
+    pub bound: u8,
+    /// The vote's rule now: `median`, `conservative`, `hold_last` or `none`.
+    pub rule: VoteRuleName,
+}
+
+/// A transmitter's name in its vote.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum TransmitterName {
+    /// The `[sensors]` binding.
+    A,
+    /// The `[vote]` table's `b`.
+    B,
+    /// The `[vote]` table's `c`.
+    C,
+}
+
+impl TransmitterName {
+    /// By slot (0 = a).
+    pub fn of_slot(slot: usize) -> TransmitterName {
+        match slot {
+            0 => TransmitterName::A,
+            1 => TransmitterName::B,
+            _ => TransmitterName::C,
+        }
+    }
+}
+
+/// [`crate::control::vote::TransmitterState`] in the log.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum TransmitterStateName {
+    /// Counted and agreeing.
+    Healthy,
+    /// Counted, but further from the vote than its threshold.
+    Deviating,
+    /// Not counted.
+    VotedOut,
+}
+
+/// [`crate::control::vote::TransmitterCheck`] in the log.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum TransmitterCheckName {
+    /// No fresh value.
+    Stale,
+    /// No value.
+    Nan,
+    /// Outside the plausible range.
+    OutOfRange,
+    /// Repeating itself (frozen-Δp check).
+    Frozen,
+    /// Away from the vote beyond the threshold.
+    Deviation,
+}
+
+/// [`crate::control::vote::VoteRule`] in the log.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum VoteRuleName {
+    /// No valid transmitter.
+    None,
+    /// Median of three.
+    Median,
+    /// The conservative one of two.
+    Conservative,
+    /// One left: hold the last agreed value.
+    HoldLast,
+}
+
+impl Transmitter {
+    /// The event for transmitter `slot` of a vote.
+    pub fn of(v: &crate::control::vote::VoteStatus, slot: usize) -> Option<Transmitter> {
+        use crate::control::vote::{TransmitterCheck as C, TransmitterState as S, VoteRule as R};
+        let st = *v.states.get(slot)?;
+        let state = match st {
+            S::Unbound => return None,
+            S::Healthy => TransmitterStateName::Healthy,
+            S::Deviating => TransmitterStateName::Deviating,
+            S::VotedOut(_) => TransmitterStateName::VotedOut,
+        };
+        let check = st.reason().map(|c| match c {
+            C::Stale => TransmitterCheckName::Stale,
+            C::Nan => TransmitterCheckName::Nan,
+            C::OutOfRange => TransmitterCheckName::OutOfRange,
+            C::Frozen => TransmitterCheckName::Frozen,
+            C::Deviation => TransmitterCheckName::Deviation,
+        });
+        let value = v.values[slot];
+        Some(Transmitter {
+            input: v.input,
+            transmitter: TransmitterName::of_slot(slot),
+            state,
+            check,
+            value,
+            vote: v.value,
+            deviation_pct: 100.0 * (value - v.value) / v.value.abs(),
+            valid: v.valid,
+            bound: v.bound,
+            rule: match v.rule {
+                R::None => VoteRuleName::None,
+                R::Median => VoteRuleName::Median,
+                R::Conservative => VoteRuleName::Conservative,
+                R::HoldLast => VoteRuleName::HoldLast,
+            },
+        })
+    }
+
+    /// The transmitter's name as operators see it: `orifice_dp.b`.
+    pub fn name(&self) -> String {
+        let t = match self.transmitter {
+            TransmitterName::A => "a",
+            TransmitterName::B => "b",
+            TransmitterName::C => "c",
+        };
+        format!("{}.{t}", self.input.name())
+    }
+}
+
 /// One changed configuration key. Values are rendered as TOML/text; `None` means absent.
 #[derive(Debug, Clone, PartialEq, Eq, Serialize, Deserialize)]
 pub struct ConfigChange {
@@ -326,6 +470,8 @@ pub enum Event {
     },
     /// The recycle valve was tripped open.
     RecycleTrip(RecycleTrip),
+    /// A redundant transmitter was voted out, found deviating, or is healthy again.
+    Transmitter(Transmitter),
     /// Free text (operator notes, writer diagnostics).
     Note {
         /// The text.
@@ -405,6 +551,7 @@ impl Event {
             Event::BusState { .. } => "bus_state",
             Event::FieldFault { .. } => "field_fault",
             Event::RecycleTrip(_) => "recycle_trip",
+            Event::Transmitter(_) => "transmitter",
             Event::Note { .. } => "note",
             Event::EventsDropped { .. } => "events_dropped",
             Event::ConnectionsShed { .. } => "connections_shed",
@@ -498,6 +645,7 @@ impl Event {
             | Event::FallbackLeft(_)
             | Event::DeadlineOverrun(_)
             | Event::RecycleTrip(_)
+            | Event::Transmitter(_)
             | Event::EventsDropped { .. } => {}
         }
         clipped

@@ -98,6 +98,26 @@ pub fn record(event: &Event) {
                 previous_count = s.previous_count, count = s.count,
                 "surge counter set from {} to {}", s.previous_count, s.count)
         }
+        Event::Transmitter(t) => {
+            let check = t.check.map(|c| format!(" ({c:?})")).unwrap_or_default();
+            let name = t.name();
+            let state = t.state;
+            macro_rules! line {
+                ($lvl:ident) => {
+                    tracing::$lvl!(target: "event", event = "transmitter", input = t.input.name(),
+                        transmitter = name.as_str(), state = ?t.state, check = ?t.check,
+                        value = t.value, vote = t.vote, deviation_pct = t.deviation_pct,
+                        valid = t.valid, bound = t.bound, rule = ?t.rule,
+                        "transmitter {name} {state:?}{check}: reads {:.6} against the vote {:.6}, {} of {} valid, {:?}",
+                        t.value, t.vote, t.valid, t.bound, t.rule)
+                };
+            }
+            if t.state == super::event::TransmitterStateName::Healthy {
+                line!(info)
+            } else {
+                line!(warn)
+            }
+        }
         Event::LawChanged(l) => {
             tracing::warn!(target: "event", event = "law_changed", from = l.from.name(),
                 to = l.to.name(), "law {} → {}", l.from, l.to)

@@ -14,7 +14,7 @@ use std::time::{Duration, Instant};
 
 use super::event::{
     DeadlineOverrun, Event, FallbackEntered, FallbackLeft, LawChanged, ModeChanged, RecycleTrip,
-    SafetyOnShift, SurgeCounter, SurgeDetected,
+    SafetyOnShift, SurgeCounter, SurgeDetected, Transmitter,
 };
 use super::timestamp::Timestamp;
 
@@ -41,6 +41,8 @@ pub enum RtEvent {
     DeadlineOverrun(DeadlineOverrun),
     /// See [`Event::RecycleTrip`].
     RecycleTrip(RecycleTrip),
+    /// See [`Event::Transmitter`].
+    Transmitter(Transmitter),
 }
 
 impl From<RtEvent> for Event {
@@ -55,6 +57,7 @@ impl From<RtEvent> for Event {
             RtEvent::FallbackLeft(p) => Event::FallbackLeft(p),
             RtEvent::DeadlineOverrun(p) => Event::DeadlineOverrun(p),
             RtEvent::RecycleTrip(p) => Event::RecycleTrip(p),
+            RtEvent::Transmitter(p) => Event::Transmitter(p),
         }
     }
 }
@@ -77,7 +80,8 @@ rt_from!(
     FallbackEntered,
     FallbackLeft,
     DeadlineOverrun,
-    RecycleTrip
+    RecycleTrip,
+    Transmitter
 );
 
 /// An [`RtEvent`] with the time it happened.

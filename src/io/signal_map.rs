@@ -11,6 +11,11 @@
 //!
 //! [actuators.recycle_valve]
 //! can = { message = "CTRL_ActuatorCmd1", signal = "RecycleValveCmd" }
+//!
+//! # Redundant transmitters: `a` is [sensors.orifice_dp]; b and c vote with it
+//! [vote.orifice_dp]
+//! b = { modbus = { unit_id = 1, table = "input", address = 12, data_type = "f32" } }
+//! c = { modbus = { unit_id = 1, table = "input", address = 14, data_type = "f32" } }
 //! ```
 
 use super::can::SignalBinding;
@@ -53,6 +58,56 @@ pub struct SignalMap {
     /// difference between command and feedback is a fault ([`crate::io::feedback`]).
     #[serde(default)]
     pub feedback: BTreeMap<ActuatorId, super::feedback::FeedbackLimit>,
+    /// Redundant transmitters: per measurement, the second (`b`) and third (`c`) binding
+    /// that vote with its `[sensors]` binding (`a`), and the vote's settings
+    /// ([`crate::control::vote`]).
+    #[serde(default)]
+    pub vote: BTreeMap<SensorId, VoteBinding>,
+}
+
+/// `[vote.<sensor>]`: the redundant transmitters of one measurement. Transmitter `a` is the
+/// sensor's `[sensors]` binding.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct VoteBinding {
+    /// The second transmitter.
+    pub b: Binding,
+    /// The third transmitter (median of three), if any.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub c: Option<Binding>,
+    /// Deviation alarm threshold, % of the voted value (default
+    /// [`DEFAULT_DEVIATION_PCT`](crate::control::vote::DEFAULT_DEVIATION_PCT)).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub deviation_pct: Option<f64>,
+    /// How long a transmitter must stay beyond the threshold before the alarm, s (default
+    /// [`DEFAULT_DEVIATION_S`](crate::control::vote::DEFAULT_DEVIATION_S)).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub deviation_s: Option<f64>,
+    /// Control-line shift while the vote is degraded, % of the control-line flow (default
+    /// [`DEFAULT_DEGRADED_MARGIN_PCT`](crate::control::vote::DEFAULT_DEGRADED_MARGIN_PCT)).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub degraded_margin_pct: Option<f64>,
+}
+
+impl VoteBinding {
+    /// The spare bindings with their slot (1 = `b`, 2 = `c`).
+    pub fn spares(&self) -> impl Iterator<Item = (usize, &Binding)> {
+        std::iter::once((1, &self.b)).chain(self.c.as_ref().map(|c| (2, c)))
+    }
+
+    /// The vote's settings in the core's units.
+    pub fn limits(&self) -> crate::control::vote::VoteLimits {
+        use crate::control::vote::VoteLimits;
+        let d = VoteLimits::defaults(if self.c.is_some() { 3 } else { 2 });
+        VoteLimits {
+            transmitters: d.transmitters,
+            deviation: self.deviation_pct.map_or(d.deviation, |p| 0.01 * p),
+            deviation_s: self.deviation_s.unwrap_or(d.deviation_s),
+            degraded_margin: self
+                .degraded_margin_pct
+                .map_or(d.degraded_margin, |p| 0.01 * p),
+        }
+    }
 }
 
 /// `[watchdog]` of the signal map.
@@ -116,6 +171,34 @@ impl SignalMap {
             .collect()
     }
 
+    /// Modbus bindings of the redundant transmitters `b` and `c` (slot 1 and 2), with their
+    /// declared unit converted to SI.
+    pub fn modbus_spares(&self) -> Vec<(SensorId, usize, RegisterBinding)> {
+        let mut out = Vec::new();
+        for (id, v) in &self.vote {
+            for (slot, b) in v.spares() {
+                if let Binding::Modbus(r) = b {
+                    out.push((*id, slot, to_si(*r, Quantity::of_sensor(*id))));
+                }
+            }
+        }
+        out
+    }
+
+    /// The core's vote settings from `[vote]` (a vote whose measurement `[sensors]` does
+    /// not bind is refused by [`check`](Self::check)).
+    pub fn vote_settings(&self) -> crate::control::vote::VoteSettings {
+        let mut s = crate::control::vote::VoteSettings::default();
+        for (id, v) in &self.vote {
+            if self.sensors.contains_key(id)
+                && crate::control::vote::Conservative::of(*id).is_some()
+            {
+                s.per_sensor[id.index()] = Some(v.limits());
+            }
+        }
+        s
+    }
+
     /// Modbus actuator bindings, with their declared unit converted to SI.
     pub fn modbus_actuators(&self) -> Vec<(ActuatorId, RegisterBinding)> {
         self.actuators
@@ -132,6 +215,7 @@ impl SignalMap {
         self.sensors
             .values()
             .chain(self.actuators.values())
+            .chain(self.vote.values().flat_map(|v| v.spares().map(|(_, b)| b)))
             .any(|b| matches!(b, Binding::Can { .. }))
     }
 
@@ -188,6 +272,90 @@ impl SignalMap {
                     });
                 }
                 keyed.push((key, *r));
+            }
+        }
+        for (id, v) in &self.vote {
+            let key = format!("vote.{}", id.name());
+            if crate::control::vote::Conservative::of(*id).is_none() {
+                problems.push(MapProblem {
+                    key: key.clone(),
+                    message: format!(
+                        "{} takes no vote: redundant transmitters are voted for orifice_dp, p_suction, p_discharge and t_suction, whose side of less surge margin is defined",
+                        id.name()
+                    ),
+                    warning: false,
+                });
+            }
+            if !self.sensors.contains_key(id) {
+                problems.push(MapProblem {
+                    key: key.clone(),
+                    message: format!(
+                        "{} is not bound in [sensors]: its binding there is transmitter a of the vote",
+                        id.name()
+                    ),
+                    warning: false,
+                });
+            }
+            let pct_ok = |x: Option<f64>, lo: f64, hi: f64| {
+                x.is_none_or(|x| x.is_finite() && x > lo && x <= hi)
+            };
+            for (name, x, lo, hi, what) in [
+                (
+                    "deviation_pct",
+                    v.deviation_pct,
+                    0.0,
+                    100.0,
+                    "a percentage of the vote in (0, 100]",
+                ),
+                (
+                    "deviation_s",
+                    v.deviation_s,
+                    0.0,
+                    60.0,
+                    "seconds in (0, 60]",
+                ),
+                (
+                    "degraded_margin_pct",
+                    v.degraded_margin_pct,
+                    -1e-300,
+                    50.0,
+                    "a percentage of the control-line flow in [0, 50]",
+                ),
+            ] {
+                if !pct_ok(x, lo, hi) {
+                    problems.push(MapProblem {
+                        key: format!("{key}.{name}"),
+                        message: format!("must be {what}, got {}", x.unwrap_or(f64::NAN)),
+                        warning: false,
+                    });
+                }
+            }
+            for (slot, b) in v.spares() {
+                let name = crate::control::vote::TRANSMITTER_NAMES[slot];
+                match b {
+                    Binding::Modbus(r) => {
+                        let k = format!("{key}.{name}.modbus");
+                        unit_check(&mut problems, &k, r, Quantity::of_sensor(*id));
+                        if r.table.is_bits() {
+                            problems.push(MapProblem {
+                                key: k.clone(),
+                                message: format!(
+                                    "{} is a measured value in {}; a {} carries one bit",
+                                    id.name(),
+                                    id.unit(),
+                                    r.table.name()
+                                ),
+                                warning: false,
+                            });
+                        }
+                        keyed.push((k, *r));
+                    }
+                    Binding::Can { .. } => problems.push(MapProblem {
+                        key: format!("{key}.{name}.can"),
+                        message: "redundant transmitters are read over Modbus; a CAN binding of a second or third transmitter is not supported yet".into(),
+                        warning: false,
+                    }),
+                }
             }
         }
         for (id, b) in &self.actuators {
@@ -350,6 +518,42 @@ mod tests {
         );
         assert!(modbus.check().is_empty(), "{:?}", modbus.check());
         assert!(modbus.feedback[&ActuatorId::RecycleValve].readback);
+    }
+
+    #[test]
+    fn votes_bind_b_and_c_beside_a_and_are_checked() {
+        let m = parse(
+            "[sensors.orifice_dp]\nmodbus = { unit_id = 1, table = \"input\", address = 10, data_type = \"f32\" }\n\
+             [vote.orifice_dp]\nb = { modbus = { unit_id = 1, table = \"input\", address = 12, data_type = \"f32\", unit = \"kPa\" } }\n\
+             c = { modbus = { unit_id = 1, table = \"input\", address = 14, data_type = \"f32\" } }\ndeviation_pct = 3.0\n",
+        );
+        assert!(m.check().is_empty(), "{:?}", m.check());
+        let spares = m.modbus_spares();
+        assert_eq!(spares.len(), 2);
+        // b in kPa: 2 kPa reads 2000 Pa
+        let (_, slot, b) = spares[0];
+        assert_eq!(slot, 1);
+        let mut w = [0u16; 2];
+        let _ = b.encode(2000.0, &mut w).unwrap();
+        assert!((b.decode(&w).unwrap() - 2000.0).abs() < 1e-6);
+        let v = m.vote_settings().per_sensor[SensorId::OrificeDp.index()].expect("voted");
+        assert_eq!((v.transmitters, v.deviation, v.deviation_s), (3, 0.03, 0.5));
+        // a vote without a, on a measurement without a vote, overlapping a, on CAN
+        let bad = parse(
+            "[sensors.orifice_dp]\nmodbus = { unit_id = 1, table = \"input\", address = 10, data_type = \"f32\" }\n\
+             [vote.p_suction]\nb = { modbus = { unit_id = 1, table = \"input\", address = 20, data_type = \"f32\" } }\n\
+             [vote.shaft_speed]\nb = { modbus = { unit_id = 1, table = \"input\", address = 22, data_type = \"f32\" } }\n\
+             [vote.orifice_dp]\nb = { modbus = { unit_id = 1, table = \"input\", address = 11, data_type = \"f32\" } }\n\
+             c = { can = { message = \"M\", signal = \"S\" } }\ndeviation_s = 0\n",
+        );
+        let p = bad.check();
+        let has =
+            |key: &str, text: &str| p.iter().any(|x| x.key == key && x.message.contains(text));
+        assert!(has("vote.p_suction", "not bound in [sensors]"), "{p:?}");
+        assert!(has("vote.shaft_speed", "takes no vote"), "{p:?}");
+        assert!(has("vote.orifice_dp.b.modbus", "overlaps"), "{p:?}");
+        assert!(has("vote.orifice_dp.c.can", "Modbus"), "{p:?}");
+        assert!(has("vote.orifice_dp.deviation_s", "seconds"), "{p:?}");
     }
 
     #[test]

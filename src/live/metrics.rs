@@ -158,6 +158,62 @@ impl Collector for LiveCollector {
                 ConstGauge::new(i64::from(on)).encode(fam.encode_family(&labels)?)?;
             }
         }
+        gauge(
+            &mut e,
+            "antisurge_margin_shift_ratio",
+            "Degraded policy: control-line shift in force, fraction of the control-line flow",
+            s.votes.shift.now,
+        )?;
+        let voted: Vec<_> = s.votes.votes.iter().filter(|v| v.bound > 0).collect();
+        if !voted.is_empty() {
+            let g = ConstGauge::new(0.0f64);
+            let mut fam = e.encode_descriptor(
+                "antisurge_transmitter_value",
+                "Reading of each redundant transmitter, SI unit of its measurement",
+                None,
+                g.metric_type(),
+            )?;
+            for v in &voted {
+                for t in 0..usize::from(v.bound) {
+                    let labels = [
+                        ("measurement", v.input.name()),
+                        ("binding", crate::control::vote::TRANSMITTER_NAMES[t]),
+                    ];
+                    ConstGauge::new(v.values[t]).encode(fam.encode_family(&labels)?)?;
+                }
+            }
+            let g = ConstGauge::new(0i64);
+            let mut fam = e.encode_descriptor(
+                "antisurge_transmitter_state",
+                "State of each redundant transmitter (1 for the current one: healthy, deviating, voted_out)",
+                None,
+                g.metric_type(),
+            )?;
+            for v in &voted {
+                for t in 0..usize::from(v.bound) {
+                    for state in ["healthy", "deviating", "voted_out"] {
+                        let labels = [
+                            ("measurement", v.input.name()),
+                            ("binding", crate::control::vote::TRANSMITTER_NAMES[t]),
+                            ("state", state),
+                        ];
+                        let on = v.states[t].name() == state;
+                        ConstGauge::new(i64::from(on)).encode(fam.encode_family(&labels)?)?;
+                    }
+                }
+            }
+            let g = ConstGauge::new(0i64);
+            let mut fam = e.encode_descriptor(
+                "antisurge_vote_valid_transmitters",
+                "Valid transmitters in each vote",
+                None,
+                g.metric_type(),
+            )?;
+            for v in &voted {
+                let labels = [("measurement", v.input.name())];
+                ConstGauge::new(i64::from(v.valid)).encode(fam.encode_family(&labels)?)?;
+            }
+        }
         Ok(())
     }
 }
@@ -467,6 +523,34 @@ mod tests {
             "{text}"
         );
         assert!(text.ends_with("# EOF\n"), "{text}");
+        assert!(text.contains("antisurge_margin_shift_ratio 0"), "{text}");
+        let mut s = live.latest().expect("snapshot");
+        s.votes.votes[3] = crate::control::vote::VoteStatus {
+            input: SensorId::OrificeDp,
+            bound: 2,
+            valid: 1,
+            rule: crate::control::vote::VoteRule::HoldLast,
+            value: 1000.0,
+            values: [1000.0, f64::NAN, f64::NAN],
+            states: [
+                crate::control::vote::TransmitterState::Healthy,
+                crate::control::vote::TransmitterState::VotedOut(
+                    crate::control::vote::TransmitterCheck::Stale,
+                ),
+                crate::control::vote::TransmitterState::Unbound,
+            ],
+            degraded: true,
+        };
+        live.publish(&s);
+        let text = render(&live, &stats);
+        assert!(
+            text.contains(r#"antisurge_transmitter_state{measurement="orifice_dp",binding="b",state="voted_out"} 1"#),
+            "{text}"
+        );
+        assert!(
+            text.contains(r#"antisurge_vote_valid_transmitters{measurement="orifice_dp"} 1"#),
+            "{text}"
+        );
         let classic = render_classic(&live, &stats);
         assert!(
             classic.contains("# HELP antisurge_surges_total Surge counter"),

@@ -15,6 +15,59 @@ pub struct FaultLamp {
     pub input: SensorId,
 }
 
+/// One redundant transmitter (the HMI draws a lamp per entry).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct TransmitterLamp {
+    /// The measurement, e.g. `orifice_dp`.
+    pub measurement: String,
+    /// The transmitter in the signal map: `a` (`[sensors.<measurement>]`), `b` or `c`
+    /// (`[vote.<measurement>]`).
+    pub binding: String,
+    /// Its reading, SI unit (null: none).
+    pub value: Option<f64>,
+    /// The unit of `value`.
+    pub unit: String,
+    /// `healthy`, `deviating` or `voted_out`.
+    pub state: String,
+    /// The check behind `deviating` / `voted_out`: `stale`, `nan`, `out_of_range`, `frozen`,
+    /// `deviation` (null when healthy).
+    pub reason: Option<String>,
+}
+
+/// One measurement's vote.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct VoteReport {
+    /// The measurement.
+    pub measurement: String,
+    /// `median`, `conservative`, `hold_last` or `none`.
+    pub rule: String,
+    /// Valid transmitters.
+    pub valid: u8,
+    /// Transmitters bound.
+    pub bound: u8,
+    /// The voted value, SI (null: none).
+    pub value: Option<f64>,
+    /// Unit of `value`.
+    pub unit: String,
+    /// Fewer valid than bound, or fewer than two that agree: the control line is shifted.
+    pub degraded: bool,
+}
+
+/// The degraded policy in force: how far the control line is widened and why.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize, Default)]
+pub struct DegradedPolicy {
+    /// Whether a degraded policy is in force (a shift applied or on its way).
+    pub in_force: bool,
+    /// Control-line shift in force, % of the control-line flow.
+    pub margin_shift_pct: f64,
+    /// Where the shift is moving (1 %/s), %.
+    pub target_margin_shift_pct: f64,
+    /// What asks for it: `vote_degraded` (with the measurements), `field_link_slow`.
+    pub causes: Vec<String>,
+    /// The policy in words.
+    pub text: String,
+}
+
 /// What `antisurge status --json` prints. Floats are `null` when unknown.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct StatusReport {
@@ -79,6 +132,82 @@ pub struct StatusReport {
     pub cycle_stats: serde_json::Value,
     /// Field links (CAN, Modbus counters).
     pub links: serde_json::Value,
+    /// Redundant transmitters: one entry per transmitter of each voted measurement.
+    #[serde(default)]
+    pub transmitters: Vec<TransmitterLamp>,
+    /// The votes of the measurements with redundant transmitters.
+    #[serde(default)]
+    pub votes: Vec<VoteReport>,
+    /// The degraded policy in force (a degraded vote, a slow field link).
+    #[serde(default)]
+    pub degraded_policy: DegradedPolicy,
+    /// Faults of the votes now, by category name (`transmitter_deviation`,
+    /// `vote_degraded`): the bits the control thread adds to the fault word on the wire.
+    #[serde(default)]
+    pub vote_faults: Vec<String>,
+}
+
+/// The transmitters, votes and degraded policy of a snapshot.
+fn vote_reports(s: &LiveSnapshot) -> (Vec<TransmitterLamp>, Vec<VoteReport>, DegradedPolicy) {
+    let mut lamps = Vec::new();
+    let mut votes = Vec::new();
+    let mut degraded = Vec::new();
+    for v in s.votes.votes.iter().filter(|v| v.bound > 0) {
+        let unit = v.input.unit().to_string();
+        for t in 0..usize::from(v.bound).min(crate::control::vote::MAX_TRANSMITTERS) {
+            lamps.push(TransmitterLamp {
+                measurement: v.input.name().into(),
+                binding: crate::control::vote::TRANSMITTER_NAMES[t].into(),
+                value: f(v.values[t]),
+                unit: unit.clone(),
+                state: v.states[t].name().into(),
+                reason: v.states[t].reason().map(|c| c.name().to_string()),
+            });
+        }
+        if v.degraded {
+            degraded.push(v.input.name());
+        }
+        votes.push(VoteReport {
+            measurement: v.input.name().into(),
+            rule: v.rule.name().into(),
+            valid: v.valid,
+            bound: v.bound,
+            value: f(v.value),
+            unit,
+            degraded: v.degraded,
+        });
+    }
+    let sh = s.votes.shift;
+    let pct = |x: f64| if x.is_finite() { 100.0 * x } else { 0.0 };
+    let mut causes = Vec::new();
+    if sh.vote > 0.0 {
+        causes.push(format!("vote_degraded: {}", degraded.join(", ")));
+    }
+    if sh.slow_link > 0.0 {
+        causes.push("field_link_slow".to_string());
+    }
+    let in_force = sh.now > 0.0 || sh.target > 0.0;
+    let text = if !in_force {
+        "none: control line as configured".to_string()
+    } else {
+        format!(
+            "hold and widen: control line +{:.1} % of its flow (to +{:.1} %, 1 %/s) while {}; between answers the last inputs are held; fail-safe only when an input stays stale past its freshness timeout plus the failure hold",
+            pct(sh.now),
+            pct(sh.target),
+            if causes.is_empty() { "the cause clears".to_string() } else { causes.join(" and ") }
+        )
+    };
+    (
+        lamps,
+        votes,
+        DegradedPolicy {
+            in_force,
+            margin_shift_pct: pct(sh.now),
+            target_margin_shift_pct: pct(sh.target),
+            causes,
+            text,
+        },
+    )
 }
 
 fn f(x: f64) -> Option<f64> {
@@ -130,7 +259,21 @@ impl StatusReport {
             trip_count: s.trip_count,
             cycle_stats,
             links,
+            transmitters: Vec::new(),
+            votes: Vec::new(),
+            degraded_policy: DegradedPolicy::default(),
+            vote_faults: Vec::new(),
         }
+        .with_votes(s)
+    }
+
+    fn with_votes(mut self, s: &LiveSnapshot) -> StatusReport {
+        (self.transmitters, self.votes, self.degraded_policy) = vote_reports(s);
+        self.vote_faults = crate::faults::FaultSet::from_votes(&s.votes.votes)
+            .categories()
+            .map(|c| c.name().to_string())
+            .collect();
+        self
     }
 }
 
@@ -158,6 +301,30 @@ pub fn status_line(s: &LiveSnapshot) -> String {
     if !r.faults.is_empty() {
         let names: Vec<&str> = r.faults.iter().map(|l| l.input.name()).collect();
         line += &format!(" · faults: {}", names.join(", "));
+    }
+    let out: Vec<String> = r
+        .transmitters
+        .iter()
+        .filter(|t| t.state != "healthy")
+        .map(|t| {
+            format!(
+                "{}.{} {} ({})",
+                t.measurement,
+                t.binding,
+                t.state.replace('_', " "),
+                t.reason.as_deref().unwrap_or("?")
+            )
+        })
+        .collect();
+    if !out.is_empty() {
+        line += &format!(" · transmitters: {}", out.join(", "));
+    }
+    if r.degraded_policy.in_force {
+        line += &format!(
+            " · control line +{:.1} % ({})",
+            r.degraded_policy.margin_shift_pct,
+            r.degraded_policy.causes.join(", ")
+        );
     }
     if matches!(r.mode.as_str(), "fail_safe" | "init") {
         if let Some(t) = r.cause_text {
@@ -213,6 +380,9 @@ pub fn human(r: &StatusReport) -> String {
     if !r.field_faults.is_empty() {
         o += &format!("field faults  {}\n", r.field_faults.join(", "));
     }
+    if !r.vote_faults.is_empty() {
+        o += &format!("vote faults   {}\n", r.vote_faults.join(", "));
+    }
     let lamps = if r.faults.is_empty() {
         "none".to_string()
     } else {
@@ -223,6 +393,38 @@ pub fn human(r: &StatusReport) -> String {
             .join(", ")
     };
     o += &format!("faults        {lamps}\n");
+    for v in &r.votes {
+        let tx: Vec<String> = r
+            .transmitters
+            .iter()
+            .filter(|t| t.measurement == v.measurement)
+            .map(|t| {
+                let value = t.value.map_or("–".into(), |x| format!("{x:.6}"));
+                match &t.reason {
+                    Some(why) => format!(
+                        "{} {value} {} ({why})",
+                        t.binding,
+                        t.state.replace('_', " ")
+                    ),
+                    None => format!("{} {value} {}", t.binding, t.state),
+                }
+            })
+            .collect();
+        o += &format!(
+            "vote          {} {} of {} valid, {}{} = {} {} · {}\n",
+            v.measurement,
+            v.valid,
+            v.bound,
+            v.rule.replace('_', "-"),
+            if v.degraded { " (degraded)" } else { "" },
+            v.value.map_or("–".into(), |x| format!("{x:.6}")),
+            v.unit,
+            tx.join(" · ")
+        );
+    }
+    if r.degraded_policy.in_force {
+        o += &format!("degraded      {}\n", r.degraded_policy.text);
+    }
     if let Some(m) = r.links.get("modbus").filter(|m| m.is_object()) {
         let n = |k: &str| m.get(k).and_then(serde_json::Value::as_u64).unwrap_or(0);
         let ms = |k: &str| n(k) as f64 * 1e-3;
@@ -302,5 +504,65 @@ mod tests {
         let back: StatusReport =
             serde_json::from_str(&serde_json::to_string(&r).expect("json")).expect("parse");
         assert_eq!(back, r);
+    }
+
+    #[test]
+    fn transmitters_votes_and_the_degraded_policy_are_shown() {
+        use crate::control::vote::{TransmitterCheck, TransmitterState, VoteRule, VoteStatus};
+        let mut s = LiveSnapshot {
+            mode: Mode::Auto,
+            ..LiveSnapshot::default()
+        };
+        s.votes.votes[3] = VoteStatus {
+            input: SensorId::OrificeDp,
+            bound: 3,
+            valid: 2,
+            rule: VoteRule::Conservative,
+            value: 1000.0,
+            values: [1000.0, 1200.0, 1100.0],
+            states: [
+                TransmitterState::Healthy,
+                TransmitterState::Deviating,
+                TransmitterState::VotedOut(TransmitterCheck::Frozen),
+            ],
+            degraded: true,
+        };
+        s.votes.shift.now = 0.02;
+        s.votes.shift.target = 0.05;
+        s.votes.shift.vote = 0.05;
+        let r = StatusReport::new(&s, 1.0, serde_json::Value::Null, serde_json::Value::Null);
+        let json = serde_json::to_value(&r).expect("json");
+        assert_eq!(
+            json["transmitters"][2],
+            serde_json::json!({"measurement": "orifice_dp", "binding": "c", "value": 1100.0,
+                "unit": "Pa", "state": "voted_out", "reason": "frozen"})
+        );
+        assert_eq!(json["votes"][0]["rule"], "conservative");
+        assert_eq!(
+            json["vote_faults"],
+            serde_json::json!(["transmitter_deviation", "vote_degraded"])
+        );
+        assert_eq!(json["degraded_policy"]["in_force"], true);
+        assert_eq!(
+            json["degraded_policy"]["causes"][0],
+            "vote_degraded: orifice_dp"
+        );
+        let text = human(&r);
+        assert!(
+            text.contains("vote          orifice_dp 2 of 3 valid, conservative (degraded)"),
+            "{text}"
+        );
+        assert!(text.contains("c 1100.000000 voted out (frozen)"), "{text}");
+        assert!(
+            text.contains("degraded      hold and widen: control line +2.0 %"),
+            "{text}"
+        );
+        let line = status_line(&s);
+        assert!(
+            line.contains(
+                "transmitters: orifice_dp.b deviating (deviation), orifice_dp.c voted out (frozen)"
+            ),
+            "{line}"
+        );
     }
 }

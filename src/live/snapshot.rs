@@ -5,7 +5,8 @@
 
 use serde::{Deserialize, Serialize};
 
-use crate::control::core::Mode;
+use crate::control::core::{MarginShift, Mode};
+use crate::control::vote::{TransmitterState, VoteRule, VoteStatus, MAX_TRANSMITTERS, VOTABLE};
 use crate::control::LawId;
 use crate::events::cause::{Cause, CauseKind};
 use crate::events::FallbackReason;
@@ -105,6 +106,45 @@ pub struct LiveSnapshot {
     pub manual_output: f64,
     /// Whether automatic mode is requested (false: the manual station).
     pub auto_requested: bool,
+    /// The votes of redundant transmitters and the degraded margin shift.
+    pub votes: VoteLamps,
+}
+
+/// Redundant transmitters: each vote (in [`VOTABLE`] order; `bound` 0 where none) and the
+/// degraded policy's margin shift.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct VoteLamps {
+    /// The votes.
+    pub votes: [VoteStatus; VOTABLE.len()],
+    /// The control-line shift in force and its causes.
+    pub shift: MarginShift,
+}
+
+impl Default for VoteLamps {
+    fn default() -> Self {
+        VoteLamps {
+            votes: VOTABLE.map(VoteStatus::none),
+            shift: MarginShift::default(),
+        }
+    }
+}
+
+fn rule_code(r: VoteRule) -> u64 {
+    match r {
+        VoteRule::None => 0,
+        VoteRule::Median => 1,
+        VoteRule::Conservative => 2,
+        VoteRule::HoldLast => 3,
+    }
+}
+
+fn rule_of(c: u64) -> VoteRule {
+    match c & 3 {
+        1 => VoteRule::Median,
+        2 => VoteRule::Conservative,
+        3 => VoteRule::HoldLast,
+        _ => VoteRule::None,
+    }
 }
 
 impl Default for LiveSnapshot {
@@ -134,11 +174,15 @@ impl Default for LiveSnapshot {
             valve_position: f64::NAN,
             manual_output: f64::NAN,
             auto_requested: true,
+            votes: VoteLamps::default(),
         }
     }
 }
 
-const WORDS: usize = 29;
+/// Words of the scalar snapshot, then the votes: per measurement its value and three
+/// transmitter readings, two words of codes, four of the margin shift.
+const VOTE_AT: usize = 29;
+const WORDS: usize = VOTE_AT + 4 * VOTABLE.len() + 2 + 4;
 
 fn mode_of(code: u8) -> Mode {
     match code {
@@ -247,6 +291,35 @@ impl LiveBoard {
             0,
             0,
         ];
+        let mut w = {
+            let mut all = [0u64; WORDS];
+            all[..VOTE_AT].copy_from_slice(&w);
+            all
+        };
+        // states: 3 bits per transmitter (12 × 3 = 36 bits); rule 2, valid 2, bound 2,
+        // degraded 1 bit per measurement (7 × 4 = 28 bits)
+        let (mut states, mut meta) = (0u64, 0u64);
+        for (k, v) in s.votes.votes.iter().enumerate() {
+            let at = VOTE_AT + 4 * k;
+            w[at] = v.value.to_bits();
+            for t in 0..MAX_TRANSMITTERS {
+                w[at + 1 + t] = v.values[t].to_bits();
+                states |= u64::from(v.states[t].code() & 7) << (3 * (MAX_TRANSMITTERS * k + t));
+            }
+            meta |= (rule_code(v.rule)
+                | u64::from(v.valid & 3) << 2
+                | u64::from(v.bound & 3) << 4
+                | u64::from(v.degraded) << 6)
+                << (7 * k);
+        }
+        let at = VOTE_AT + 4 * VOTABLE.len();
+        w[at] = states;
+        w[at + 1] = meta;
+        let sh = &s.votes.shift;
+        w[at + 2] = sh.now.to_bits();
+        w[at + 3] = sh.target.to_bits();
+        w[at + 4] = sh.vote.to_bits();
+        w[at + 5] = sh.slow_link.to_bits();
         self.lock.write(&w);
     }
 
@@ -301,6 +374,33 @@ impl LiveBoard {
             valve_position: f(17),
             manual_output: f(18),
             auto_requested: byte(48) != 0,
+            votes: {
+                let at = VOTE_AT + 4 * VOTABLE.len();
+                let (states, meta) = (w[at], w[at + 1]);
+                let mut votes = VoteLamps::default();
+                for (k, v) in votes.votes.iter_mut().enumerate() {
+                    let base = VOTE_AT + 4 * k;
+                    v.value = f(base);
+                    for t in 0..MAX_TRANSMITTERS {
+                        v.values[t] = f(base + 1 + t);
+                        v.states[t] = TransmitterState::from_code(
+                            ((states >> (3 * (MAX_TRANSMITTERS * k + t))) & 7) as u8,
+                        );
+                    }
+                    let m = meta >> (7 * k);
+                    v.rule = rule_of(m);
+                    v.valid = ((m >> 2) & 3) as u8;
+                    v.bound = ((m >> 4) & 3) as u8;
+                    v.degraded = (m >> 6) & 1 != 0;
+                }
+                votes.shift = MarginShift {
+                    now: f(at + 2),
+                    target: f(at + 3),
+                    vote: f(at + 4),
+                    slow_link: f(at + 5),
+                };
+                votes
+            },
         })
     }
 }
@@ -348,6 +448,30 @@ mod tests {
             valve_position: 0.21,
             manual_output: f64::NAN,
             auto_requested: false,
+            votes: {
+                let mut v = VoteLamps::default();
+                v.votes[3] = VoteStatus {
+                    input: SensorId::OrificeDp,
+                    bound: 3,
+                    valid: 2,
+                    rule: VoteRule::Conservative,
+                    value: 1000.0,
+                    values: [1000.0, 1200.0, 1001.0],
+                    states: [
+                        TransmitterState::Healthy,
+                        TransmitterState::Deviating,
+                        TransmitterState::VotedOut(crate::control::vote::TransmitterCheck::Frozen),
+                    ],
+                    degraded: true,
+                };
+                v.shift = MarginShift {
+                    now: 0.02,
+                    target: 0.05,
+                    vote: 0.05,
+                    slow_link: 0.0,
+                };
+                v
+            },
         };
         b.publish(&s);
         let r = b.latest().expect("published");

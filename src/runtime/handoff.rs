@@ -134,6 +134,8 @@ pub fn monotonic_ns() -> u64 {
 #[derive(Debug, Default)]
 pub struct SensorBoard {
     slots: [SeqLock<2>; SensorId::COUNT],
+    /// Redundant transmitters `b` and `c` of each sensor (the signal map's `[vote]`).
+    spares: [[SeqLock<2>; 2]; SensorId::COUNT],
 }
 
 impl SensorBoard {
@@ -152,6 +154,37 @@ impl SensorBoard {
         } else {
             (f64::from_bits(v), t)
         }
+    }
+
+    /// Publish a reading of transmitter `slot` (1 = `b`, 2 = `c`) of `id`; slot 0 is
+    /// [`publish`](Self::publish). One writer per transmitter.
+    #[inline]
+    pub fn publish_transmitter(&self, id: SensorId, slot: usize, value: f64, t_ns: u64) {
+        match slot {
+            0 => self.publish(id, value, t_ns),
+            1 | 2 => self.spares[id.index()][slot - 1].write(&[value.to_bits(), t_ns]),
+            _ => {}
+        }
+    }
+
+    /// The redundant transmitters' readings with their ages at `now_ns` (NaN and ∞ where
+    /// none arrived). Allocation-free.
+    pub fn spares(&self, now_ns: u64) -> crate::control::measurements::SpareReadings {
+        let mut out = crate::control::measurements::SpareReadings::NONE;
+        for id in SensorId::ALL {
+            for slot in 1..=2 {
+                let ([v, t], seq) = self.spares[id.index()][slot - 1].read();
+                if seq != 0 {
+                    let age = if t > 0 {
+                        now_ns.saturating_sub(t) as f64 * 1e-9
+                    } else {
+                        f64::INFINITY
+                    };
+                    out.set(id, slot, f64::from_bits(v), age);
+                }
+            }
+        }
+        out
     }
 
     /// Snapshot of all sensors with their ages at `now_ns`, s (∞ if never received).

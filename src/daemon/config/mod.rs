@@ -264,6 +264,8 @@ fn load_layers(main: &Path, layers: Vec<Layer>) -> Result<Loaded, Vec<Problem>> 
             }
         }
     }
+    // redundant transmitters: the signal map's [vote] (b and c share a's limits)
+    core.vote = signal_map.vote_settings();
     core.failsafe_recycle_opening = config.control.failsafe_recycle_opening_pct * 0.01;
     core.startup_grace_s = config.control.startup_grace_ms * 1e-3;
 

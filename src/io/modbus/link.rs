@@ -439,6 +439,7 @@ pub(crate) fn check_map(
         return Ok(());
     };
     let mut all: Vec<RegisterBinding> = map.modbus_sensors().iter().map(|(_, b)| *b).collect();
+    all.extend(map.modbus_spares().iter().map(|(_, _, b)| *b));
     all.extend(map.modbus_actuators().iter().map(|(_, b)| *b));
     let signals = all.len();
     all.extend(hb.bindings());
@@ -821,7 +822,8 @@ pub enum Pacing {
 #[derive(Debug)]
 struct SensorGroup {
     plan: ReadPlan,
-    ids: Vec<SensorId>,
+    /// Sensor and transmitter slot (0 = `a`, the `[sensors]` binding; 1, 2 = `[vote]`'s).
+    ids: Vec<(SensorId, usize)>,
     values: Vec<f64>,
 }
 
@@ -921,14 +923,24 @@ impl Controller {
     ) -> Result<Controller, LinkError> {
         cfg.validate()?;
         check_map(map, cfg.heartbeat_register.as_ref())?;
-        let sensor_bindings = map.modbus_sensors();
+        let mut sensor_bindings: Vec<((SensorId, usize), RegisterBinding)> = map
+            .modbus_sensors()
+            .into_iter()
+            .map(|(id, b)| ((id, 0), b))
+            .collect();
+        sensor_bindings.extend(
+            map.modbus_spares()
+                .into_iter()
+                .map(|(id, slot, b)| ((id, slot), b)),
+        );
         let all: Vec<RegisterBinding> = sensor_bindings.iter().map(|(_, b)| *b).collect();
         let full = ReadPlan::new(&all)?;
         let mut groups = Vec::with_capacity(full.requests().len());
         for req in full.requests() {
             let members = full.members(req);
             let bindings: Vec<RegisterBinding> = members.iter().map(|&i| all[i]).collect();
-            let ids: Vec<SensorId> = members.iter().map(|&i| sensor_bindings[i].0).collect();
+            let ids: Vec<(SensorId, usize)> =
+                members.iter().map(|&i| sensor_bindings[i].0).collect();
             let plan = ReadPlan::new(&bindings)?;
             debug_assert_eq!(plan.requests().len(), 1);
             groups.push(SensorGroup {
@@ -1083,8 +1095,8 @@ impl Controller {
             }
             match result {
                 Ok(()) => {
-                    for (id, v) in g.ids.iter().zip(&g.values) {
-                        self.sensors.publish(*id, *v, t_ns);
+                    for ((id, slot), v) in g.ids.iter().zip(&g.values) {
+                        self.sensors.publish_transmitter(*id, *slot, *v, t_ns);
                     }
                     published += g.ids.len() as u64;
                     out.answered = true;

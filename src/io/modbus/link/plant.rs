@@ -462,7 +462,9 @@ impl PlantServer {
             hb.validate()?;
         }
         check_map(map, cfg.heartbeat_register.as_ref())?;
-        let sensors = map.modbus_sensors();
+        // the redundant transmitters of a measurement serve the same value (healthy ones)
+        let mut sensors = map.modbus_sensors();
+        sensors.extend(map.modbus_spares().into_iter().map(|(id, _, b)| (id, b)));
         let actuators = map.modbus_actuators();
         let mut image = RegisterImage::new();
         for (_, b) in &sensors {
