@@ -378,7 +378,7 @@ pub fn run_traced(
             }
         }
         delivered.set(ActuatorId::RecycleValve, valve_cmd);
-        if valve_cmd.is_finite() && t < EVENT_AT_S && t >= EVENT_AT_S - OPENING_WINDOW_S {
+        if valve_cmd.is_finite() && (EVENT_AT_S - OPENING_WINDOW_S..EVENT_AT_S).contains(&t) {
             opening_sum += valve_cmd;
             opening_n += 1;
         }
