@@ -577,6 +577,78 @@ pub fn read_log(
     Ok((out, stats))
 }
 
+/// The newest `n` valid records of the log at `path` (newest last), reading at most
+/// `max_bytes` from the end of the newest file (and, if that holds fewer than `n`, from the
+/// end of `path.1`): a bounded read whatever the log's size, for a page that polls. A line
+/// cut by the window's start, a torn last line and invalid lines are skipped.
+pub fn tail_records(path: &Path, max_bytes: u64, n: usize) -> Vec<Record> {
+    let mut out = tail_of_file(path, max_bytes, n);
+    if out.len() < n {
+        let mut older = tail_of_file(&rotated_path(path, 1), max_bytes, n - out.len());
+        older.append(&mut out);
+        out = older;
+    }
+    out
+}
+
+fn tail_of_file(path: &Path, max_bytes: u64, n: usize) -> Vec<Record> {
+    use std::io::{Seek, SeekFrom};
+    let Ok(mut f) = File::open(path) else {
+        return Vec::new();
+    };
+    let len = f.metadata().map(|m| m.len()).unwrap_or(0);
+    let start = len.saturating_sub(max_bytes);
+    if f.seek(SeekFrom::Start(start)).is_err() {
+        return Vec::new();
+    }
+    let mut bytes = Vec::with_capacity((len - start) as usize);
+    if f.take(max_bytes).read_to_end(&mut bytes).is_err() {
+        return Vec::new();
+    }
+    let mut lines: Vec<&[u8]> = bytes.split(|&b| b == b'\n').collect();
+    // the last piece is empty (a final newline) or a line still being written
+    lines.pop();
+    if start > 0 && !lines.is_empty() {
+        // the window began inside a line
+        lines.remove(0);
+    }
+    let mut out: Vec<Record> = lines
+        .iter()
+        .rev()
+        .filter_map(|l| parse_line(l, 0).ok())
+        .take(n)
+        .collect();
+    out.reverse();
+    out
+}
+
+/// The records appended to the log at `path` since byte `offset` of its newest file, and
+/// the offset to read from next (`antisurge events --follow`). A partial last line is left
+/// for the next call; a file that shrank (rotated, repaired) is read again from its start.
+pub fn records_since(path: &Path, offset: u64) -> (Vec<Record>, u64) {
+    use std::io::{Seek, SeekFrom};
+    let Ok(mut f) = File::open(path) else {
+        return (Vec::new(), 0);
+    };
+    let len = f.metadata().map(|m| m.len()).unwrap_or(0);
+    let from = if len < offset { 0 } else { offset };
+    if f.seek(SeekFrom::Start(from)).is_err() {
+        return (Vec::new(), from);
+    }
+    let mut bytes = Vec::new();
+    // at most 16 MiB per call: a follower catches up over a few calls
+    if f.take(16 << 20).read_to_end(&mut bytes).is_err() {
+        return (Vec::new(), from);
+    }
+    let complete = bytes.iter().rposition(|&b| b == b'\n').map_or(0, |i| i + 1);
+    let out = bytes[..complete]
+        .split(|&b| b == b'\n')
+        .filter(|l| !l.is_empty())
+        .filter_map(|l| parse_line(l, 0).ok())
+        .collect();
+    (out, from + complete as u64)
+}
+
 /// Longest event-log line the readers keep in memory, bytes (the writer's lines are at most
 /// [`crate::events::MAX_LINE_BYTES`]); longer lines are skipped and reported as invalid.
 pub const MAX_READ_LINE_BYTES: usize = 64 * 1024;
