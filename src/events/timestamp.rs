@@ -16,8 +16,9 @@ use serde::{Deserialize, Deserializer, Serialize, Serializer};
 const US_PER_S: i64 = 1_000_000;
 /// 0000-01-01T00:00:00Z, the earliest instant RFC 3339 can write.
 const MIN_US: i64 = -62_167_219_200 * US_PER_S;
-/// 9999-12-31T23:59:59.999999Z, the latest instant RFC 3339 can write.
-const MAX_US: i64 = 253_402_300_800 * US_PER_S - 1;
+/// 9999-12-30T22:00:00Z, the latest instant `jiff` takes in microseconds (RFC 3339 could write
+/// a day more).
+const MAX_US: i64 = 253_402_207_200 * US_PER_S;
 
 /// An instant in UTC with microsecond resolution, kept as microseconds since 1970-01-01.
 ///
@@ -180,7 +181,11 @@ impl Timestamp {
 
     /// As a `jiff` timestamp.
     pub fn to_jiff(self) -> jiff::Timestamp {
-        jiff::Timestamp::from_microsecond(self.unix_us).unwrap_or(jiff::Timestamp::UNIX_EPOCH)
+        jiff::Timestamp::from_microsecond(self.unix_us).unwrap_or(if self.unix_us > 0 {
+            jiff::Timestamp::MAX
+        } else {
+            jiff::Timestamp::MIN
+        })
     }
 
     fn civil_in(self, tz: &jiff::tz::TimeZone) -> CivilTime {
@@ -400,7 +405,7 @@ mod tests {
         assert!(diff < Duration::from_micros(1));
         assert_eq!(
             Timestamp::from_unix_micros(i64::MAX).to_string(),
-            "9999-12-31T23:59:59.999999Z"
+            "9999-12-30T22:00:00.000000Z"
         );
         assert_eq!(
             Timestamp::from_system_time(UNIX_EPOCH - Duration::from_nanos(1)).unix_micros(),

@@ -11,7 +11,7 @@
 //!   another site (DNS rebinding, cross-site requests) is refused with 403.
 
 use std::collections::HashMap;
-use std::net::{IpAddr, SocketAddr};
+use std::net::IpAddr;
 use std::sync::Mutex;
 use std::time::{Duration, Instant};
 
@@ -199,18 +199,16 @@ fn split_host(text: &str, default_port: u16) -> Option<(String, u16)> {
     }
 }
 
-/// Does `host` (the `Host` header) name this machine on `local`'s port? Address literals,
-/// `localhost` and the machine's host name (`host_name`, alone or followed by its domain)
-/// pass; any other name is a page of another site reaching the HMI (DNS rebinding).
-pub fn host_allowed(host: Option<&str>, local: SocketAddr, tls: bool, host_name: &str) -> bool {
+/// Does `host` (the `Host` header) name this machine? Address literals, `localhost` and the
+/// machine's host name (`host_name`, alone or followed by its domain) pass; any other name is
+/// a page of another site reaching the HMI (DNS rebinding). The port is not compared: an SSH
+/// tunnel (`ssh -L 8080:127.0.0.1:9651`) shows the HMI on another port.
+pub fn host_allowed(host: Option<&str>, tls: bool, host_name: &str) -> bool {
     let Some(host) = host else { return false };
     let default = if tls { 443 } else { 80 };
-    let Some((name, port)) = split_host(host, default) else {
+    let Some((name, _port)) = split_host(host, default) else {
         return false;
     };
-    if port != local.port() {
-        return false;
-    }
     if name.parse::<IpAddr>().is_ok() || name == "localhost" || name.ends_with(".localhost") {
         return true;
     }
@@ -296,8 +294,7 @@ mod tests {
 
     #[test]
     fn host_and_origin() {
-        let local: SocketAddr = "127.0.0.1:9651".parse().expect("addr");
-        let ok = |h: &str| host_allowed(Some(h), local, false, "skid4");
+        let ok = |h: &str| host_allowed(Some(h), false, "skid4");
         assert!(ok("127.0.0.1:9651"));
         assert!(ok("localhost:9651"));
         assert!(ok("[::1]:9651"));
@@ -305,9 +302,10 @@ mod tests {
         assert!(ok("SKID4.plant.example:9651"));
         assert!(!ok("evil.example:9651"), "rebinding name");
         assert!(!ok("skid4x:9651"));
-        assert!(!ok("127.0.0.1:80"), "other port");
-        assert!(!ok("127.0.0.1"), "default port 80 is not 9651");
-        assert!(!host_allowed(None, local, false, "skid4"));
+        assert!(ok("localhost:8080"), "an SSH tunnel's port");
+        assert!(ok("127.0.0.1"));
+        assert!(!ok("x"));
+        assert!(!host_allowed(None, false, "skid4"));
         assert!(origin_allowed(None, Some("127.0.0.1:9651"), false));
         assert!(origin_allowed(
             Some("http://127.0.0.1:9651"),

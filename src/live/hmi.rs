@@ -32,6 +32,7 @@ use super::station::Peer;
 use crate::control::model::ControlModel;
 use crate::control::surge_control_line::SurgeControlLine;
 use crate::control::ControllerConfig;
+use crate::physics::compressor_map::FlowCoordinate;
 
 /// Default HMI address.
 pub const DEFAULT_LISTEN: &str = "127.0.0.1:9651";
@@ -58,54 +59,53 @@ pub struct MapLines {
 impl MapLines {
     /// Lines of a machine under a controller configuration (the control line of recycle-pi).
     pub fn new(model: &ControlModel, cfg: &ControllerConfig, has_control_line: bool) -> MapLines {
-        let Some(map) = &model.map else {
-            // a machine described without a map: the HMI shows the live values only
-            return MapLines {
-                flow_label: String::new(),
-                speed_lines: Vec::new(),
-                ratios: Vec::new(),
-                surge: Vec::new(),
-                control: Vec::new(),
-                trip_margin: f64::NAN,
-            };
-        };
-        let (w_lo, w_hi) = map.surge_line.omega_range();
+        // speed lines where the machine has a map; the surge, control and trip lines for
+        // every machine (a vendor-data machine has its surge line without a map)
         let mut speed_lines = Vec::new();
-        for k in 0..5 {
-            let w = w_lo + (w_hi - w_lo) * k as f64 / 4.0;
-            let Some((q_s, _)) = map.peak(w) else {
-                continue;
-            };
-            let pts: Vec<(f64, f64)> = (0..=40)
-                .map(|i| {
-                    let q = q_s * (0.7 + 1.3 * i as f64 / 40.0);
-                    (q, map.pressure_ratio(q, w))
-                })
-                .filter(|(_, r)| r.is_finite() && *r > 1.0)
-                .collect();
-            speed_lines.push((w, pts));
+        if let Some(map) = &model.map {
+            let (w_lo, w_hi) = map.surge_line.omega_range();
+            for k in 0..5 {
+                let w = w_lo + (w_hi - w_lo) * k as f64 / 4.0;
+                let Some((q_s, _)) = map.peak(w) else {
+                    continue;
+                };
+                let pts: Vec<(f64, f64)> = (0..=40)
+                    .map(|i| {
+                        let q = q_s * (0.7 + 1.3 * i as f64 / 40.0);
+                        (q, map.pressure_ratio(q, w))
+                    })
+                    .filter(|(_, r)| r.is_finite() && *r > 1.0)
+                    .collect();
+                speed_lines.push((w, pts));
+            }
         }
-        let r_max = map
-            .surge_line
-            .points()
-            .map(|(_, r)| r)
-            .fold(1.0f64, f64::max)
-            * 1.05;
+        let surge_line = model
+            .map
+            .as_ref()
+            .map_or(model.surge_line, |m| m.surge_line);
+        let flow_coordinate = model
+            .map
+            .as_ref()
+            .map_or(model.flow_coordinate, |m| m.flow_coordinate);
+        let r_max = surge_line.points().map(|(_, r)| r).fold(1.0f64, f64::max) * 1.05;
         let ratios: Vec<f64> = (0..=60)
             .map(|i| 1.0 + (r_max - 1.0) * i as f64 / 60.0)
             .collect();
         let surge = ratios
             .iter()
-            .map(|r| map.surge_line.flow_at_ratio(*r))
+            .map(|r| surge_line.flow_at_ratio(*r))
             .collect();
-        let scl = SurgeControlLine::new(map.surge_line, cfg.recycle_pi.control_line);
+        let scl = SurgeControlLine::new(surge_line, cfg.recycle_pi.control_line);
         let control = if has_control_line {
             ratios.iter().map(|r| scl.flow_at_ratio(*r)).collect()
         } else {
             Vec::new()
         };
         MapLines {
-            flow_label: format!("{:?}", map.flow_coordinate),
+            flow_label: match flow_coordinate {
+                FlowCoordinate::MassKgS => "mass flow, kg/s".into(),
+                FlowCoordinate::InletVolumeM3S => "inlet volume flow, m³/s".into(),
+            },
             speed_lines,
             ratios,
             surge,
@@ -337,7 +337,7 @@ impl Hmi {
                         let refused = {
                             let h = |n| req.headers().get(n).and_then(|v| v.to_str().ok());
                             let host = h(header::HOST);
-                            if !super::guard::host_allowed(host, peer.local, peer.tls, &host_name) {
+                            if !super::guard::host_allowed(host, peer.tls, &host_name) {
                                 Some("the Host header does not name this controller\n")
                             } else if !super::guard::origin_allowed(
                                 h(header::ORIGIN),
