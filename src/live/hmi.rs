@@ -153,6 +153,46 @@ pub struct Hmi {
     pub guard: Arc<AuthGuard>,
     /// The last event list served, by the log file's (length, modification time).
     pub events_cache: Arc<Mutex<Option<((u64, i64, i64), Arc<str>)>>>,
+    /// The daemon's own trend ring ([`TREND_SPAN`] at [`TREND_PERIOD`]).
+    pub trends: Arc<Mutex<std::collections::VecDeque<TrendPoint>>>,
+}
+
+/// How long the trends reach back: the ten minutes an operator looks at after a trip.
+pub const TREND_SPAN: Duration = Duration::from_secs(600);
+
+/// One trend sample per second: the deviation settles in seconds, a surge cycle lasts about
+/// one, and 600 samples are 60 KiB of JSON.
+pub const TREND_PERIOD: Duration = Duration::from_secs(1);
+
+/// One trend sample (units in the names; `null`: unknown).
+#[derive(Debug, Clone, Copy, Serialize)]
+pub struct TrendPoint {
+    /// Wall-clock time, s since the Unix epoch.
+    pub t_unix_s: f64,
+    /// Deviation from the control line, % of control-line flow.
+    pub deviation_pct: Option<f64>,
+    /// Recycle valve output, %.
+    pub valve_output_pct: Option<f64>,
+    /// Recycle valve position, %.
+    pub valve_position_pct: Option<f64>,
+    /// Operating point: flow in map coordinates.
+    pub flow_map: Option<f64>,
+    /// Operating point: pressure ratio.
+    pub pressure_ratio: Option<f64>,
+}
+
+impl TrendPoint {
+    fn of(s: &super::snapshot::LiveSnapshot) -> TrendPoint {
+        let f = |x: f64| x.is_finite().then_some(x);
+        TrendPoint {
+            t_unix_s: crate::events::Timestamp::now().unix_micros() as f64 * 1e-6,
+            deviation_pct: f(s.deviation_pct),
+            valve_output_pct: f(100.0 * s.valve_output),
+            valve_position_pct: f(100.0 * s.valve_position),
+            flow_map: f(s.flow_map),
+            pressure_ratio: f(s.pressure_ratio),
+        }
+    }
 }
 
 /// How much of the end of the event log the HMI reads per refresh, bytes: 30 events of at
@@ -308,6 +348,17 @@ impl Hmi {
                 }),
             )
             .route(
+                "/api/trends",
+                get(|State(h): State<Hmi>| async move {
+                    let body = h
+                        .trends
+                        .lock()
+                        .map(|q| serde_json::to_string(&*q).unwrap_or_else(|_| "[]".into()))
+                        .unwrap_or_else(|_| "[]".into());
+                    json(StatusCode::OK, body)
+                }),
+            )
+            .route(
                 "/api/map",
                 get(|State(h): State<Hmi>| async move { json(StatusCode::OK, h.map_json.clone()) }),
             )
@@ -370,12 +421,22 @@ pub async fn serve(
 ) {
     let guard = Arc::clone(&hmi.guard);
     let events = hmi.ctx.events.clone();
+    let (trends, live) = (Arc::clone(&hmi.trends), Arc::clone(&hmi.ctx.live));
     let mut sd = shutdown.clone();
     tokio::spawn(async move {
-        let mut tick = tokio::time::interval(Duration::from_secs(1));
+        let mut tick = tokio::time::interval(TREND_PERIOD);
+        let keep = (TREND_SPAN.as_secs_f64() / TREND_PERIOD.as_secs_f64()).round() as usize;
         loop {
             tokio::select! {
-                _ = tick.tick() => guard.report_due(std::time::Instant::now(), &events),
+                _ = tick.tick() => {
+                    guard.report_due(std::time::Instant::now(), &events);
+                    if let (Some(s), Ok(mut q)) = (live.latest(), trends.lock()) {
+                        if q.len() >= keep {
+                            q.pop_front();
+                        }
+                        q.push_back(TrendPoint::of(&s));
+                    }
+                }
                 _ = sd.changed() => {
                     // what is still open is reported at shutdown
                     guard.report_due(std::time::Instant::now() + super::guard::BURST_REPORT_EVERY, &events);

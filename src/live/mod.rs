@@ -418,6 +418,7 @@ pub fn spawn(
                     identity: identity(),
                     guard: Arc::default(),
                     events_cache: Arc::default(),
+                    trends: Arc::default(),
                 };
                 tasks.spawn_on(hmi::serve(l, h, tls, shutdown.clone()), &station);
             }
