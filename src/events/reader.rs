@@ -194,7 +194,7 @@ impl EventFilter {
     pub fn matches(&self, record: &Record) -> bool {
         self.since.is_none_or(|s| record.ts >= s)
             && self.until.is_none_or(|u| record.ts <= u)
-            && (self.kinds.is_empty() || self.kinds.iter().any(|k| *k == record.kind))
+            && (self.kinds.is_empty() || self.kinds.contains(&record.kind))
     }
 }
 

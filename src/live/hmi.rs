@@ -152,7 +152,7 @@ pub struct Hmi {
     /// Wrong-token bookkeeping.
     pub guard: Arc<AuthGuard>,
     /// The last event list served, by the log file's (length, modification time).
-    pub events_cache: Arc<Mutex<Option<((u64, i64, i64), Arc<str>)>>>,
+    pub events_cache: Arc<Mutex<Option<CachedEvents>>>,
     /// The daemon's own trend ring ([`TREND_SPAN`] at [`TREND_PERIOD`]).
     pub trends: Arc<Mutex<std::collections::VecDeque<TrendPoint>>>,
 }
@@ -223,7 +223,13 @@ pub fn events_json(path: &std::path::Path) -> String {
     serde_json::to_string(&items).unwrap_or_else(|_| "[]".into())
 }
 
-fn file_key(path: &std::path::Path) -> Option<(u64, i64, i64)> {
+/// What identifies a version of the event log: its length and modification time (s, ns).
+pub type FileKey = (u64, i64, i64);
+
+/// The event list served last, by the version of the log it was read from.
+pub type CachedEvents = (FileKey, Arc<str>);
+
+fn file_key(path: &std::path::Path) -> Option<FileKey> {
     use std::os::unix::fs::MetadataExt;
     let m = std::fs::metadata(path).ok()?;
     Some((m.len(), m.mtime(), m.mtime_nsec()))
