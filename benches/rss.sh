@@ -12,8 +12,55 @@
 # that sizes memory is the shipped one. Nothing timing-related is asserted.
 #
 #   benches/rss.sh [DURATION_S]    (default 20)
+#
+# `sim` mode: peak resident memory (getrusage of the child) of `antisurge sim --out` on a
+# scenario of SIM_S simulated seconds (default 3600: one hour, 720 001 trace rows at the
+# default 5-ms trace period) on the default plant and law: throttle closure at 5 s, then
+# held. The trace streams to trace.csv (issue 25); BIN measures another build (e.g. one from
+# before the streaming, to compare), default the one this script builds.
+#
+#   benches/rss.sh sim [SIM_S] [BIN]
 set -euo pipefail
 cd "$(dirname "$0")/.."
+if [[ ${1:-} == sim ]]; then
+    sim_s=${2:-3600}
+    bin=${3:-}
+    if [[ -z $bin ]]; then
+        nice -n 10 cargo build --release --quiet
+        bin=$PWD/target/release/antisurge
+    fi
+    dir=$(mktemp -d)
+    trap 'rm -rf "$dir"' EXIT
+    cat >"$dir/long.toml" <<SCENARIO
+name = "long-hold"
+description = "throttle 60 % -> 20 % over 2 s at 5 s, then held (benches/rss.sh sim)"
+duration_s = $sim_s
+
+[initial]
+throttle = 0.6
+
+[[event]]
+at_s = 5.0
+ramp = { signal = "throttle", to = 0.2, over_s = 2.0 }
+SCENARIO
+    python3 - "$bin" "$dir" <<'PY'
+import os, resource, subprocess, sys
+bin, d = sys.argv[1], sys.argv[2]
+r = subprocess.run([bin, "sim", "--config-dir", "config", "--scenario", f"{d}/long.toml",
+                    "--out", f"{d}/out"], capture_output=True, text=True)
+if r.returncode != 0:
+    sys.exit(f"rss.sh: antisurge sim failed:\n{r.stdout}{r.stderr}")
+kib = resource.getrusage(resource.RUSAGE_CHILDREN).ru_maxrss
+with open(f"{d}/out/trace.csv", "rb") as f:
+    rows = sum(1 for _ in f) - 1
+size = os.path.getsize(f"{d}/out/trace.csv")
+line = next((l.strip() for l in r.stdout.splitlines() if "simulated in" in l), "")
+print(f"antisurge sim --out {bin}: {line}")
+print(f"  trace.csv                  {rows} rows, {size / 2**20:.0f} MiB")
+print(f"  max RSS (getrusage)        {kib:6d} KiB = {kib / 1024:5.1f} MiB = {kib * 1024 / 1e6:5.1f} MB")
+PY
+    exit 0
+fi
 dur=${1:-20}
 nice -n 10 cargo build --release --quiet
 bin=$PWD/target/release/antisurge

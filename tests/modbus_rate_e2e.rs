@@ -986,6 +986,20 @@ fn run_case(case: Case) -> Outcome {
         h.abort();
     }
     drop(rt);
+    if let Some(keep) = std::env::var_os("ANTISURGE_E2E_KEEP") {
+        // (debugging: keep the run's files, e.g. the black box around the disturbance)
+        let to = PathBuf::from(keep).join(format!(
+            "{}-{:.0}hz-{}",
+            case.name.replace(' ', "_"),
+            case.poll_hz,
+            case.noise_seed
+        ));
+        let _ = std::process::Command::new("cp")
+            .arg("-r")
+            .arg(&dir)
+            .arg(&to)
+            .status();
+    }
     let st = lock(&shared);
     Outcome {
         figures,

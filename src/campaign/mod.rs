@@ -208,11 +208,48 @@ pub fn run_case(
     run_skid(&s, margin_pct)
 }
 
+/// The skid the oracles and the held valve run on: `s` with its recycle valve starting at the
+/// larger of the openings the two laws held when the disturbance came (`laws`: their runs),
+/// i.e. on the control line they are asked to hold. The question the oracle answers is
+/// whether a controller *at that operating point* could have held the disturbance by acting
+/// in time. From the skid's initial opening (drawn with at least 15 % margin, often 30 %) it
+/// answered for a machine with two to three times the laws' margin, and called cases feasible
+/// that no causal controller on the control line can hold. The larger opening: a law that sat
+/// left of the other (less margin) cannot make a case look infeasible by doing so.
+pub fn on_the_control_line(s: &skid::Skid, laws: [&runner::RunResult; 2]) -> skid::Skid {
+    let mut on = s.clone();
+    let opening = laws
+        .iter()
+        .map(|r| r.opening_at_event)
+        .filter(|u| u.is_finite())
+        .reduce(f64::max);
+    if let Some(u) = opening {
+        on.plant.file.initial.recycle_valve = u.clamp(0.0, 1.0);
+    }
+    on
+}
+
+/// The skid `c` runs on in the campaign: the oracles and the held valve on the control line
+/// ([`on_the_control_line`], from the laws' runs), the laws on `s` itself.
+pub fn skid_for<'a>(
+    c: Controller,
+    s: &'a skid::Skid,
+    laws: [&runner::RunResult; 2],
+) -> std::borrow::Cow<'a, skid::Skid> {
+    match c {
+        Controller::Law(_) => std::borrow::Cow::Borrowed(s),
+        Controller::Oracle { .. } | Controller::Held => {
+            std::borrow::Cow::Owned(on_the_control_line(s, laws))
+        }
+    }
+}
+
 /// Run every controller on a skid.
 pub fn run_skid(s: &skid::Skid, margin_pct: f64) -> Result<CaseResult, CampaignError> {
-    let r = |c: Controller| runner::run(s, c, margin_pct);
-    let recycle_pi = r(Controller::Law(LawId::RecyclePi))?;
-    let baseline_pi = r(Controller::Law(LawId::BaselinePi))?;
+    let recycle_pi = runner::run(s, Controller::Law(LawId::RecyclePi), margin_pct)?;
+    let baseline_pi = runner::run(s, Controller::Law(LawId::BaselinePi), margin_pct)?;
+    let r =
+        |c: Controller| runner::run(&skid_for(c, s, [&recycle_pi, &baseline_pi]), c, margin_pct);
     let oracle = r(Controller::Oracle { late_periods: 0 })?;
     let late_oracle = r(Controller::Oracle {
         late_periods: runner::LATE_ORACLE_PERIODS,

@@ -43,12 +43,15 @@ pub enum Controller {
     /// period), `late_periods` sample periods later still; the command travels to the valve
     /// like any other (bus latency, dead time, stroke), without jitter (the oracle's best
     /// case: the latency drawn for the skid, no extra). Before that the valve holds its
-    /// initial opening. Not a law of the daemon: no control core runs.
+    /// initial opening: in the campaign ([`super::run_skid`]) the opening baseline-pi held on
+    /// the control line ([`super::on_the_control_line`]). Not a law of the daemon: no control
+    /// core runs.
     Oracle {
         /// Extra delay, sample periods.
         late_periods: u32,
     },
-    /// Nobody: the valve holds its initial opening (is the disturbance a challenge at all?).
+    /// Nobody: the valve holds its initial opening (is the disturbance a challenge at all?);
+    /// in the campaign, the opening on the control line, as the oracle.
     Held,
 }
 
@@ -94,7 +97,14 @@ pub struct RunResult {
     /// Whether the core stayed in automatic mode from its first automatic cycle to the end
     /// (always true for the oracle and the held valve, which run no core).
     pub stayed_auto: bool,
+    /// Mean valve command over the last [`OPENING_WINDOW_S`] before the disturbance, fraction
+    /// (NaN: none delivered): where the controller held the valve when the disturbance came.
+    pub opening_at_event: f64,
 }
+
+/// Window of [`RunResult::opening_at_event`], s: one second, many samples of the noisiest
+/// transmitter at the slowest loop rate (20 Hz), well after the 1-s start-up grace.
+pub const OPENING_WINDOW_S: f64 = 1.0;
 
 /// The controller configuration of the campaign: [`ControllerConfig::default`] (no tuning
 /// for any machine: nobody tuned for these) with the control line `margin_pct` right of the
@@ -316,6 +326,7 @@ pub fn run_traced(
     let mut seen_auto = false;
     let mut stayed_auto = true;
     let mut delivered = ActuatorCommands::default();
+    let (mut opening_sum, mut opening_n) = (0.0, 0u32);
     for k in 0..=n {
         let t = k as f64 * dt;
         let (st, mut raw) = pr.sense(t);
@@ -367,6 +378,10 @@ pub fn run_traced(
             }
         }
         delivered.set(ActuatorId::RecycleValve, valve_cmd);
+        if valve_cmd.is_finite() && t < EVENT_AT_S && t >= EVENT_AT_S - OPENING_WINDOW_S {
+            opening_sum += valve_cmd;
+            opening_n += 1;
+        }
         let truth = pr.plant().truth();
         delivered.set(
             ActuatorId::DriveTorque,
@@ -391,6 +406,11 @@ pub fn run_traced(
         min_margin: s.closest_approach.min_surge_margin,
         recycle_energy_j: s.recycle_energy_j,
         stayed_auto: core.is_none() || (seen_auto && stayed_auto),
+        opening_at_event: if opening_n > 0 {
+            opening_sum / f64::from(opening_n)
+        } else {
+            f64::NAN
+        },
     };
     Ok((r, sim))
 }

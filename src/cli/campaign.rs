@@ -87,8 +87,16 @@ pub fn run(args: &CampaignArgs) -> Result<()> {
             if let Some(r) = args.rate_hz {
                 skid.params.rate_hz = r;
             }
+            let law = |l| {
+                campaign::runner::run(&skid, campaign::runner::Controller::Law(l), args.margin_pct)
+            };
+            let laws = [
+                law(antisurge::control::law::LawId::RecyclePi)?,
+                law(antisurge::control::law::LawId::BaselinePi)?,
+            ];
             for c in campaign::runner::CONTROLLERS {
-                let (_, sim) = campaign::runner::run_traced(&skid, c, args.margin_pct, 0.005)?;
+                let on = campaign::skid_for(c, &skid, [&laws[0], &laws[1]]);
+                let (_, sim) = campaign::runner::run_traced(&on, c, args.margin_pct, 0.005)?;
                 let out = dir.join(c.name().replace([' ', '+'], ""));
                 antisurge::sim::output::write_data(&out, &sim, &skid.plant.map)
                     .with_context(|| format!("writing {}", out.display()))?;

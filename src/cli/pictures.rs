@@ -6,8 +6,9 @@ use antisurge::physics::compressor_map::{CompressorMap, SurgeLine};
 use antisurge::plot;
 use antisurge::scenario::Scenario;
 use antisurge::sim::case::PlantCase;
+use antisurge::sim::stream::PictureTrace;
 use antisurge::sim::trace::TraceRow;
-use antisurge::sim::SimResult;
+use antisurge::sim::Summary;
 use anyhow::{Context, Result};
 use std::path::{Path, PathBuf};
 
@@ -21,15 +22,25 @@ pub struct Machine<'a> {
     pub recycle: Option<(ControlLineForm, f64)>,
 }
 
-/// Draw the pictures of a run of `scenario`; returns the files written.
-pub fn draw(
+/// Draw the pictures of a streamed run of `scenario` from its bounded picture (every row of a
+/// short run: the pictures of the whole trace; a long run's thinned rows); returns the files
+/// written.
+pub fn draw_streamed(
     dir: &Path,
     desc: &PlantCase,
     scenario: &Scenario,
-    result: &SimResult,
+    summary: &Summary,
+    pictures: &PictureTrace,
 ) -> Result<Vec<PathBuf>> {
-    let title = plot::title_from_summary(&result.summary);
-    draw_trace(dir, desc, &result.trace, &title, &scenario.event_labels())
+    let title = plot::title_from_summary(summary);
+    draw_split(
+        dir,
+        &machine_of(desc),
+        MapRows::Sampled(pictures.map_rows()),
+        &pictures.series_rows(),
+        (&title, &scenario.event_labels()),
+        None,
+    )
 }
 
 /// Draw the pictures of a trace (from `sim`, or read back by `antisurge plot`) with the
@@ -41,16 +52,20 @@ pub fn draw_trace(
     title: &str,
     events: &[(f64, String)],
 ) -> Result<Vec<PathBuf>> {
+    draw_run(dir, &machine_of(desc), trace, title, events, None)
+}
+
+/// What a simulation plant's pictures are drawn against.
+fn machine_of(desc: &PlantCase) -> Machine<'_> {
     let rp = &desc.controller.recycle_pi;
-    let machine = Machine {
+    Machine {
         map: Some(&desc.map),
         surge_line: desc.map.surge_line,
         recycle: desc
             .file
             .recycle_system
             .map(|_| (rp.control_line, rp.trip.margin_pct)),
-    };
-    draw_run(dir, &machine, trace, title, events, None)
+    }
 }
 
 /// Draw map.svg (when the machine has a map) and timeseries.svg of `trace` into `dir`, with
@@ -64,6 +79,35 @@ pub fn draw_run(
     events: &[(f64, String)],
     recorded: Option<&[TraceRow]>,
 ) -> Result<Vec<PathBuf>> {
+    draw_split(
+        dir,
+        machine,
+        MapRows::Whole(trace),
+        trace,
+        (title, events),
+        recorded,
+    )
+}
+
+/// The rows a map is drawn from.
+enum MapRows<'a> {
+    /// The whole trace (the map takes every n-th row of a long one).
+    Whole(&'a [TraceRow]),
+    /// A streamed run's rows already taken at that stride.
+    Sampled(&'a [TraceRow]),
+}
+
+/// [`draw_run`] with the map's trajectory and the time series drawn from rows of their own
+/// (a long streamed run: the rows the map would take of the whole trace, and the min/max
+/// envelope for the time series).
+fn draw_split(
+    dir: &Path,
+    machine: &Machine<'_>,
+    map_rows: MapRows<'_>,
+    trace: &[TraceRow],
+    (title, events): (&str, &[(f64, String)]),
+    recorded: Option<&[TraceRow]>,
+) -> Result<Vec<PathBuf>> {
     let mut files = Vec::new();
     let scl = machine
         .recycle
@@ -73,8 +117,11 @@ pub fn draw_run(
         let scl_fn = scl.map(|s| move |r: f64| s.flow_at_ratio(r));
         let scl_ref: Option<&dyn Fn(f64) -> f64> =
             scl_fn.as_ref().map(|f| f as &dyn Fn(f64) -> f64);
-        plot::map_svg(&map_path, map, trace, scl_ref, title)
-            .with_context(|| format!("drawing {}", map_path.display()))?;
+        match map_rows {
+            MapRows::Whole(rows) => plot::map_svg(&map_path, map, rows, scl_ref, title),
+            MapRows::Sampled(rows) => plot::map_svg_sampled(&map_path, map, rows, scl_ref, title),
+        }
+        .with_context(|| format!("drawing {}", map_path.display()))?;
         files.push(map_path);
     }
     // the control and trip lines as surge margins (fraction of surge-line flow, as the

@@ -123,7 +123,9 @@ pub fn run(args: &SimArgs) -> Result<()> {
             b.set_position((frac * 1000.0) as u64);
         }
     };
-    let result = sim::run_with_model(
+    // the trace streams to out_dir/trace.csv as the run goes: memory bounded whatever the
+    // scenario's length (issue 25)
+    let (summary, trace) = sim::run_streamed(
         &desc,
         model,
         &scenario,
@@ -133,6 +135,7 @@ pub fn run(args: &SimArgs) -> Result<()> {
             loop_delay_jitter_periods: args.loop_delay_jitter_periods,
             ..SimOptions::default()
         },
+        &out_dir,
         &mut progress,
         &mut |_, _| {},
     )
@@ -140,15 +143,22 @@ pub fn run(args: &SimArgs) -> Result<()> {
     if let Some(b) = bar.take() {
         b.finish_and_clear();
     }
-    let mut files = sim::output::write_data(&out_dir, &result, &desc.map)
+    let summary_path = sim::output::write_summary(&out_dir, &summary)
         .with_context(|| format!("writing results to {}", out_dir.display()))?;
+    let mut files = vec![trace.path.clone(), summary_path];
     if !args.no_plots {
-        files.extend(super::pictures::draw(&out_dir, &desc, &scenario, &result)?);
+        files.extend(super::pictures::draw_streamed(
+            &out_dir,
+            &desc,
+            &scenario,
+            &summary,
+            &trace.pictures,
+        )?);
     }
     if args.json {
-        println!("{}", serde_json::to_string_pretty(&result.summary)?);
+        println!("{}", serde_json::to_string_pretty(&summary)?);
     } else {
-        print_summary(&result.summary, &out_dir, &files);
+        print_summary(&summary, &out_dir, &files);
     }
     Ok(())
 }

@@ -15,7 +15,7 @@ use crate::io::can::bus::{
 use crate::io::feedback::FeedbackSupervisor;
 use crate::io::field_link::{EventSink, FieldLinkReporter};
 use crate::io::modbus::{
-    run_controller as modbus_controller, run_plant_server, LinkMonitor, LinkState,
+    run_controller_triggering as modbus_controller, run_plant_server, LinkMonitor, LinkState,
     ModbusLinkConfig, Pacing, TransportConfig, WriteHealth,
 };
 use crate::runtime::handoff::{
@@ -48,6 +48,9 @@ fn can_codec(l: &Loaded) -> Result<(crate::io::can::bus::CanBusConfig, BusCodec)
 /// and the signal map): `None` when the cycle keeps its fixed deadline (not the field
 /// transport, no CAN binding, `"deadline"`, or no cycle input on CAN).
 pub fn controller_trigger_plan(l: &Loaded) -> Result<Option<crate::io::can::bus::TriggerPlan>> {
+    if modbus_reads_drive_the_cycle(l) {
+        return Ok(None);
+    }
     if l.config.bus.transport != super::config::Transport::Field || !l.signal_map.uses_can() {
         return Ok(None);
     }
@@ -55,6 +58,20 @@ pub fn controller_trigger_plan(l: &Loaded) -> Result<Option<crate::io::can::bus:
     codec
         .trigger_plan(&can.cycle_trigger)
         .context("bus.can.cycle_trigger")
+}
+
+/// Whether the Modbus link's reads start the controller's cycles (`[bus.modbus]
+/// cycle_trigger = "reads"`, the default, on a skid whose map binds no CAN signal: the
+/// trigger has one writer).
+pub fn modbus_reads_drive_the_cycle(l: &Loaded) -> bool {
+    l.config.bus.transport == super::config::Transport::Field
+        && l.signal_map.uses_modbus()
+        && !l.signal_map.uses_can()
+        && l.config
+            .bus
+            .modbus
+            .as_ref()
+            .is_some_and(|m| m.cycle_trigger == crate::io::modbus::link::ModbusCycleTrigger::Reads)
 }
 
 /// The event sink of a [`FieldLinkReporter`]: the daemon's event log.
@@ -431,7 +448,7 @@ pub fn spawn_controller_links(
             sensors: Arc::clone(&sensors),
             outputs: Arc::clone(&outputs),
             wake: Arc::clone(&wake),
-            trigger,
+            trigger: trigger.clone(),
         };
         tracing::info!(target: "can", "controller on {} ({})", can.interface, can.dbc.display());
         tasks.spawn(async move {
@@ -468,6 +485,11 @@ pub fn spawn_controller_links(
         ));
         tracing::info!(target: "modbus", "controller polling at {} Hz", cfg.poll_rate_hz);
         let sd = shutdown.clone();
+        let trigger = if modbus_reads_drive_the_cycle(l) {
+            trigger
+        } else {
+            None
+        };
         tasks.spawn(async move {
             if let Err(e) = modbus_controller(
                 &cfg,
@@ -476,6 +498,7 @@ pub fn spawn_controller_links(
                 outputs,
                 Pacing::Interval,
                 monitor,
+                trigger,
                 until_true(sd),
             )
             .await

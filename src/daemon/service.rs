@@ -473,12 +473,18 @@ async fn serve(loaded: Loaded, opts: RunOptions) -> Result<()> {
             return Err(anyhow::Error::new(e));
         }
     };
-    // what starts a cycle: the arrival of its CAN inputs, or the fixed deadline
+    // what starts a cycle: the arrival of its CAN inputs, the Modbus link's reads, or the
+    // fixed deadline
     let trigger_plan = super::field::controller_trigger_plan(&loaded)?;
-    let cycle_trigger = trigger_plan
-        .as_ref()
-        .map_or_else(|| "deadline".to_string(), |p| p.describe());
-    let trigger = trigger_plan.map(|_| Arc::new(CycleTrigger::new()));
+    let modbus_reads = super::field::modbus_reads_drive_the_cycle(&loaded);
+    let cycle_trigger = if modbus_reads {
+        "inputs: modbus reads".to_string()
+    } else {
+        trigger_plan
+            .as_ref()
+            .map_or_else(|| "deadline".to_string(), |p| p.describe())
+    };
+    let trigger = (trigger_plan.is_some() || modbus_reads).then(|| Arc::new(CycleTrigger::new()));
     tracing::info!(target: "rt", "control cycle trigger: {cycle_trigger}");
     let _ = events.send(Event::started_with_trigger(
         &loaded.main_path,

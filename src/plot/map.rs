@@ -38,7 +38,8 @@ const TITLE_AREA: u32 = 42;
 /// Speed lines drawn across the map's speed range.
 pub(crate) const N_SPEED_LINES: usize = 6;
 const SPEED_LINE_SAMPLES: usize = 600;
-const MAX_TRAJ_POINTS: usize = 20_000;
+/// Most trajectory points drawn: a longer trace is drawn from every n-th row.
+pub const MAX_TRAJ_POINTS: usize = 20_000;
 /// Preferred label position: where a speed line has fallen (right of its surge point) to this
 /// fraction of its height above ratio 1.
 const LABEL_HEIGHT_FRACTION: f64 = 0.72;
@@ -84,13 +85,37 @@ pub fn map_svg(
     scl: Option<&dyn Fn(f64) -> f64>,
     title: &str,
 ) -> Result<(), PlotError> {
+    let stride = trace.len().div_ceil(MAX_TRAJ_POINTS).max(1);
+    map_svg_strided(path, map, trace, stride, scl, title)
+}
+
+/// [`map_svg`] of rows already taken at the stride [`map_svg`] takes of a whole trace (every
+/// n-th row with n = ⌈rows / [`MAX_TRAJ_POINTS`]⌉, and the last row): the map of the whole
+/// trace, from a streamed run's bounded sample of it (`sim::stream::PictureTrace`).
+pub fn map_svg_sampled(
+    path: &Path,
+    map: &CompressorMap,
+    sample: &[TraceRow],
+    scl: Option<&dyn Fn(f64) -> f64>,
+    title: &str,
+) -> Result<(), PlotError> {
+    map_svg_strided(path, map, sample, 1, scl, title)
+}
+
+fn map_svg_strided(
+    path: &Path,
+    map: &CompressorMap,
+    trace: &[TraceRow],
+    stride: usize,
+    scl: Option<&dyn Fn(f64) -> f64>,
+    title: &str,
+) -> Result<(), PlotError> {
     if trace.is_empty() {
         return Err(PlotError::NoData {
             file: path.to_path_buf(),
             reason: "the trace is empty".into(),
         });
     }
-    let stride = trace.len().div_ceil(MAX_TRAJ_POINTS).max(1);
     let mut traj: Vec<Pt> = trace
         .iter()
         .step_by(stride)

@@ -24,7 +24,7 @@ mod tests;
 
 use std::path::PathBuf;
 
-pub use map::map_svg;
+pub use map::{map_svg, map_svg_sampled, MAX_TRAJ_POINTS};
 pub use timeseries::timeseries_svg;
 
 use crate::sim::summary::Summary;

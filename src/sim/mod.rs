@@ -4,14 +4,15 @@
 pub mod case;
 pub mod output;
 pub mod runner;
+pub mod stream;
 pub mod summary;
 pub mod table;
 pub mod trace;
 
 pub use case::PlantCase;
 pub use runner::{
-    operator_inputs, run, run_with, run_with_model, ControllerView, PlantRun, SimError, SimOptions,
-    SimResult,
+    operator_inputs, run, run_streamed, run_with, run_with_model, ControllerView, PlantRun,
+    SimError, SimOptions, SimResult, StreamedTrace,
 };
 pub use summary::Summary;
 

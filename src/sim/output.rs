@@ -1,6 +1,7 @@
-//! Writing a run's files: `trace.csv`, `summary.json`, `map.svg`, `timeseries.svg`.
+//! Writing a run's files: `trace.csv`, `summary.json`, `map.svg`, `timeseries.svg` (a run kept
+//! in memory; `sim::run_streamed` writes `trace.csv` as it goes).
 
-use super::SimResult;
+use super::{SimResult, Summary};
 use crate::physics::compressor_map::{CompressorMap, FlowCoordinate};
 use std::path::{Path, PathBuf};
 
@@ -42,12 +43,19 @@ pub fn write_data(
         &result.trace,
         map.flow_coordinate == FlowCoordinate::InletVolumeM3S,
     )
+    .and_then(|()| std::io::Write::flush(&mut w))
     .map_err(io(&trace_path))?;
+    let summary_path = write_summary(dir, &result.summary)?;
+    Ok(vec![trace_path, summary_path])
+}
+
+/// Write `dir/summary.json` (the directory exists); returns its path.
+pub fn write_summary(dir: &Path, summary: &Summary) -> Result<PathBuf, OutputError> {
     let summary_path = dir.join("summary.json");
-    let json = serde_json::to_string_pretty(&result.summary).map_err(|e| OutputError::Io {
+    let json = serde_json::to_string_pretty(summary).map_err(|e| OutputError::Io {
         path: summary_path.clone(),
         source: std::io::Error::other(e),
     })?;
     std::fs::write(&summary_path, json + "\n").map_err(io(&summary_path))?;
-    Ok(vec![trace_path, summary_path])
+    Ok(summary_path)
 }

@@ -1,10 +1,11 @@
 //! The simulation loop.
 
+use super::stream::{PictureTrace, TailStats};
 use super::summary::{
-    is_steady, settle_time, verdict, ActuatorPeaks, ClosestApproach, FlowFallback,
-    FlowSourceReport, Health, LawEventCounts, ModeEpisode, Summary,
+    verdict, ActuatorPeaks, ClosestApproach, FlowFallback, FlowSourceReport, Health,
+    LawEventCounts, ModeEpisode, Summary,
 };
-use super::trace::TraceRow;
+use super::trace::{CsvTraceWriter, TraceRow};
 use crate::control::core::{ControlCore, CoreSettings, Mode};
 use crate::control::law::LawEvent;
 use crate::control::measurements::{OperatorInputs, RawSensors};
@@ -18,6 +19,7 @@ use crate::signals::ActuatorCommands;
 use crate::signals::{ActuatorId, SensorId, SensorSnapshot};
 use crate::sim::case::PlantCase;
 use crate::surge::{DetectorConfig, SurgeDetector};
+use std::path::{Path, PathBuf};
 use std::time::Instant;
 
 /// Options of a run.
@@ -127,6 +129,14 @@ pub enum SimError {
         /// What is wrong.
         message: String,
     },
+    /// The streamed trace could not be written.
+    #[error("{}: {source}", path.display())]
+    Output {
+        /// The file or directory.
+        path: PathBuf,
+        /// Cause.
+        source: std::io::Error,
+    },
 }
 
 /// A finished run.
@@ -168,10 +178,39 @@ fn field_readings(
     raw
 }
 
-/// The most trace rows reserved at the start of a run (about 80 s at the 5-ms trace period);
-/// a longer trace grows as it is written. (Was 1 M rows: the longest allowed scenario
-/// reserved, and under `mlockall` locked, 761 MB at start; issue 25.)
+/// The most trace rows reserved at the start of a run kept in memory (about 80 s at the 5-ms
+/// trace period); a longer trace grows as it is written. (Was 1 M rows: the longest allowed
+/// scenario reserved, and under `mlockall` locked, 761 MB at start; issue 25.) A streamed run
+/// ([`PlantRun::stream_to`], `antisurge sim`) keeps no trace at all.
 pub const TRACE_PREALLOC_ROWS: usize = 1 << 14;
+
+/// Where a run's trace rows go.
+enum TraceSink {
+    /// Kept whole in memory, returned in [`SimResult::trace`] (library runs, tests, campaign).
+    Memory(Vec<TraceRow>),
+    /// Written to `trace.csv` as they come, with a bounded picture of them.
+    Stream(Box<StreamSink>),
+    /// Not kept.
+    Off,
+}
+
+/// A streamed trace: the CSV writer and the picture.
+struct StreamSink {
+    csv: CsvTraceWriter<std::fs::File>,
+    path: PathBuf,
+    pictures: PictureTrace,
+}
+
+/// What a streamed run leaves besides its files: the rows its pictures are drawn from.
+#[derive(Debug)]
+pub struct StreamedTrace {
+    /// The trace file written.
+    pub path: PathBuf,
+    /// Rows written to it.
+    pub rows: u64,
+    /// The bounded picture of the trace.
+    pub pictures: PictureTrace,
+}
 
 /// The plant side of a run: the simulated plant under a scenario timeline, with field
 /// readings (noise, faults), scoring of the true state (surge detection, margins, actuator
@@ -192,7 +231,8 @@ pub struct PlantRun<'a> {
     recycle_energy: f64,
     last_recycle_pos: f64,
     law_events: LawEventCounts,
-    trace: Vec<TraceRow>,
+    trace: TraceSink,
+    tail: TailStats,
     trace_every: usize,
     surge_margin: Box<dyn Fn(f64, f64) -> f64 + Send + 'a>,
     wall: Instant,
@@ -509,7 +549,10 @@ impl<'a> PlantRun<'a> {
             law_events: LawEventCounts::default(),
             // preallocation bounded (TRACE_PREALLOC_ROWS); a longer trace grows as it is
             // written, so a day-long scenario does not lock its whole trace at start
-            trace: Vec::with_capacity((n_steps / trace_every + 2).min(TRACE_PREALLOC_ROWS)),
+            trace: TraceSink::Memory(Vec::with_capacity(
+                (n_steps / trace_every + 2).min(TRACE_PREALLOC_ROWS),
+            )),
+            tail: TailStats::new(scenario.last_event_s(), trace_every as f64 * dt),
             trace_every,
             surge_margin: Box::new(move |q, r| model.surge_margin(q, r)),
             wall: Instant::now(),
@@ -520,9 +563,56 @@ impl<'a> PlantRun<'a> {
     /// Keep no trace rows (scores and health are still kept): for a run whose trace is never
     /// written, such as the daemon's in-process plant without an output directory.
     pub fn without_trace(mut self) -> Self {
-        self.trace = Vec::new();
+        self.trace = TraceSink::Off;
         self.trace_every = usize::MAX;
         self
+    }
+
+    /// Stream the trace to `dir/trace.csv` (created, the directory too) as the run goes
+    /// instead of keeping it: memory bounded whatever the run's length (the summary comes from
+    /// running statistics, the pictures from a bounded [`PictureTrace`], the settle time from
+    /// a log in an unnamed file in `dir`). `volumetric`: the map's flow coordinate is inlet
+    /// volume flow (the file's last column). [`PlantRun::close_trace`] finishes the file.
+    pub fn stream_to(mut self, dir: &Path, volumetric: bool) -> Result<Self, SimError> {
+        let err = |path: &Path| {
+            let path = path.to_path_buf();
+            move |source| SimError::Output { path, source }
+        };
+        std::fs::create_dir_all(dir).map_err(err(dir))?;
+        let path = dir.join("trace.csv");
+        let file = std::fs::File::create(&path).map_err(err(&path))?;
+        self.tail.log_settle_in(dir).map_err(err(dir))?;
+        self.trace = TraceSink::Stream(Box::new(StreamSink {
+            csv: CsvTraceWriter::new(file, volumetric),
+            path,
+            // the rows of the whole run: n_steps + 1 steps, one row every trace_every
+            pictures: PictureTrace::with_rows(self.n_steps() / self.trace_every + 1),
+        }));
+        Ok(self)
+    }
+
+    /// Finish a streamed trace ([`PlantRun::stream_to`]): the file flushed, and what the
+    /// pictures are drawn from. `None` for a run whose trace is not streamed.
+    pub fn close_trace(&mut self) -> Result<Option<StreamedTrace>, SimError> {
+        let TraceSink::Stream(s) = std::mem::replace(&mut self.trace, TraceSink::Off) else {
+            return Ok(None);
+        };
+        let StreamSink {
+            csv,
+            path,
+            pictures,
+        } = *s;
+        let rows = csv.rows();
+        let file = csv.finish().map_err(|source| SimError::Output {
+            path: path.clone(),
+            source,
+        })?;
+        drop(file);
+        Ok(Some(StreamedTrace {
+            path,
+            rows,
+            pictures,
+        }))
     }
 
     /// The plant.
@@ -655,7 +745,7 @@ impl<'a> PlantRun<'a> {
         self.health.record(t_s, &truth, margin, c, view);
 
         if k.is_multiple_of(self.trace_every) {
-            self.trace.push(TraceRow {
+            let row = TraceRow {
                 t_s,
                 m_kg_s: truth.m_kg_s,
                 flow_map: truth.flow_map,
@@ -689,7 +779,16 @@ impl<'a> PlantRun<'a> {
                 cmd_tip_clearance_m: c.get(ActuatorId::TipClearance),
                 mode: view.mode,
                 law_diagnostic: view.law_diagnostic,
-            });
+            };
+            self.tail.push(&row);
+            match &mut self.trace {
+                TraceSink::Memory(rows) => rows.push(row),
+                TraceSink::Stream(s) => {
+                    s.csv.push(&row);
+                    s.pictures.push(&row);
+                }
+                TraceSink::Off => {}
+            }
         }
     }
 
@@ -705,14 +804,32 @@ impl<'a> PlantRun<'a> {
         self.plant.step(&self.inputs, dt_s);
     }
 
-    /// The result so far, labelled with the law's name.
+    /// The result so far, labelled with the law's name. Its trace is empty when the trace is
+    /// streamed or not kept. An error only if a streamed run's settle log cannot be read back.
+    pub fn try_finish(&self, law: &str) -> Result<SimResult, SimError> {
+        match self.summarize(law) {
+            (r, None) => Ok(r),
+            (_, Some(e)) => Err(e),
+        }
+    }
+
+    /// The result so far, labelled with the law's name: [`PlantRun::try_finish`] for a run
+    /// whose trace is kept in memory or not at all, which cannot fail (a streamed run whose
+    /// settle log cannot be read back gets no settle time).
     pub fn finish(&self, law: &str) -> SimResult {
+        self.summarize(law).0
+    }
+
+    fn summarize(&self, law: &str) -> (SimResult, Option<SimError>) {
         let wall_s = self.wall.elapsed().as_secs_f64();
-        let trace = &self.trace;
-        let last = trace.last().copied().unwrap_or_default();
-        let duration = trace.last().map_or(0.0, |r| r.t_s);
+        let trace: &[TraceRow] = match &self.trace {
+            TraceSink::Memory(rows) => rows,
+            _ => &[],
+        };
+        let last = self.tail.last().unwrap_or_default();
+        let duration = self.tail.last().map_or(0.0, |r| r.t_s);
         let window = (0.25 * duration).clamp(1.0, 3.0);
-        let steady = is_steady(trace, window, 0.02, 1e-4) && !self.detector.in_surge();
+        let steady = self.tail.is_steady(window, 0.02, 1e-4) && !self.detector.in_surge();
         let h = &self.health;
         let cycles = h.cycles.max(1) as f64;
         let failsafe_fraction = h.failsafe_cycles as f64 / cycles;
@@ -751,8 +868,20 @@ impl<'a> PlantRun<'a> {
         if !peaks.drive_torque_cmd_range_nm.0.is_finite() {
             peaks.drive_torque_cmd_range_nm = (f64::NAN, f64::NAN);
         }
+        let mut error = None;
         let settle = if stable {
-            settle_time(trace, self.scenario.last_event_s(), 0.02, 1e-4)
+            self.tail
+                .settle_time(trace, 0.02, 1e-4)
+                .unwrap_or_else(|source| {
+                    error = Some(SimError::Output {
+                        path: match &self.trace {
+                            TraceSink::Stream(s) => s.path.clone(),
+                            _ => PathBuf::new(),
+                        },
+                        source,
+                    });
+                    None
+                })
         } else {
             None
         };
@@ -787,10 +916,13 @@ impl<'a> PlantRun<'a> {
             field_failsafe_entries: None,
             device_watchdog: None,
         };
-        SimResult {
-            trace: trace.clone(),
-            summary,
-        }
+        (
+            SimResult {
+                trace: trace.to_vec(),
+                summary,
+            },
+            error,
+        )
     }
 }
 
@@ -836,6 +968,54 @@ pub fn run_with_model(
     before_cycle: &mut dyn FnMut(f64, &mut ControlCore),
 ) -> Result<SimResult, SimError> {
     let mut pr = PlantRun::new(desc, scenario)?;
+    let law = drive(&mut pr, model, scenario, options, progress, before_cycle)?;
+    let mut result = pr.finish(law.name());
+    result.summary.duration_s = scenario.file.duration_s;
+    Ok(result)
+}
+
+/// [`run_with_model`] with the trace streamed to `dir/trace.csv` as the run goes
+/// ([`PlantRun::stream_to`]; the bytes [`super::output::write_data`] writes of a kept trace):
+/// the run's memory does not grow with its length. Returns the summary and what the pictures
+/// are drawn from. On error the partial trace file is removed.
+pub fn run_streamed(
+    desc: &PlantDescription,
+    model: crate::control::model::ControlModel,
+    scenario: &Scenario,
+    options: SimOptions,
+    dir: &Path,
+    progress: &mut dyn FnMut(f64),
+    before_cycle: &mut dyn FnMut(f64, &mut ControlCore),
+) -> Result<(super::Summary, StreamedTrace), SimError> {
+    let volumetric =
+        desc.map.flow_coordinate == crate::physics::compressor_map::FlowCoordinate::InletVolumeM3S;
+    let mut pr = PlantRun::new(desc, scenario)?.stream_to(dir, volumetric)?;
+    let run = drive(&mut pr, model, scenario, options, progress, before_cycle)
+        .and_then(|law| pr.try_finish(law.name()))
+        .and_then(|r| Ok((r.summary, pr.close_trace()?)));
+    match run {
+        Ok((mut summary, Some(trace))) => {
+            summary.duration_s = scenario.file.duration_s;
+            Ok((summary, trace))
+        }
+        Ok((_, None)) => unreachable!("a streamed run has a streamed trace"),
+        Err(e) => {
+            let _ = pr.close_trace();
+            let _ = std::fs::remove_file(dir.join("trace.csv"));
+            Err(e)
+        }
+    }
+}
+
+/// Run the control core against `pr` over the whole scenario; returns the law it ended with.
+fn drive(
+    pr: &mut PlantRun<'_>,
+    model: crate::control::model::ControlModel,
+    scenario: &Scenario,
+    options: SimOptions,
+    progress: &mut dyn FnMut(f64),
+    before_cycle: &mut dyn FnMut(f64, &mut ControlCore),
+) -> Result<LawId, SimError> {
     let settings = CoreSettings::defaults_for(&model);
     let nominal_speed = model.drive.nominal_speed_rad_s;
     let t0_torque = pr.plant().truth().load_torque_nm;
@@ -887,7 +1067,5 @@ pub fn run_with_model(
         }
     }
     progress(1.0);
-    let mut result = pr.finish(core.law().name());
-    result.summary.duration_s = scenario.file.duration_s;
-    Ok(result)
+    Ok(core.law())
 }

@@ -273,23 +273,64 @@ pub fn verdict(h: &Health<'_>) -> (bool, String) {
 /// ± max(`rel`·|final|, `abs_floor`) around its final value (mean of the last 0.5 s).
 pub fn settle_time(rows: &[TraceRow], t_event: f64, rel: f64, abs_floor: f64) -> Option<f64> {
     let last = rows.last()?;
-    let tail: Vec<f64> = rows
-        .iter()
-        .filter(|r| r.t_s >= last.t_s - 0.5)
-        .map(|r| r.m_kg_s)
-        .collect();
-    let fin = tail.iter().sum::<f64>() / tail.len().max(1) as f64;
-    let band = (rel * fin.abs()).max(abs_floor);
-    let mut settle = t_event;
+    let mut s = Settle::new(
+        rows.iter()
+            .filter(|r| r.t_s >= last.t_s - SETTLE_FINAL_WINDOW_S)
+            .map(|r| r.m_kg_s),
+        t_event,
+        rel,
+        abs_floor,
+    );
     for r in rows.iter().filter(|r| r.t_s >= t_event) {
-        if (r.m_kg_s - fin).abs() > band {
-            settle = r.t_s;
+        s.row(r.t_s, r.m_kg_s);
+    }
+    s.finish(last.t_s)
+}
+
+/// The final value of the settle time is the mean flow of this last stretch of the run, s.
+pub const SETTLE_FINAL_WINDOW_S: f64 = 0.5;
+
+/// [`settle_time`] a row at a time (a streamed trace): the final flow first, then the rows
+/// from the last event on, in order.
+pub struct Settle {
+    t_event: f64,
+    fin: f64,
+    band: f64,
+    settle: f64,
+}
+
+impl Settle {
+    /// Flows of the last [`SETTLE_FINAL_WINDOW_S`] of the run in `final_window`.
+    pub fn new(
+        final_window: impl Iterator<Item = f64>,
+        t_event: f64,
+        rel: f64,
+        abs_floor: f64,
+    ) -> Self {
+        let tail: Vec<f64> = final_window.collect();
+        let fin = tail.iter().sum::<f64>() / tail.len().max(1) as f64;
+        Settle {
+            t_event,
+            fin,
+            band: (rel * fin.abs()).max(abs_floor),
+            settle: t_event,
         }
     }
-    if settle >= last.t_s - 0.5 {
-        return None;
+
+    /// The next row at or after the last event.
+    pub fn row(&mut self, t_s: f64, m_kg_s: f64) {
+        if (m_kg_s - self.fin).abs() > self.band {
+            self.settle = t_s;
+        }
     }
-    Some((settle - t_event).max(0.0))
+
+    /// The settle time of a run whose last row is at `t_last_s`.
+    pub fn finish(&self, t_last_s: f64) -> Option<f64> {
+        if self.settle >= t_last_s - SETTLE_FINAL_WINDOW_S {
+            return None;
+        }
+        Some((self.settle - self.t_event).max(0.0))
+    }
 }
 
 /// Whether the last `window_s` of the trace is steady: no reversal and peak-to-peak flow
@@ -298,11 +339,18 @@ pub fn is_steady(rows: &[TraceRow], window_s: f64, rel: f64, abs_floor: f64) -> 
     let Some(last) = rows.last() else {
         return false;
     };
-    let w: Vec<f64> = rows
-        .iter()
-        .filter(|r| r.t_s >= last.t_s - window_s)
-        .map(|r| r.m_kg_s)
-        .collect();
+    steady_window(
+        rows.iter()
+            .filter(|r| r.t_s >= last.t_s - window_s)
+            .map(|r| r.m_kg_s),
+        rel,
+        abs_floor,
+    )
+}
+
+/// [`is_steady`] of the flows of the window, in order.
+pub fn steady_window(window: impl Iterator<Item = f64>, rel: f64, abs_floor: f64) -> bool {
+    let w: Vec<f64> = window.collect();
     if w.is_empty() || w.iter().any(|m| !m.is_finite()) {
         return false;
     }

@@ -156,24 +156,209 @@ impl TraceRow {
     }
 }
 
-/// Write rows as CSV (NaN written as empty fields).
+impl TraceRow {
+    /// The row of `values` in column order (the inverse of [`TraceRow::values`]).
+    pub fn from_values(v: [f64; 33]) -> TraceRow {
+        let [t_s, m_kg_s, flow_map, p_suction_pa, p_discharge_pa, pressure_ratio, omega_rad_s, recycle_flow_kg_s, throttle_flow_kg_s, feed_flow_kg_s, recycle_valve_position, throttle_position, drive_torque_nm, load_torque_nm, ccv, tip_clearance_m, thrust_force_n, thrust_slew_n_s, surge_margin, meas_p_suction_pa, meas_p_discharge_pa, meas_omega_rad_s, meas_orifice_dp_pa, meas_m_kg_s, est_m_kg_s, used_m_kg_s, cmd_drive_torque_nm, cmd_recycle_valve, cmd_ccv, cmd_throttle, cmd_tip_clearance_m, mode, law_diagnostic] =
+            v;
+        TraceRow {
+            t_s,
+            m_kg_s,
+            flow_map,
+            p_suction_pa,
+            p_discharge_pa,
+            pressure_ratio,
+            omega_rad_s,
+            recycle_flow_kg_s,
+            throttle_flow_kg_s,
+            feed_flow_kg_s,
+            recycle_valve_position,
+            throttle_position,
+            drive_torque_nm,
+            load_torque_nm,
+            ccv,
+            tip_clearance_m,
+            thrust_force_n,
+            thrust_slew_n_s,
+            surge_margin,
+            meas_p_suction_pa,
+            meas_p_discharge_pa,
+            meas_omega_rad_s,
+            meas_orifice_dp_pa,
+            meas_m_kg_s,
+            est_m_kg_s,
+            used_m_kg_s,
+            cmd_drive_torque_nm,
+            cmd_recycle_valve,
+            cmd_ccv,
+            cmd_throttle,
+            cmd_tip_clearance_m,
+            mode,
+            law_diagnostic,
+        }
+    }
+}
+
+/// One CSV line of `r` into `line` (cleared first; NaN written as an empty field, no newline).
+fn format_row(line: &mut String, r: &TraceRow, volumetric: bool) {
+    use std::fmt::Write as _;
+    line.clear();
+    for (i, v) in r.values().iter().enumerate() {
+        if i > 0 {
+            line.push(',');
+        }
+        if v.is_finite() {
+            let _ = write!(line, "{v:.7e}");
+        }
+    }
+    line.push(',');
+    line.push(if volumetric { '1' } else { '0' });
+    line.push('\n');
+}
+
+/// Write rows as CSV (NaN written as empty fields): the whole trace of a run kept in memory.
+/// [`CsvTraceWriter`] writes the same bytes a row at a time.
 pub fn write_csv(out: &mut impl Write, rows: &[TraceRow], volumetric: bool) -> std::io::Result<()> {
     writeln!(out, "{}", COLUMNS.join(","))?;
-    let mut line = String::with_capacity(512);
+    let mut line = String::with_capacity(LINE_CAPACITY);
     for r in rows {
-        line.clear();
-        for (i, v) in r.values().iter().enumerate() {
-            if i > 0 {
-                line.push(',');
-            }
-            if v.is_finite() {
-                use std::fmt::Write as _;
-                let _ = write!(line, "{v:.7e}");
-            }
-        }
-        line.push(',');
-        line.push(if volumetric { '1' } else { '0' });
-        writeln!(out, "{line}")?;
+        format_row(&mut line, r, volumetric);
+        out.write_all(line.as_bytes())?;
     }
     Ok(())
+}
+
+/// Room for one CSV line: 33 fields of at most 15 characters (`-1.2345678e-100`), commas, the
+/// unit flag and the newline.
+const LINE_CAPACITY: usize = 34 * 16 + 2;
+
+/// Bytes the trace file's writer holds before it writes them out: a few hundred rows.
+pub const CSV_BUFFER_BYTES: usize = 1 << 16;
+
+/// `trace.csv` written as the run goes (`antisurge sim`): the bytes of [`write_csv`], through a
+/// buffer of [`CSV_BUFFER_BYTES`], so a run of any length holds one buffer of the trace, never
+/// the trace. Writing a row does not allocate. The first write error is kept (later rows are
+/// dropped) and returned by [`CsvTraceWriter::finish`], so the simulation loop never stops on
+/// the file system's account.
+pub struct CsvTraceWriter<W: Write> {
+    out: std::io::BufWriter<W>,
+    line: String,
+    volumetric: bool,
+    rows: u64,
+    error: Option<std::io::Error>,
+}
+
+impl<W: Write> CsvTraceWriter<W> {
+    /// A writer to `out`; writes the header line at once. `volumetric`: the map's flow
+    /// coordinate is inlet volume flow (the last column).
+    pub fn new(out: W, volumetric: bool) -> Self {
+        let mut out = std::io::BufWriter::with_capacity(CSV_BUFFER_BYTES, out);
+        let error = writeln!(out, "{}", COLUMNS.join(",")).err();
+        CsvTraceWriter {
+            out,
+            line: String::with_capacity(LINE_CAPACITY),
+            volumetric,
+            rows: 0,
+            error,
+        }
+    }
+
+    /// Write one row.
+    pub fn push(&mut self, r: &TraceRow) {
+        if self.error.is_some() {
+            return;
+        }
+        format_row(&mut self.line, r, self.volumetric);
+        match self.out.write_all(self.line.as_bytes()) {
+            Ok(()) => self.rows += 1,
+            Err(e) => self.error = Some(e),
+        }
+    }
+
+    /// Rows written so far.
+    pub fn rows(&self) -> u64 {
+        self.rows
+    }
+
+    /// Flush the buffer; the first error of the run, if any.
+    pub fn finish(mut self) -> std::io::Result<W> {
+        if let Some(e) = self.error.take() {
+            return Err(e);
+        }
+        self.out.into_inner().map_err(|e| e.into_error())
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn row(k: usize) -> TraceRow {
+        let mut v = [0.0; 33];
+        for (i, x) in v.iter_mut().enumerate() {
+            *x = (k * 33 + i) as f64 * 1.234_567_891e-3 - 7.0;
+        }
+        v[4] = f64::NAN;
+        v[9] = f64::INFINITY;
+        TraceRow::from_values(v)
+    }
+
+    #[test]
+    fn from_values_inverts_values() {
+        let r = row(3);
+        let back = TraceRow::from_values(r.values());
+        assert_eq!(
+            back.values().map(f64::to_bits),
+            r.values().map(f64::to_bits)
+        );
+    }
+
+    #[test]
+    fn streamed_csv_is_the_bytes_of_the_whole_trace() {
+        let rows: Vec<TraceRow> = (0..2000).map(row).collect();
+        for volumetric in [false, true] {
+            let mut whole = Vec::new();
+            write_csv(&mut whole, &rows, volumetric).expect("write");
+            let mut w = CsvTraceWriter::new(Vec::new(), volumetric);
+            for r in &rows {
+                w.push(r);
+            }
+            assert_eq!(w.rows(), 2000);
+            let streamed = w.finish().expect("finish");
+            assert_eq!(streamed, whole);
+            let text = String::from_utf8(whole).expect("utf8");
+            assert!(
+                text.lines().nth(1).expect("row").contains(",,"),
+                "NaN is an empty field"
+            );
+        }
+    }
+
+    /// A sink that fails after `ok` bytes.
+    struct Full {
+        ok: usize,
+    }
+    impl Write for Full {
+        fn write(&mut self, b: &[u8]) -> std::io::Result<usize> {
+            if self.ok == 0 {
+                return Err(std::io::Error::other("disk full"));
+            }
+            let n = b.len().min(self.ok);
+            self.ok -= n;
+            Ok(n)
+        }
+        fn flush(&mut self) -> std::io::Result<()> {
+            Ok(())
+        }
+    }
+
+    #[test]
+    fn a_write_error_is_kept_and_returned_at_the_end() {
+        let mut w = CsvTraceWriter::new(Full { ok: 100_000 }, false);
+        for k in 0..2000 {
+            w.push(&row(k));
+        }
+        let e = w.finish().err().expect("the error");
+        assert_eq!(e.to_string(), "disk full");
+    }
 }

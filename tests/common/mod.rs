@@ -71,6 +71,7 @@ pub mod counting_alloc;
 pub mod daemon;
 pub mod faults;
 pub mod node;
+pub mod peak_alloc;
 
 /// Mean of one trace column over the rows from `t0_s` on (a settled tail), NaN if none.
 pub fn mean_from(

@@ -102,6 +102,12 @@ const NOISE_TAU_S: f64 = 1.0;
 /// allowance absorbs; fewer let a lucky low estimate fire the prediction on noise.
 const PREDICTION_ARMS_AFTER: u32 = 8;
 
+/// Or the prediction arms after this much loop time with a usable margin, s: one noise time
+/// constant. Transmitters that read the same value poll after poll for that long show no noise
+/// at their resolution (a steady, noise-free skid sends no distinct samples to count), and
+/// their first motion is the disturbance itself.
+const PREDICTION_ARMS_AFTER_S: f64 = NOISE_TAU_S;
+
 /// The recycle trip's state (fixed size).
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct RecycleTrip {
@@ -116,11 +122,18 @@ pub struct RecycleTrip {
     repeat_s: f64,
     margins: [f64; RING],
     times_s: [f64; RING],
+    /// The last sample time at which each sample's value was read again (a value that stood
+    /// still over several polls was still there at its last poll: an approach that follows
+    /// began after it).
+    seen_s: [f64; RING],
     at: usize,
     len: usize,
     /// Noise of the margin (σ), and the samples in it so far.
     noise: f64,
     noise_n: u32,
+    /// Loop time with a usable margin so far, s (arms the prediction, see
+    /// [`PREDICTION_ARMS_AFTER_S`]).
+    watched_s: f64,
     /// Mean interval between distinct samples, s (NaN: unknown).
     sample_dt_s: f64,
     /// Measurement time from which the condition has held (NaN: not holding).
@@ -168,10 +181,12 @@ impl RecycleTrip {
             repeat_s: travel_s.max(cfg.rate_window_s),
             margins: [f64::NAN; RING],
             times_s: [f64::NAN; RING],
+            seen_s: [f64::NAN; RING],
             at: 0,
             len: 0,
             noise: 0.0,
             noise_n: 0,
+            watched_s: 0.0,
             sample_dt_s: f64::NAN,
             since_s: f64::NAN,
             firing: None,
@@ -261,6 +276,11 @@ impl RecycleTrip {
         (self.margins[i], self.times_s[i])
     }
 
+    /// The last time sample `back` was read again.
+    fn seen(&self, back: usize) -> f64 {
+        self.seen_s[(self.at + RING - back) % RING]
+    }
+
     /// Record a margin sample taken at measurement time `t_s` when it is new: a later sample
     /// time *and* a different value (a value held by a slower poll is one sample, whether or
     /// not the bus tells its age; a margin that truly stands still carries no rate);
@@ -271,7 +291,12 @@ impl RecycleTrip {
         }
         if self.len > 0 {
             let (m0, t0) = self.sample(0);
-            if t_s <= t0 + 1e-9 || margin == m0 {
+            if t_s <= t0 + 1e-9 {
+                return false;
+            }
+            if margin == m0 {
+                // the same value at a later poll: still there then
+                self.seen_s[self.at] = self.seen_s[self.at].max(t_s);
                 return false;
             }
             let dt = t_s - t0;
@@ -288,33 +313,42 @@ impl RecycleTrip {
                 let d2 = 0.5 * (margin - 2.0 * m0 + m1).abs();
                 self.noise_n = self.noise_n.saturating_add(1);
                 // a 1-s average, but a plain mean over its first samples (from zero a 1-s
-                // average reads no noise during the first second after a start)
-                let w = (dt / NOISE_TAU_S)
-                    .clamp(0.0, 1.0)
-                    .max(1.0 / f64::from(self.noise_n));
+                // average reads no noise during the first second after a start); once the
+                // margin was watched for a noise time constant the estimate stands, zero
+                // included: a disturbance's first samples after a standstill are no noise
+                // to average in at full weight
+                let w = (dt / NOISE_TAU_S).clamp(0.0, 1.0);
+                let w = if self.watched_s >= NOISE_TAU_S {
+                    w
+                } else {
+                    w.max(1.0 / f64::from(self.noise_n))
+                };
                 self.noise += w * (d2 - self.noise);
             }
         }
         self.at = (self.at + 1) % RING;
         self.margins[self.at] = margin;
         self.times_s[self.at] = t_s;
+        self.seen_s[self.at] = t_s;
         self.len = (self.len + 1).min(RING);
         true
     }
 
     /// Slope of the margin over the rate window, 1/s, and the window's span, s (NaN without
-    /// two samples).
+    /// two samples). The window starts at the last poll that still read the oldest sample's
+    /// value: after a margin that stood still for seconds, the motion began after its last
+    /// reading, not seconds ago.
     fn slope(&self) -> (f64, f64) {
         if self.len < 2 {
             return (f64::NAN, f64::NAN);
         }
         let (m0, t0) = self.sample(0);
         let mut k = 1;
-        while k + 1 < self.len && t0 - self.sample(k).1 < self.rate_window_s {
+        while k + 1 < self.len && t0 - self.seen(k) < self.rate_window_s {
             k += 1;
         }
-        let (mk, tk) = self.sample(k);
-        let span = t0 - tk;
+        let (mk, _) = self.sample(k);
+        let span = t0 - self.seen(k);
         ((m0 - mk) / span, span)
     }
 
@@ -339,6 +373,9 @@ impl RecycleTrip {
         }
         self.since_step_s += dt_s.max(0.0);
         self.since_sample_s += dt_s.max(0.0);
+        if margin.is_finite() {
+            self.watched_s += dt_s.max(0.0);
+        }
         if self.push(margin, t_s) {
             self.since_sample_s = 0.0;
             self.judge(trip_line, age_s);
@@ -403,8 +440,11 @@ impl RecycleTrip {
             0.0
         };
         // (the prediction needs the noise of its slope: armed once the noise estimate has
-        // PREDICTION_ARMS_AFTER samples; a fresh law judges only the level until then)
-        let predicted = if slope.is_finite() && self.noise_n >= PREDICTION_ARMS_AFTER {
+        // PREDICTION_ARMS_AFTER samples or PREDICTION_ARMS_AFTER_S passed; a fresh law judges
+        // only the level until then)
+        let armed =
+            self.noise_n >= PREDICTION_ARMS_AFTER || self.watched_s >= PREDICTION_ARMS_AFTER_S;
+        let predicted = if slope.is_finite() && armed {
             m0 + self.horizon_s(age_s) * (slope + k * slope_noise).min(0.0)
         } else {
             m0
@@ -536,6 +576,47 @@ mod tests {
             fired |= f.is_some();
         }
         assert!(fired);
+    }
+
+    /// A noise-free margin read again and again by a 30-ms poll for 4 s, then the first poll
+    /// after a throttle step reads it 4 % lower, still above the trip line. Returns the kind
+    /// fired at that sample; `quantum` moves the steady margin by that much once a second.
+    fn first_poll_after_a_standstill(quantum: f64) -> Option<TripKind> {
+        let mut trip = RecycleTrip::new(&TripConfig::default(), 2.0);
+        // a 10-ms loop, a poll every third cycle; the step shows at the poll of cycle 402
+        let dt = 0.01;
+        let mut fired = None;
+        for k in 0..=402u32 {
+            let t = f64::from(k) * dt;
+            let t_sample = f64::from(k / 3 * 3) * dt;
+            let m = if k == 402 {
+                0.06
+            } else {
+                0.10 + quantum * f64::from(k / 100 % 2)
+            };
+            let (_, f) = trip.update(m, t_sample, LINE, GAP, 0.0, t - t_sample, dt);
+            if k < 402 {
+                assert_eq!(f, None, "no trip in the standstill ({t} s)");
+            } else {
+                fired = f;
+            }
+        }
+        fired
+    }
+
+    #[test]
+    fn a_step_after_a_noise_free_standstill_trips_on_its_first_sample() {
+        // (a steady skid sends no distinct samples: the prediction arms by time, and the slope
+        // runs from the last poll that read the old value, not from 4 s ago)
+        assert_eq!(
+            first_poll_after_a_standstill(0.0),
+            Some(TripKind::Predicted)
+        );
+        // one register step a second (a quantised transmitter) changes nothing
+        assert_eq!(
+            first_poll_after_a_standstill(1e-4),
+            Some(TripKind::Predicted)
+        );
     }
 
     #[test]

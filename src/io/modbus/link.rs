@@ -3,7 +3,9 @@
 //! **Controller role** ([`run_controller`]): one [`ModbusClient`] (TCP or RTU) reads every
 //! Modbus sensor of the signal map once per link cycle and publishes the values into the
 //! [`SensorBoard`], stamped with the monotonic time the response arrived. It then writes the
-//! control thread's latest setpoints from the [`OutputBoard`]. A failed or timed-out read
+//! setpoints the control thread computed from those values (waiting for its next cycle, at
+//! most one link period) from the [`OutputBoard`], and reads back the command registers
+//! configured with `readback`. A failed or timed-out read
 //! publishes nothing: the control loop sees its inputs age and goes fail-safe by itself.
 //! The link never decides fail-safe; it only keeps trying (the client reconnects with
 //! backoff) and reports its state through a [`tokio::sync::watch`] channel
@@ -210,6 +212,9 @@ fn default_write_fault_ms() -> u64 {
 ///   command timestamps show the last change, not liveness: configure `heartbeat_register`;
 /// - `max_output_age_ms`: outputs the control thread published longer ago than this are not
 ///   written (default 500);
+/// - `cycle_trigger`: `"reads"` (default): each completed read starts a control cycle at once
+///   (the cycle's deadline stays as fallback, [`crate::runtime::trigger`]); `"deadline"`: the
+///   control thread runs on its own clock only;
 /// - `heartbeat_register`: optional `{ unit_id, address }` of the heartbeat block
 ///   ([`HeartbeatRegister`]).
 ///
@@ -247,6 +252,23 @@ pub struct ModbusLinkConfig {
     /// watchdog takes it to its safe state, ms (default 500).
     #[serde(default = "default_write_fault_ms")]
     pub write_fault_timeout_ms: u64,
+    /// What starts a control cycle (default: the link's reads).
+    #[serde(default)]
+    pub cycle_trigger: ModbusCycleTrigger,
+}
+
+/// What starts the controller's cycles on a Modbus skid (`[bus.modbus] cycle_trigger`).
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum ModbusCycleTrigger {
+    /// Each completed read of the sensors: the control cycle runs on the values the moment
+    /// they arrive, and the link writes its answer right after. On a clock of its own the
+    /// cycle finds the values up to one control period late (10–20 ms at 100–50 Hz: a
+    /// quarter of the 60–80 ms from a throttle step to flow reversal on a fast machine).
+    #[default]
+    Reads,
+    /// The control thread's own deadline only.
+    Deadline,
 }
 
 impl ModbusLinkConfig {
@@ -260,6 +282,7 @@ impl ModbusLinkConfig {
             heartbeat_register: None,
             merge_writes: false,
             write_fault_timeout_ms: default_write_fault_ms(),
+            cycle_trigger: ModbusCycleTrigger::default(),
         }
     }
 
@@ -782,8 +805,9 @@ impl LinkMonitor {
 /// What starts a controller link cycle.
 #[derive(Debug, Clone)]
 pub enum Pacing {
-    /// A fixed-rate loop at `poll_rate_hz`: read sensors, publish, then write the latest
-    /// outputs. A cycle that overruns delays the next tick (no catch-up bursts).
+    /// A fixed-rate loop at `poll_rate_hz`: read sensors, publish, then write the outputs
+    /// computed from them (or the latest after one link period). A cycle that overruns
+    /// delays the next tick (no catch-up bursts).
     Interval,
     /// One cycle per control-thread wakeup, at most `poll_rate_hz`: write the fresh outputs,
     /// then read sensors for the next control cycle. Nothing happens while the control
@@ -870,7 +894,17 @@ struct Controller {
     readbacks: Vec<(usize, ReadPlan, [f64; 1])>,
     /// When the next read-back is due (monotonic ns).
     next_readback_ns: u64,
+    /// The link period, ns: the longest a write waits for the output set computed from the
+    /// values just read.
+    period_ns: u64,
+    /// When this cycle's read published its values (monotonic ns; 0: nothing published).
+    read_done_ns: u64,
+    /// Fired after each read that published values (`cycle_trigger = "reads"`).
+    trigger: Option<Arc<crate::runtime::trigger::CycleTrigger>>,
 }
+
+/// The link's one trigger bit ([`crate::runtime::trigger::CycleTrigger::arm`]): a read.
+const READ_TRIGGER_BIT: u32 = 1;
 
 /// How often the command registers with `readback` are read back, ns: 100 ms, a third of the
 /// 300 ms within which another writer must be found (issue 23), so the first or second
@@ -953,6 +987,9 @@ impl Controller {
             quality: quality::QualityWindow::default(),
             readbacks,
             next_readback_ns: 0,
+            period_ns: u64::try_from(cfg.period().as_nanos()).unwrap_or(u64::MAX),
+            read_done_ns: 0,
+            trigger: None,
         })
     }
 
@@ -1063,6 +1100,10 @@ impl Controller {
                     }
                 }
             }
+        }
+        self.read_done_ns = if published > 0 { monotonic_ns() } else { 0 };
+        if let (Some(t), true) = (&self.trigger, published > 0) {
+            t.note(READ_TRIGGER_BIT, self.read_done_ns);
         }
         let c = &self.monitor.counters;
         LinkCounters::add(&c.values_published, published);
@@ -1210,9 +1251,37 @@ impl Controller {
         }
     }
 
-    /// One link cycle. `write_first`: outputs before sensors (wakeup pacing). The command
-    /// registers are read back before the write, so a read-back sees the last write of this
-    /// controller unless another master wrote since.
+    /// Wait until the control thread has published an output set computed from the values
+    /// this cycle's read published (its wake time is later), at most one link period after
+    /// the read; then the write carries the answer to these values, not to the previous
+    /// read's. Without the wait, every command reached the device one link cycle (a read and a
+    /// write, 25–40 ms on a gateway answering in 5–20 ms) later than it could.
+    async fn await_outputs_on_read(&mut self) {
+        if self.read_done_ns == 0 || self.write_plan.is_empty() {
+            return;
+        }
+        let deadline = self.read_done_ns.saturating_add(self.period_ns);
+        loop {
+            if self
+                .outputs
+                .latest()
+                .is_some_and(|o| o.t_ns >= self.read_done_ns)
+            {
+                return;
+            }
+            let now = monotonic_ns();
+            if now >= deadline {
+                return;
+            }
+            // (tokio's timer ticks in ms: the wait ends within 1 ms of the control cycle)
+            tokio::time::sleep(Duration::from_nanos((deadline - now).min(1_000_000))).await;
+        }
+    }
+
+    /// One link cycle. `write_first`: outputs before sensors (wakeup pacing). Otherwise the
+    /// sensors are read, the write carries the output set computed from them (see
+    /// [`Self::await_outputs_on_read`]), and the command registers are read back after the
+    /// write: a read-back sees this controller's last write unless another master wrote since.
     async fn cycle(&mut self, write_first: bool) -> Outcome {
         let mut out = Outcome::default();
         if write_first {
@@ -1226,10 +1295,11 @@ impl Controller {
         } else {
             self.read(&mut out).await;
             if !out.link_failed {
-                self.read_back(&mut out).await;
+                self.await_outputs_on_read().await;
+                self.write(&mut out).await;
             }
             if !out.link_failed {
-                self.write(&mut out).await;
+                self.read_back(&mut out).await;
             }
         }
         out
@@ -1333,7 +1403,27 @@ pub async fn run_controller(
     monitor: Arc<LinkMonitor>,
     shutdown: impl Future<Output = ()>,
 ) -> Result<(), LinkError> {
+    run_controller_triggering(cfg, map, sensors, outputs, pacing, monitor, None, shutdown).await
+}
+
+/// [`run_controller`], firing `trigger` after every read that published values (the control
+/// cycle runs on them at once: `cycle_trigger = "reads"`).
+#[allow(clippy::too_many_arguments)] // the boards and handles of one link task
+pub async fn run_controller_triggering(
+    cfg: &ModbusLinkConfig,
+    map: &SignalMap,
+    sensors: Arc<SensorBoard>,
+    outputs: Arc<OutputBoard>,
+    pacing: Pacing,
+    monitor: Arc<LinkMonitor>,
+    trigger: Option<Arc<crate::runtime::trigger::CycleTrigger>>,
+    shutdown: impl Future<Output = ()>,
+) -> Result<(), LinkError> {
     let mut ctl = Controller::new(cfg, map, sensors, outputs, Arc::clone(&monitor))?;
+    if let Some(t) = &trigger {
+        t.arm(READ_TRIGGER_BIT);
+    }
+    ctl.trigger = trigger;
     if ctl.is_idle() {
         tracing::debug!(target: "modbus", "link: no Modbus signals in the map, nothing to do");
         monitor.set_state(LinkState::Stopped);
