@@ -38,6 +38,7 @@ dpkg-deb --info "$deb" | sed -n '/Package:/,$p'
 contents=$(dpkg-deb --contents "$deb")
 for f in ./usr/bin/antisurge ./etc/antisurge/antisurge.toml ./lib/systemd/system/antisurge.service \
     ./usr/lib/systemd/system/antisurge.service.d/usr-bin.conf ./usr/share/man/man1/antisurge.1.gz \
+    ./usr/lib/systemd/system/antisurge-hmi.socket ./usr/lib/systemd/system/antisurge-metrics.socket \
     ./usr/share/bash-completion/completions/antisurge ./usr/share/doc/antisurge/copyright; do
     # the unit may sit in /lib or /usr/lib depending on the cargo-deb version
     alt=${f/#.\/lib\//./usr/lib/}

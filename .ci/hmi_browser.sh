@@ -12,18 +12,29 @@ mkdir -p out
 port=$(python3 -c 'import socket; s=socket.socket(); s.bind(("127.0.0.1",0)); print(s.getsockname()[1])')
 cd "$work"
 # the throttle closure from an operating point right of the control line (recycle valve
-# 60 % open at start: the law closes it, rate-limited, while the throttle closes)
+# 60 % open at start: the law closes it, rate-limited, while the throttle closes), then, with
+# the operator's station in manual at 0 % (the browser puts it there at about 20 s), a
+# throttle step that protection must answer with a recycle trip
 cat >closure.toml <<TOML
 name = "hmi-throttle-closure"
-description = "Recycle valve 60 % at start; throttle 60 % -> 20 % over 2 s at t = 4 s"
-duration_s = 30.0
+description = "Recycle valve 60 % at start; throttle 60 % -> 20 % over 2 s at t = 4 s; 20 % -> 3 % in 0.3 s at t = 34 s"
+duration_s = 90.0
 [initial]
 throttle = 0.6
 recycle_valve = 0.6
 [[event]]
 at_s = 4.0
 ramp = { signal = "throttle", to = 0.2, over_s = 2.0 }
+[[event]]
+at_s = 34.0
+ramp = { signal = "throttle", to = 0.03, over_s = 0.3 }
 TOML
+# issue 24: a machine described from vendor data only (its surge line, no speed-line map) as
+# the controller knows it, the independent simulated skid in process; the operator token
+printf 'hmi-browser-token\n' >token && chmod 0600 token
+ANTISURGE_MACHINE__FILE="$root/config/machines/vendor_example.toml" \
+ANTISURGE_PLANT__FILE="$root/tests/plants/vendor_skid_recycle.toml" \
+ANTISURGE_STATUS__OPERATOR_TOKEN_FILE="$work/token" \
 ANTISURGE_STATUS__HMI_LISTEN="127.0.0.1:$port" ANTISURGE_STATUS__METRICS_LISTEN="" \
 ANTISURGE_STATUS__SOCKET="$work/status.sock" ANTISURGE_STATUS__STATE_DIR="$work/state" \
 ANTISURGE_EVENT_LOG__PATH="$work/events.jsonl" ANTISURGE_SIMULATION__SCENARIO="$work/closure.toml" \

@@ -304,6 +304,10 @@ sed -e "s#/usr/local/bin/antisurge#$BIN_PATH#g" \
 before=$CHANGED
 put_file "$TMP/antisurge.service" "$UNIT_PATH" 0644 root:root
 [[ $CHANGED -gt $before ]] && BINARY_OR_UNIT_CHANGED=1
+# the socket units that hold the HMI and metrics ports from boot (not enabled here)
+for sock in antisurge-hmi.socket antisurge-metrics.socket; do
+    put_file "$REPO/deploy/$sock" "${UNIT_PATH%/*}/$sock" 0644 root:root
+done
 before=$CHANGED
 put_file "$REPO/deploy/80-can0.network" "$NET_PATH" 0644 root:root
 [[ $CHANGED -gt $before ]] && NETWORK_CHANGED=1

@@ -127,6 +127,9 @@ fn main() -> std::process::ExitCode {
                 .any(|c| c.is::<antisurge::config::ConfigInvalid>())
             {
                 std::process::ExitCode::from(antisurge::config::EX_CONFIG)
+            } else if e.chain().any(|c| c.is::<antisurge::live::SurfaceError>()) {
+                // an operator surface another process holds: 69 (EX_UNAVAILABLE)
+                std::process::ExitCode::from(antisurge::live::EX_UNAVAILABLE)
             } else {
                 std::process::ExitCode::from(2)
             }

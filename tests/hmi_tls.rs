@@ -134,14 +134,14 @@ fn post_op(
         cfg,
         port,
         &format!(
-            "POST /api/op HTTP/1.1\r\nHost: localhost\r\n{auth}Content-Length: {}\r\n\r\n{body}",
+            "POST /api/op HTTP/1.1\r\nHost: localhost\r\nConnection: close\r\n{auth}Content-Length: {}\r\n\r\n{body}",
             body.len()
         ),
     )
     .expect("https op")
 }
 
-const STATUS: &str = "GET /api/status HTTP/1.1\r\nHost: localhost\r\n\r\n";
+const STATUS: &str = "GET /api/status HTTP/1.1\r\nHost: localhost\r\nConnection: close\r\n\r\n";
 
 #[test]
 fn the_hmi_over_tls_answers_https_refuses_plain_http_and_wants_the_token() {
@@ -209,7 +209,12 @@ fn the_hmi_over_tls_answers_https_refuses_plain_http_and_wants_the_token() {
         String::from_utf8_lossy(&out.stderr).contains("no longer kept"),
         "{out:?}"
     );
-    let (c, page) = https(&tls, port, "GET / HTTP/1.1\r\nHost: localhost\r\n\r\n").expect("page");
+    let (c, page) = https(
+        &tls,
+        port,
+        "GET / HTTP/1.1\r\nHost: localhost\r\nConnection: close\r\n\r\n",
+    )
+    .expect("page");
     assert_eq!(c, 200);
     assert!(page.contains("<canvas id=\"map\""), "{page}");
 
@@ -220,7 +225,7 @@ fn the_hmi_over_tls_answers_https_refuses_plain_http_and_wants_the_token() {
     assert!(!plain.contains("deviation_pct"), "{plain}");
     let (c, plain) = http(
         port,
-        "POST /api/op HTTP/1.1\r\nHost: x\r\nAuthorization: Bearer s3cret\r\nContent-Length: 9\r\n\r\nmanual 10",
+        "POST /api/op HTTP/1.1\r\nHost: localhost\r\nConnection: close\r\nAuthorization: Bearer s3cret\r\nContent-Length: 9\r\n\r\nmanual 10",
     );
     assert_eq!(c, 400, "a plain-HTTP action with the right token: {plain}");
 

@@ -276,7 +276,7 @@ fn post_op(port: u16, auth: Option<&str>, body: &str) -> (u16, String) {
     http(
         port,
         &format!(
-            "POST /api/op HTTP/1.1\r\nHost: x\r\n{auth}Content-Length: {}\r\n\r\n{body}",
+            "POST /api/op HTTP/1.1\r\nHost: localhost\r\nConnection: close\r\n{auth}Content-Length: {}\r\n\r\n{body}",
             body.len()
         ),
     )
@@ -320,10 +320,16 @@ fn hmi_is_read_only_without_the_token() {
     let write = modbus(mb_port, &[6, 0, 0, 0, 1]);
     assert_eq!(write[7], 0x86, "a write must get an exception: {write:?}");
 
-    let (code, page) = http(port, "GET / HTTP/1.1\r\nHost: x\r\n\r\n");
+    let (code, page) = http(
+        port,
+        "GET / HTTP/1.1\r\nHost: localhost\r\nConnection: close\r\n\r\n",
+    );
     assert_eq!(code, 200);
     assert!(page.contains("<canvas id=\"map\""), "{page}");
-    let (code, body) = http(port, "GET /api/status HTTP/1.1\r\nHost: x\r\n\r\n");
+    let (code, body) = http(
+        port,
+        "GET /api/status HTTP/1.1\r\nHost: localhost\r\nConnection: close\r\n\r\n",
+    );
     assert_eq!(code, 200, "{body}");
     assert!(body.contains("\"mode\":\"auto\""), "{body}");
 
@@ -333,7 +339,7 @@ fn hmi_is_read_only_without_the_token() {
     }
     let (code, _) = http(
         port,
-        "PUT /api/op HTTP/1.1\r\nHost: x\r\nContent-Length: 4\r\n\r\nauto",
+        "PUT /api/op HTTP/1.1\r\nHost: localhost\r\nConnection: close\r\nContent-Length: 4\r\n\r\nauto",
     );
     assert_eq!(code, 405);
     std::thread::sleep(Duration::from_millis(300));

@@ -1,7 +1,9 @@
 //! `antisurge run`, `antisurge plant`, `antisurge check-config`, `antisurge events`.
 
 use antisurge::daemon::{config, plant_service, service};
-use antisurge::events::{log_files, print_events, EventFilter, PrintFormat, Timestamp};
+use antisurge::events::{
+    log_files, parse_time_arg, print_events, EventFilter, PrintFormat, Timestamp,
+};
 use anyhow::{anyhow, Result};
 use std::path::{Path, PathBuf};
 
@@ -363,10 +365,21 @@ pub fn reload(args: &ReloadArgs) -> Result<std::process::ExitCode> {
 /// `antisurge events`.
 #[derive(Debug, clap::Args)]
 pub struct EventsArgs {
-    /// Only events at or after this time: RFC 3339 (`2026-11-22T08:00:00Z`) or an age
-    /// (`10m`, `2h`, `1d`).
+    /// Only events at or after this time: what `antisurge events` prints, whole or cut
+    /// (`2026-11-27 23:33`, `23:33`), RFC 3339 (`2026-11-27T22:33:00Z`), an age (`5min`,
+    /// `10m`, `2h`, `1d`), `today` or `yesterday`. Local time unless --utc.
     #[arg(long)]
     pub since: Option<String>,
+    /// Only events at or before this time (the same forms as --since).
+    #[arg(long)]
+    pub until: Option<String>,
+    /// Only events of these kinds (`surge_detected`, `mode_changed`, …; repeat or separate
+    /// with commas).
+    #[arg(long, value_delimiter = ',')]
+    pub kind: Vec<String>,
+    /// Keep printing events as they are written (Ctrl-C ends; with --until, ends there).
+    #[arg(long, short = 'f')]
+    pub follow: bool,
     /// The event log (default: event_log.path of the config).
     #[arg(long)]
     pub file: Option<PathBuf>,
@@ -376,7 +389,7 @@ pub struct EventsArgs {
     /// Print the stored JSON lines.
     #[arg(long)]
     pub json: bool,
-    /// Times in UTC instead of local time.
+    /// Times in UTC instead of local time (printed and typed).
     #[arg(long)]
     pub utc: bool,
 }
@@ -412,9 +425,17 @@ pub fn events(args: &EventsArgs) -> Result<()> {
             }
         }
     };
-    let filter = match &args.since {
-        Some(s) => EventFilter::since_arg(s, Timestamp::now()).map_err(|e| anyhow!("{e}"))?,
-        None => EventFilter::default(),
+    let now = Timestamp::now();
+    let time = |t: &Option<String>| {
+        t.as_deref()
+            .map(|t| parse_time_arg(t, now, args.utc))
+            .transpose()
+            .map_err(|e| anyhow!("{e}"))
+    };
+    let filter = EventFilter {
+        since: time(&args.since)?,
+        until: time(&args.until)?,
+        kinds: args.kind.iter().map(|k| k.trim().to_string()).collect(),
     };
     let files = log_files(&path).map_err(|e| anyhow!("{e}"))?;
     let format = if args.json {
@@ -425,10 +446,75 @@ pub fn events(args: &EventsArgs) -> Result<()> {
         PrintFormat::Pretty
     };
     let stdout = std::io::stdout();
+    // where a follower goes on: the newest file's length before the listing (what the
+    // listing did not see is printed by the first follow step)
+    let start = std::fs::metadata(&path).map(|m| m.len()).unwrap_or(0);
     let stats =
         print_events(&mut stdout.lock(), &files, &filter, format).map_err(|e| anyhow!("{e}"))?;
     for w in stats.warnings() {
         eprintln!("warning: {w}");
     }
+    if args.follow {
+        follow(&path, start, &filter, format, stats.last_seq)?;
+    }
     Ok(())
+}
+
+/// How often `--follow` looks for new events: a quarter second is immediate to a person.
+const FOLLOW_POLL: std::time::Duration = std::time::Duration::from_millis(250);
+
+/// Print the events appended to `path` from byte `offset` on, as they come, until the
+/// filter's `until` has passed (or forever). A rotation (new file) is followed from its
+/// start; records already printed (by `seq`) are not printed again.
+fn follow(
+    path: &Path,
+    mut offset: u64,
+    filter: &EventFilter,
+    format: PrintFormat,
+    mut last_seq: Option<u64>,
+) -> Result<()> {
+    use std::io::Write as _;
+    use std::os::unix::fs::MetadataExt;
+    let mut ino = std::fs::metadata(path).map(|m| m.ino()).ok();
+    let mut line = String::new();
+    loop {
+        let now_ino = std::fs::metadata(path).map(|m| m.ino()).ok();
+        if now_ino != ino {
+            // rotated: the new file from its start
+            ino = now_ino;
+            offset = 0;
+        }
+        let (records, next) = antisurge::events::reader::records_since(path, offset);
+        offset = next;
+        let mut out = std::io::stdout().lock();
+        for r in &records {
+            if last_seq.is_some_and(|s| r.seq <= s) {
+                continue;
+            }
+            last_seq = Some(r.seq);
+            if !filter.matches(r) {
+                continue;
+            }
+            line.clear();
+            match format {
+                PrintFormat::Json => line.push_str(&r.raw),
+                PrintFormat::Pretty => antisurge::events::format_pretty(&mut line, r, false),
+                PrintFormat::PrettyUtc => antisurge::events::format_pretty(&mut line, r, true),
+            }
+            line.push('\n');
+            if out
+                .write_all(line.as_bytes())
+                .and_then(|()| out.flush())
+                .is_err()
+            {
+                // the reader went away (a pipe closed): done
+                return Ok(());
+            }
+        }
+        drop(out);
+        if filter.until.is_some_and(|u| Timestamp::now() > u) {
+            return Ok(());
+        }
+        std::thread::sleep(FOLLOW_POLL);
+    }
 }

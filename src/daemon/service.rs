@@ -459,6 +459,20 @@ async fn serve(loaded: Loaded, opts: RunOptions) -> Result<()> {
         tracing::error!(target: "events", "event log DEGRADED: {e}; the controller runs without it, events are counted as lost, and the log is retried every {} s", crate::events::writer::REOPEN_RETRY.as_secs());
     }
     let events = log.sender();
+    // the operator surfaces are bound before anything runs: one that cannot be bound (a
+    // squatted port) or an unsafe token file stops the start (issue 24)
+    let identity = crate::live::Identity::new(&loaded.machine.name, &loaded.main_path);
+    let mut live = match crate::live::prepare(&cfg.status, identity) {
+        Ok(l) => l,
+        Err(e) => {
+            let _ = events.send(Event::Stopped {
+                reason: format!("not started: {e}"),
+            });
+            drop(events);
+            let _ = log.shutdown();
+            return Err(anyhow::Error::new(e));
+        }
+    };
     // what starts a cycle: the arrival of its CAN inputs, the Modbus link's reads, or the
     // fixed deadline
     let trigger_plan = super::field::controller_trigger_plan(&loaded)?;
@@ -516,7 +530,6 @@ async fn serve(loaded: Loaded, opts: RunOptions) -> Result<()> {
         cfg.cycle.period_ns(),
     );
     let mut node = node;
-    let mut live = crate::live::prepare(&cfg.status);
     if let Some(rx) = live.rx.take() {
         node.attach_live(Arc::clone(&live.board), rx);
     }

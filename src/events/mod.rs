@@ -11,7 +11,8 @@
 //!   filter by time, print for terminals ([`print_events`]).
 //! - [`config`]: [`EventLogConfig`], the `[event_log]` table.
 //! - [`journal`]: the events' journal lines; [`journald`]: the native-protocol writer.
-//! - [`timestamp`]: [`Timestamp`], hand-written RFC 3339 UTC formatting and parsing.
+//! - [`timestamp`]: [`Timestamp`], RFC 3339 UTC formatting and parsing, and [`timestamp::parse_time`],
+//!   the one parser of the times an operator types (jiff + humantime).
 
 pub mod cause;
 pub mod config;
@@ -34,8 +35,8 @@ pub use event::{
 };
 pub use print::{format_pretty, print_events, PrintFormat};
 pub use reader::{
-    log_files, parse_since, read_files, read_log, EventFilter, InvalidLine, ReadStats, Record,
-    SeqBreak, TornTail,
+    log_files, parse_since, parse_time_arg, read_files, read_log, EventFilter, InvalidLine,
+    ReadStats, Record, SeqBreak, TornTail,
 };
 pub use rt_channel::{OverrunReporter, RtEvent, RtSender};
 pub use timestamp::Timestamp;

@@ -206,6 +206,7 @@ mod tests {
             since: Some(
                 crate::events::Timestamp::parse_rfc3339("2024-05-01T12:30:00Z").expect("t"),
             ),
+            ..EventFilter::default()
         };
         let mut out = Vec::new();
         let stats = print_events(

@@ -7,7 +7,6 @@ use std::fmt;
 use std::fs::{self, File};
 use std::io::{BufRead, BufReader, ErrorKind, Read};
 use std::path::{Path, PathBuf};
-use std::time::Duration;
 
 use serde::de::{Deserialize, Deserializer, MapAccess, Visitor};
 use serde_json::Value;
@@ -172,10 +171,14 @@ impl ReadStats {
 }
 
 /// Which records to show.
-#[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
+#[derive(Debug, Clone, Default, PartialEq, Eq)]
 pub struct EventFilter {
     /// Only records at or after this time.
     pub since: Option<Timestamp>,
+    /// Only records at or before this time.
+    pub until: Option<Timestamp>,
+    /// Only records of these kinds (`surge_detected`, …); empty: every kind.
+    pub kinds: Vec<String>,
 }
 
 impl EventFilter {
@@ -183,72 +186,32 @@ impl EventFilter {
     pub fn since_arg(text: &str, now: Timestamp) -> Result<EventFilter, EventLogError> {
         Ok(EventFilter {
             since: Some(parse_since(text, now)?),
+            ..EventFilter::default()
         })
     }
 
     /// Whether `record` passes.
     pub fn matches(&self, record: &Record) -> bool {
         self.since.is_none_or(|s| record.ts >= s)
+            && self.until.is_none_or(|u| record.ts <= u)
+            && (self.kinds.is_empty() || self.kinds.contains(&record.kind))
     }
 }
 
-/// Parse a `--since` argument: an RFC 3339 time (`2024-05-01T12:00:00Z`,
-/// `2024-05-01T14:00:00+02:00`) or an age relative to `now` made of number+unit pairs with
-/// units `s`, `m`, `h`, `d`, `w` (`90s`, `10m`, `2h`, `1d`, `1h30m`).
+/// Parse a `--since`/`--until` argument in the machine's time zone with
+/// [`super::timestamp::parse_time`] (the one parser: printed forms, RFC 3339, ages, `today`).
 pub fn parse_since(text: &str, now: Timestamp) -> Result<Timestamp, EventLogError> {
-    let t = text.trim();
-    let err = |reason: &str| EventLogError::Time {
-        text: text.to_string(),
-        reason: reason.to_string(),
-    };
-    if t.is_empty() {
-        return Err(err("empty"));
-    }
-    if t.as_bytes()[0].is_ascii_digit() && t.bytes().all(|b| b.is_ascii_alphanumeric()) {
-        return parse_age(t).map(|d| now.saturating_sub(d)).map_err(err);
-    }
-    Timestamp::parse_rfc3339(t).map_err(|e| {
-        err(&format!(
-            "{e}; expected RFC 3339 like 2024-05-01T12:00:00Z or an age like 10m, 2h, 1d"
-        ))
-    })
+    parse_time_arg(text, now, false)
 }
 
-fn parse_age(t: &str) -> Result<Duration, &'static str> {
-    const HINT: &str = "an age is number+unit pairs with units s, m, h, d, w (e.g. 10m, 1h30m)";
-    let mut total: u64 = 0;
-    let mut num: Option<u64> = None;
-    let mut any = false;
-    for b in t.bytes() {
-        if b.is_ascii_digit() {
-            let d = u64::from(b - b'0');
-            num = Some(
-                num.unwrap_or(0)
-                    .checked_mul(10)
-                    .and_then(|n| n.checked_add(d))
-                    .ok_or("age too large")?,
-            );
-        } else {
-            let unit = match b {
-                b's' => 1,
-                b'm' => 60,
-                b'h' => 3600,
-                b'd' => 86_400,
-                b'w' => 604_800,
-                _ => return Err(HINT),
-            };
-            let n = num.take().ok_or(HINT)?;
-            total = n
-                .checked_mul(unit)
-                .and_then(|s| total.checked_add(s))
-                .ok_or("age too large")?;
-            any = true;
+/// [`parse_since`] with the zone chosen: UTC (`--utc`) or the machine's.
+pub fn parse_time_arg(text: &str, now: Timestamp, utc: bool) -> Result<Timestamp, EventLogError> {
+    super::timestamp::parse_time(text, now, &super::timestamp::zone(utc)).map_err(|reason| {
+        EventLogError::Time {
+            text: text.to_string(),
+            reason,
         }
-    }
-    if num.is_some() || !any {
-        return Err(HINT);
-    }
-    Ok(Duration::from_secs(total))
+    })
 }
 
 /// `path.N` for the N-th rotated file.
@@ -577,6 +540,78 @@ pub fn read_log(
     Ok((out, stats))
 }
 
+/// The newest `n` valid records of the log at `path` (newest last), reading at most
+/// `max_bytes` from the end of the newest file (and, if that holds fewer than `n`, from the
+/// end of `path.1`): a bounded read whatever the log's size, for a page that polls. A line
+/// cut by the window's start, a torn last line and invalid lines are skipped.
+pub fn tail_records(path: &Path, max_bytes: u64, n: usize) -> Vec<Record> {
+    let mut out = tail_of_file(path, max_bytes, n);
+    if out.len() < n {
+        let mut older = tail_of_file(&rotated_path(path, 1), max_bytes, n - out.len());
+        older.append(&mut out);
+        out = older;
+    }
+    out
+}
+
+fn tail_of_file(path: &Path, max_bytes: u64, n: usize) -> Vec<Record> {
+    use std::io::{Seek, SeekFrom};
+    let Ok(mut f) = File::open(path) else {
+        return Vec::new();
+    };
+    let len = f.metadata().map(|m| m.len()).unwrap_or(0);
+    let start = len.saturating_sub(max_bytes);
+    if f.seek(SeekFrom::Start(start)).is_err() {
+        return Vec::new();
+    }
+    let mut bytes = Vec::with_capacity((len - start) as usize);
+    if f.take(max_bytes).read_to_end(&mut bytes).is_err() {
+        return Vec::new();
+    }
+    let mut lines: Vec<&[u8]> = bytes.split(|&b| b == b'\n').collect();
+    // the last piece is empty (a final newline) or a line still being written
+    lines.pop();
+    if start > 0 && !lines.is_empty() {
+        // the window began inside a line
+        lines.remove(0);
+    }
+    let mut out: Vec<Record> = lines
+        .iter()
+        .rev()
+        .filter_map(|l| parse_line(l, 0).ok())
+        .take(n)
+        .collect();
+    out.reverse();
+    out
+}
+
+/// The records appended to the log at `path` since byte `offset` of its newest file, and
+/// the offset to read from next (`antisurge events --follow`). A partial last line is left
+/// for the next call; a file that shrank (rotated, repaired) is read again from its start.
+pub fn records_since(path: &Path, offset: u64) -> (Vec<Record>, u64) {
+    use std::io::{Seek, SeekFrom};
+    let Ok(mut f) = File::open(path) else {
+        return (Vec::new(), 0);
+    };
+    let len = f.metadata().map(|m| m.len()).unwrap_or(0);
+    let from = if len < offset { 0 } else { offset };
+    if f.seek(SeekFrom::Start(from)).is_err() {
+        return (Vec::new(), from);
+    }
+    let mut bytes = Vec::new();
+    // at most 16 MiB per call: a follower catches up over a few calls
+    if f.take(16 << 20).read_to_end(&mut bytes).is_err() {
+        return (Vec::new(), from);
+    }
+    let complete = bytes.iter().rposition(|&b| b == b'\n').map_or(0, |i| i + 1);
+    let out = bytes[..complete]
+        .split(|&b| b == b'\n')
+        .filter(|l| !l.is_empty())
+        .filter_map(|l| parse_line(l, 0).ok())
+        .collect();
+    (out, from + complete as u64)
+}
+
 /// Longest event-log line the readers keep in memory, bytes (the writer's lines are at most
 /// [`crate::events::MAX_LINE_BYTES`]); longer lines are skipped and reported as invalid.
 pub const MAX_READ_LINE_BYTES: usize = 64 * 1024;
@@ -879,6 +914,7 @@ mod tests {
         );
         let filter = EventFilter {
             since: Some(Timestamp::from_unix_micros(2_000)),
+            ..EventFilter::default()
         };
         let (records, stats) = read_log(&p, &filter).expect("read");
         assert_eq!(records.iter().map(|r| r.seq).collect::<Vec<_>>(), [2, 3]);
@@ -897,27 +933,78 @@ mod tests {
         assert_eq!(at("90s").expect("90s"), "2024-05-01T11:58:30.000000Z");
         assert_eq!(at("1h30m").expect("1h30m"), "2024-05-01T10:30:00.000000Z");
         assert_eq!(at(" 5m ").expect("trimmed"), "2024-05-01T11:55:00.000000Z");
+        assert_eq!(at("5min").expect("5min"), "2024-05-01T11:55:00.000000Z");
         assert_eq!(
             at("2024-05-01T09:00:00+02:00").expect("rfc3339"),
             "2024-05-01T07:00:00.000000Z"
         );
-        for bad in [
-            "",
-            "10",
-            "m",
-            "10x",
-            "10 m",
-            "-5m",
-            "1h30",
-            "yesterday",
-            "2024-05-01",
-        ] {
+        for bad in ["", "10", "m", "10x", "-5m", "1h30", "2024-13-01"] {
             match parse_since(bad, now) {
                 Err(EventLogError::Time { text, .. }) => assert_eq!(text, bad),
                 other => panic!("{bad:?}: {other:?}"),
             }
         }
         assert!(parse_since("99999999999999999999d", now).is_err());
+    }
+
+    #[test]
+    fn until_and_kind_filters() {
+        let dir = tempfile::tempdir().expect("tempdir");
+        let p = dir.path().join("events.jsonl");
+        write(
+            &p,
+            &format!(
+                "{}\n{}\n{}\n",
+                line(1, 1_000),
+                line(2, 2_000),
+                line(3, 3_000)
+            ),
+        );
+        let filter = EventFilter {
+            until: Some(Timestamp::from_unix_micros(2_000)),
+            ..EventFilter::default()
+        };
+        let (records, _) = read_log(&p, &filter).expect("read");
+        assert_eq!(records.iter().map(|r| r.seq).collect::<Vec<_>>(), [1, 2]);
+        let kind = records[0].kind.clone();
+        let none = EventFilter {
+            kinds: vec!["no_such_kind".into()],
+            ..EventFilter::default()
+        };
+        assert!(read_log(&p, &none).expect("read").0.is_empty());
+        let some = EventFilter {
+            kinds: vec![kind],
+            ..EventFilter::default()
+        };
+        assert_eq!(read_log(&p, &some).expect("read").0.len(), 3);
+    }
+
+    #[test]
+    fn the_tail_is_bounded_and_skips_a_torn_line() {
+        let dir = tempfile::tempdir().expect("tempdir");
+        let p = dir.path().join("events.jsonl");
+        let mut text = String::new();
+        for k in 1..=2000u64 {
+            text += &line(k, k as i64 * 1000);
+            text.push('\n');
+        }
+        // a torn line in the middle and a half-written last line
+        text += "{\"ts\":\"2024-05-01T";
+        text.push('\n');
+        text += &line(2001, 2_001_000);
+        text.push('\n');
+        text += "{\"ts\":\"2024";
+        write(&p, &text);
+        let tail = tail_records(&p, 4096, 30);
+        assert_eq!(tail.last().map(|r| r.seq), Some(2001));
+        assert!(tail.len() > 5 && tail.len() <= 30, "{}", tail.len());
+        assert!(tail.windows(2).all(|w| w[0].seq < w[1].seq));
+        // follow: the half line is left for later
+        let (recs, off) = records_since(&p, 0);
+        assert_eq!(recs.len(), 2001);
+        let (more, off2) = records_since(&p, off);
+        assert!(more.is_empty());
+        assert_eq!(off, off2);
     }
 
     #[test]

@@ -5,14 +5,12 @@
 
 use std::net::SocketAddr;
 use std::sync::Arc;
-use std::time::Duration;
 
 use prometheus_client::collector::Collector;
 use prometheus_client::encoding::{DescriptorEncoder, EncodeMetric};
 use prometheus_client::metrics::counter::ConstCounter;
 use prometheus_client::metrics::gauge::ConstGauge;
 use prometheus_client::registry::Registry;
-use tokio::io::{AsyncReadExt, AsyncWriteExt};
 
 use super::snapshot::LiveBoard;
 use crate::control::core::Mode;
@@ -44,6 +42,25 @@ impl Collector for LiveCollector {
     fn encode(&self, mut e: DescriptorEncoder) -> Result<(), std::fmt::Error> {
         let r = self.stats.report();
         counter(&mut e, "antisurge_cycles", "Control cycles run", r.cycles)?;
+        let http = super::station::stats();
+        counter(
+            &mut e,
+            "antisurge_http_requests",
+            "Requests served by the HMI and metrics endpoints",
+            http.requests.load(std::sync::atomic::Ordering::Relaxed),
+        )?;
+        counter(
+            &mut e,
+            "antisurge_http_requests_on_realtime_threads",
+            "Requests that were handled on a real-time thread (must stay 0)",
+            http.realtime.load(std::sync::atomic::Ordering::Relaxed),
+        )?;
+        counter(
+            &mut e,
+            "antisurge_http_connections_shed",
+            "HTTP connections closed at once because the endpoint was at its connection cap",
+            http.shed.load(std::sync::atomic::Ordering::Relaxed),
+        )?;
         counter(
             &mut e,
             "antisurge_overruns",
@@ -399,69 +416,57 @@ pub fn render_classic(live: &Arc<LiveBoard>, stats: &Arc<CycleStats>) -> String 
     out
 }
 
-/// Serve `GET /metrics` on `listener` until `shutdown`.
+/// The endpoint's routes: `GET /metrics` (and `HEAD`), OpenMetrics when the client asks for
+/// it, else the classic text format.
+pub fn router(live: Arc<LiveBoard>, stats: Arc<CycleStats>) -> axum::Router {
+    use axum::http::{header, HeaderMap, StatusCode};
+    use axum::response::IntoResponse;
+    axum::Router::new()
+        .route(
+            "/metrics",
+            axum::routing::get(move |headers: HeaderMap| {
+                let (live, stats) = (Arc::clone(&live), Arc::clone(&stats));
+                async move {
+                    let om = headers
+                        .get_all(header::ACCEPT)
+                        .iter()
+                        .filter_map(|v| v.to_str().ok())
+                        .any(|v| v.contains("application/openmetrics-text"));
+                    let (body, ctype) = if om {
+                        (
+                            render(&live, &stats),
+                            "application/openmetrics-text; version=1.0.0; charset=utf-8",
+                        )
+                    } else {
+                        (
+                            render_classic(&live, &stats),
+                            "text/plain; version=0.0.4; charset=utf-8",
+                        )
+                    };
+                    ([(header::CONTENT_TYPE, ctype)], body).into_response()
+                }
+            }),
+        )
+        .fallback(|| async {
+            (
+                StatusCode::NOT_FOUND,
+                "not found; metrics are at /metrics\n",
+            )
+        })
+}
+
+/// Serve `GET /metrics` on `listener` until `shutdown` (on the station runtime).
 pub async fn serve(
     listener: tokio::net::TcpListener,
     live: Arc<LiveBoard>,
     stats: Arc<CycleStats>,
-    mut shutdown: tokio::sync::watch::Receiver<bool>,
+    shutdown: tokio::sync::watch::Receiver<bool>,
 ) {
-    loop {
-        let (mut sock, _) = tokio::select! {
-            r = listener.accept() => match r {
-                Ok(s) => s,
-                Err(_) => { tokio::time::sleep(Duration::from_millis(100)).await; continue; }
-            },
-            _ = shutdown.changed() => break,
-        };
-        let (live, stats) = (Arc::clone(&live), Arc::clone(&stats));
-        tokio::spawn(async move {
-            let mut buf = [0u8; 2048];
-            let mut n = 0;
-            // read the request head (at most 2 KiB, 2 s)
-            let _ = tokio::time::timeout(Duration::from_secs(2), async {
-                while n < buf.len() {
-                    match sock.read(&mut buf[n..]).await {
-                        Ok(0) | Err(_) => break,
-                        Ok(k) => n += k,
-                    }
-                    if buf[..n].windows(4).any(|w| w == b"\r\n\r\n") {
-                        break;
-                    }
-                }
-            })
-            .await;
-            let head = String::from_utf8_lossy(&buf[..n]);
-            let first = head.lines().next().unwrap_or("");
-            let resp = if first.starts_with("GET /metrics ") || first.starts_with("GET /metrics?") {
-                let om = head.lines().any(|l| {
-                    l.to_ascii_lowercase().starts_with("accept:")
-                        && l.contains("application/openmetrics-text")
-                });
-                let (body, ctype) = if om {
-                    (
-                        render(&live, &stats),
-                        "application/openmetrics-text; version=1.0.0; charset=utf-8",
-                    )
-                } else {
-                    (
-                        render_classic(&live, &stats),
-                        "text/plain; version=0.0.4; charset=utf-8",
-                    )
-                };
-                format!(
-                    "HTTP/1.1 200 OK\r\nContent-Type: {ctype}\r\nContent-Length: {}\r\nConnection: close\r\n\r\n{body}",
-                    body.len()
-                )
-            } else if first.starts_with("GET ") {
-                "HTTP/1.1 404 Not Found\r\nContent-Length: 0\r\nConnection: close\r\n\r\n".into()
-            } else {
-                "HTTP/1.1 405 Method Not Allowed\r\nAllow: GET\r\nContent-Length: 0\r\nConnection: close\r\n\r\n".into()
-            };
-            let _ = sock.write_all(resp.as_bytes()).await;
-            let _ = sock.shutdown().await;
-        });
-    }
+    let limits = super::station::HttpLimits {
+        max_connections: 8,
+        ..super::station::HttpLimits::default()
+    };
+    super::station::serve_http(listener, router(live, stats), None, limits, shutdown).await;
 }
 
 #[cfg(test)]

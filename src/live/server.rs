@@ -132,6 +132,11 @@ pub fn check_token(file: &Path, given: &str) -> Result<(), OpError> {
             file.display()
         ))
     })?;
+    if let Some(why) = crate::daemon::config::tls::token_file_unsafe(file) {
+        return Err(OpError::Unauthorized(format!(
+            "operator actions are disabled: {why}"
+        )));
+    }
     if meta.mode() & 0o004 != 0 {
         return Err(OpError::Unauthorized(format!(
             "operator actions are disabled: {} is readable by everyone (chmod 0640)",
@@ -226,6 +231,17 @@ pub fn bind_status_socket(path: &Path) -> std::io::Result<UnixListener> {
     Ok(l)
 }
 
+/// A status answer with the daemon's identity (`station`: machine, host, instance).
+fn with_identity(mut v: serde_json::Value) -> serde_json::Value {
+    if let Some(o) = v.as_object_mut() {
+        o.insert(
+            "station".into(),
+            serde_json::to_value(super::identity()).unwrap_or_default(),
+        );
+    }
+    v
+}
+
 async fn answer(ctx: &LiveContext, stream: UnixStream) -> std::io::Result<()> {
     let who = match stream.peer_cred() {
         Ok(c) => format!("uid {} via the status socket", c.uid()),
@@ -240,11 +256,11 @@ async fn answer(ctx: &LiveContext, stream: UnixStream) -> std::io::Result<()> {
     let words: Vec<&str> = line.split_whitespace().collect();
     let reply = match words.as_slice() {
         ["status"] | [] => match ctx.report() {
-            Some(r) => serde_json::to_value(r).unwrap_or_default(),
+            Some(r) => with_identity(serde_json::to_value(r).unwrap_or_default()),
             None => serde_json::json!({"error": "no control cycle has run yet"}),
         },
         ["status", cycle] => match cycle.parse::<u64>().map(|c| (c, ctx.report_of(c))) {
-            Ok((_, Some(r))) => serde_json::to_value(r).unwrap_or_default(),
+            Ok((_, Some(r))) => with_identity(serde_json::to_value(r).unwrap_or_default()),
             Ok((c, None)) => serde_json::json!({"error": format!(
                 "the snapshot of cycle {c} was not served or is no longer kept (the last {SERVED_KEPT} served are)"
             )}),
@@ -352,6 +368,13 @@ mod tests {
         std::fs::write(&f, "s3cret\n").expect("write");
         std::fs::set_permissions(&f, std::fs::Permissions::from_mode(0o644)).expect("chmod");
         assert!(check_token(&f, "s3cret").is_err(), "world-readable token");
+        std::fs::set_permissions(&f, std::fs::Permissions::from_mode(0o642)).expect("chmod");
+        assert!(
+            matches!(check_token(&f, "s3cret"), Err(OpError::Unauthorized(m)) if m.contains("writable by everyone")),
+            "a token file others may write"
+        );
+        std::fs::set_permissions(&f, std::fs::Permissions::from_mode(0o660)).expect("chmod");
+        assert!(check_token(&f, "s3cret").is_err(), "group-writable token");
         std::fs::set_permissions(&f, std::fs::Permissions::from_mode(0o640)).expect("chmod");
         assert_eq!(check_token(&f, "s3cret"), Ok(()));
         assert!(check_token(&f, "s3cre").is_err());

@@ -52,10 +52,45 @@ pub fn shipped(rel: &str) -> String {
     root().join("config").join(rel).display().to_string()
 }
 
-/// Start `antisurge <args>` with its output in `dir/<name>.log`.
+/// The operator surfaces a `run` must not share with the other tests' daemons (issue 24: a
+/// surface that cannot be bound stops the start): for each `[status]` key the config named
+/// by `--config` does not set, the environment override that keeps it to this test (its own
+/// status socket in `dir`; the HMI and metrics ports, one per machine by default, off).
+pub fn own_surfaces(dir: &Path, args: &[&str]) -> Vec<(&'static str, String)> {
+    let text = args
+        .iter()
+        .position(|a| *a == "--config")
+        .and_then(|i| args.get(i + 1))
+        .and_then(|p| std::fs::read_to_string(p).ok());
+    let Some(text) = text.filter(|_| args.first() == Some(&"run")) else {
+        return Vec::new();
+    };
+    let set = |key: &str| {
+        text.lines()
+            .any(|l| l.trim_start().starts_with(key) && l.contains('='))
+    };
+    let mut env = Vec::new();
+    if !set("socket") {
+        env.push((
+            "ANTISURGE_STATUS__SOCKET",
+            dir.join("status.sock").display().to_string(),
+        ));
+    }
+    if !set("hmi_listen") {
+        env.push(("ANTISURGE_STATUS__HMI_LISTEN", String::new()));
+    }
+    if !set("metrics_listen") {
+        env.push(("ANTISURGE_STATUS__METRICS_LISTEN", String::new()));
+    }
+    env
+}
+
+/// Start `antisurge <args>` with its output in `dir/<name>.log` (a `run` gets the surfaces
+/// of [`own_surfaces`]).
 pub fn spawn(dir: &Path, name: &str, args: &[&str]) -> Child {
     let log = std::fs::File::create(dir.join(format!("{name}.log"))).expect("log file");
     Command::new(env!("CARGO_BIN_EXE_antisurge"))
+        .envs(own_surfaces(dir, args))
         .args(args)
         .env("ANTISURGE_LOG", "info")
         .env_remove("LOGS_DIRECTORY")

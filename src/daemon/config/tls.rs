@@ -71,9 +71,65 @@ pub fn token_file_problem(file: &Path) -> Option<String> {
     }
 }
 
+/// The uid of the service account `antisurge`, if it exists.
+fn service_account_uid() -> Option<u32> {
+    let name = std::ffi::CString::new("antisurge").ok()?;
+    let mut pw: libc::passwd = unsafe { std::mem::zeroed() };
+    let mut buf = vec![0 as libc::c_char; 4096];
+    let mut out: *mut libc::passwd = std::ptr::null_mut();
+    // SAFETY: getpwnam_r writes into pw and buf (sizes given) and sets out to &pw or null.
+    let r = unsafe {
+        libc::getpwnam_r(
+            name.as_ptr(),
+            &mut pw,
+            buf.as_mut_ptr(),
+            buf.len(),
+            &mut out,
+        )
+    };
+    (r == 0 && !out.is_null()).then_some(pw.pw_uid)
+}
+
+/// Why an existing operator token file must not be trusted (None: it may be, or it does not
+/// exist, in which case operator actions are simply refused). It must be owned by root, by
+/// the user the daemon runs as, or by the service account `antisurge`, and writable by no
+/// one but its owner: a file another user can rewrite lets that user choose the token.
+/// Checked at start, at every reload and before every operator action.
+pub fn token_file_unsafe(file: &Path) -> Option<String> {
+    use std::os::unix::fs::MetadataExt;
+    let m = std::fs::metadata(file).ok()?;
+    // SAFETY: geteuid has no preconditions.
+    let me = unsafe { libc::geteuid() };
+    let owner = m.uid();
+    if owner != 0 && owner != me && Some(owner) != service_account_uid() {
+        return Some(format!(
+            "the operator token file {} is owned by uid {owner}, not by root or the service user: \
+             that user could choose the token (chown root:antisurge {0}; chmod 0640 {0})",
+            file.display()
+        ));
+    }
+    if m.mode() & 0o022 != 0 {
+        return Some(format!(
+            "the operator token file {} is writable by {} (mode {:04o}): they could choose the token \
+             (chmod 0640 {})",
+            file.display(),
+            if m.mode() & 0o002 != 0 { "everyone" } else { "its group" },
+            m.mode() & 0o7777,
+            file.display()
+        ));
+    }
+    None
+}
+
 /// Check where the HMI and the metrics endpoint listen, and the TLS files.
 pub fn bind_problems(status: &StatusSection) -> Vec<KeyProblem> {
     let mut out = Vec::new();
+    if let Some(why) = token_file_unsafe(&token_file(status)) {
+        out.push(
+            KeyProblem::error("status.operator_token_file", why)
+                .with_hint("deploy/install.sh creates it root:antisurge, mode 0640"),
+        );
+    }
     if let Some(t) = &status.tls {
         if let Err(e) = tls::load(t) {
             let key = if e.is_about_key() {
