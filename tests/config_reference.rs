@@ -109,6 +109,7 @@ fn populated() -> DaemonConfig {
                 heartbeat_register: Some(hb),
                 merge_writes: false,
                 write_fault_timeout_ms: 500,
+                cycle_trigger: antisurge::io::modbus::link::ModbusCycleTrigger::Reads,
             }),
         },
         controller,
