@@ -126,16 +126,21 @@ pub fn spawn_notified(
 pub fn run_piped(cfg: &Path, secs: &str, fsize_limit: Option<u64>) -> std::process::Output {
     use std::os::unix::process::CommandExt;
     let mut cmd = std::process::Command::new(env!("CARGO_BIN_EXE_antisurge"));
-    cmd.args([
+    let args = [
         "run",
         "--config",
         cfg.to_str().expect("utf-8"),
         "--duration-s",
         secs,
-    ])
-    .env("ANTISURGE_LOG", "info")
-    .env_remove("LOGS_DIRECTORY")
-    .env_remove("NOTIFY_SOCKET");
+    ];
+    // (the test's own status socket, the HMI and metrics off: the default ports are one per
+    // machine, and a daemon that cannot bind them does not start)
+    let dir = cfg.parent().expect("the config's directory");
+    cmd.envs(super::daemon::own_surfaces(dir, &args))
+        .args(args)
+        .env("ANTISURGE_LOG", "info")
+        .env_remove("LOGS_DIRECTORY")
+        .env_remove("NOTIFY_SOCKET");
     if let Some(limit) = fsize_limit {
         // SAFETY: setrlimit is async-signal-safe; it only lowers this child's own limit.
         unsafe {
