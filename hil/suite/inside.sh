@@ -80,6 +80,11 @@ run_case() {
     # each case its own persistent state: surge counter and safety-on shifts kept by an
     # earlier case (or by the test suite in ./out/state) would move this case's control line
     export ANTISURGE_STATUS__STATE_DIR="$PWD/$dir/state"
+    # the status socket on a local file system: the VM's shared folder cannot hold a Unix
+    # socket (bind: ENXIO), and a daemon that cannot bind an operator surface does not start
+    local sock_dir
+    sock_dir=$(mktemp -d "${TMPDIR:-/tmp}/antisurge-hil-status.XXXXXX")
+    export ANTISURGE_STATUS__SOCKET="$sock_dir/status.sock"
     "$bin" plant --config "$cfg" --out "$dir/plant" >"$dir/plant.log" 2>&1 &
     local plant=$!
     sleep 0.5
@@ -110,7 +115,9 @@ run_case() {
         wait_bounded "$p" "$stop_limit_s" "the $action action ($name)" "$dir/action.log" || true
     done
     [[ ! -f $tmp_candump ]] || mv "$tmp_candump" "$dir/candump.log"
-    unset ANTISURGE_EVENT_LOG__PATH ANTISURGE_STATUS__STATS_FILE ANTISURGE_STATUS__STATE_DIR
+    unset ANTISURGE_EVENT_LOG__PATH ANTISURGE_STATUS__STATS_FILE ANTISURGE_STATUS__STATE_DIR \
+        ANTISURGE_STATUS__SOCKET
+    rm -rf "$sock_dir"
     echo "case $name: scenario over after $((SECONDS - t0)) s" >&2
     if [[ $rc -ne 0 ]]; then
         echo "FAIL $name: plant exit $rc"; tail -n 20 "$dir/plant.log" "$dir/run.log"; return 1
