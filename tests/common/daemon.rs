@@ -320,9 +320,10 @@ pub fn device_watchdog_trip(out: &Path) -> (f64, f64, f64, f64, f64) {
 /// change it saw: the age it measured on the monotonic clock must exceed the timeout (the
 /// check is `age > timeout`) by at most 5 ms; in plant time the fail-safe comes after the last
 /// beat and at most the timeout + 5 ms after it (under load the plant skips late steps, so its
-/// clock may lag the monotonic one: seen 196 ms for a 200-ms timeout, 293 ms for 300 ms). And that last beat came at most one heartbeat
-/// period (`beat_period_s`, + 5 ms for the bus) before the kill at `kill_unix_s`, i.e. the
-/// controller beat until it died. Returns t_fs − t_last_beat, s.
+/// clock may lag the monotonic one: seen 196 ms for a 200-ms timeout, 293 ms for 300 ms). And
+/// that last beat came at most one heartbeat period (`beat_period_s`, + 5 ms for the bus)
+/// before the kill at `kill_unix_s`, i.e. the controller beat until it died. Returns
+/// t_fs − t_last_beat, s.
 pub fn assert_device_watchdog_timing(
     out: &Path,
     timeout_s: f64,
