@@ -1,5 +1,5 @@
 #!/usr/bin/env bash
-# Build every fuzz target and run each for SECONDS (default 60), one after the other.
+# Build every fuzz target and run each for SECONDS (default 60), FUZZ_PARALLEL at a time.
 # Prints a table: target, executions, seconds, result. Exits 1 if any target crashed (or hit
 # libFuzzer's timeout or memory limit), 0 otherwise; the crashing input is in
 # fuzz/artifacts/<target>/ (turn it into a regression test in tests/fuzz_regressions.rs).
@@ -7,7 +7,8 @@
 # Seed corpora are made from the repository's own files (config/, tests/good_configs,
 # tests/bad_configs, DBCs, a written event log) into fuzz/corpus/<target>/ (git-ignored).
 # Needs the nightly toolchain and cargo-fuzz: `rustup toolchain install nightly`,
-# `cargo install cargo-fuzz`. Environment: FUZZ_JOBS (default 1), FUZZ_TARGETS (a subset),
+# `cargo install cargo-fuzz`. Environment: FUZZ_PARALLEL (targets at once, default 1),
+# FUZZ_JOBS (default 1), FUZZ_TARGETS (a subset),
 # FUZZ_SANITIZER (default none: the code under test is safe Rust, and without ASan a target
 # runs about twice as many executions; `address` for the unsafe paths), FUZZ_RUNS (stop each
 # target after this many executions instead of SECONDS; SECONDS is then only a cap),
@@ -79,12 +80,15 @@ fi
 # what `cargo fuzz run` runs after its build: the binaries of the host triple
 bin=${FUZZ_BIN_DIR:-$root/fuzz/target/$(rustc +nightly -vV | sed -n 's/^host: //p')/release}
 printf '%-24s %14s %8s %s\n' target executions seconds result
-status=0
-for t in $targets; do
-    seed "$t"
-    log=$(mktemp)
+rows=$(mktemp -d)
+trap 'rm -rf "$rows"' EXIT
+
+# one target: its row into $rows/<target>.row, "1" into $rows/<target>.failed on a finding
+run_target() {
+    local t=$1 log result rc execs took start
+    log="$rows/$t.log"
     result=ok
-    par=()
+    local par=()
     if [ "${FUZZ_JOBS:-1}" -gt 1 ]; then par=(-jobs="$FUZZ_JOBS" -workers="$FUZZ_JOBS"); fi
     if [ -n "${FUZZ_RUNS:-}" ]; then par+=(-runs="$FUZZ_RUNS"); fi
     start=$(date +%s)
@@ -96,13 +100,38 @@ for t in $targets; do
         result="FAILED: exit $rc (crash, leak, timeout or out-of-memory; input in fuzz/artifacts/$t)"
         # libFuzzer's -interrupted_exitcode: stopped by SIGINT, not a finding (still not a pass)
         [ "$rc" -ne 72 ] || result="INTERRUPTED (SIGINT): no finding, the run was cut short"
-        status=1
-        tail -n 40 "$log" >&2
+        echo 1 >"$rows/$t.failed"
+        { echo "---- $t: the last 40 lines of its log"; tail -n 40 "$log"; } >&2
     }
     execs=$({ grep -h 'stat::number_of_executed_units' "$log" fuzz/fuzz-*.log 2>/dev/null || true; } |
         awk '{s += $2} END {print s + 0}')
     took=$(($(date +%s) - start))
-    printf '%-24s %14s %8s %s\n' "$t" "$execs" "$took" "$result"
-    rm -f "$log" fuzz/fuzz-*.log
+    printf '%-24s %14s %8s %s\n' "$t" "$execs" "$took" "$result" >"$rows/$t.row"
+    if [ "${FUZZ_JOBS:-1}" -gt 1 ]; then rm -f fuzz/fuzz-*.log; fi
+}
+
+# FUZZ_PARALLEL targets at a time (default 1), each single-threaded for its full SECONDS: on
+# CI's 2 cores two at a time halve the wall time and give each target the same CPU it had alone.
+# With FUZZ_JOBS > 1 (libFuzzer's own workers share fuzz/fuzz-*.log) targets run one at a time.
+parallel=${FUZZ_PARALLEL:-1}
+if [ "${FUZZ_JOBS:-1}" -gt 1 ]; then parallel=1; fi
+running=0
+for t in $targets; do
+    seed "$t"
+    run_target "$t" &
+    running=$((running + 1))
+    if [ "$running" -ge "$parallel" ]; then
+        wait -n || true
+        running=$((running - 1))
+    fi
+done
+wait || true
+status=0
+for t in $targets; do
+    if [ -f "$rows/$t.row" ]; then cat "$rows/$t.row"; else
+        printf '%-24s %14s %8s %s\n' "$t" 0 0 "FAILED: no result (the runner died)"
+        status=1
+    fi
+    [ ! -f "$rows/$t.failed" ] || status=1
 done
 exit $status

@@ -154,7 +154,10 @@ impl Timestamp {
         {
             return Err(ParseTimestampError("expected YYYY-MM-DDTHH:MM:SS"));
         }
-        let zone = &s[19..];
+        // byte 19 may fall inside a multi-byte character (fuzz input `…\u{3}\u{92}`): `get`
+        let Some(zone) = s.get(19..) else {
+            return Err(ParseTimestampError("expected YYYY-MM-DDTHH:MM:SS"));
+        };
         let zone = zone
             .strip_prefix('.')
             .map_or(zone, |f| f.trim_start_matches(|c: char| c.is_ascii_digit()));
@@ -253,7 +256,9 @@ pub fn parse_time(
         })?;
         return Ok(now.saturating_sub(d));
     }
-    if t.len() >= 20 && (t.ends_with(['Z', 'z']) || t[19..].contains(['+', '-'])) {
+    // `get`: byte 19 may fall inside a multi-byte character (a fuzzer's find, CI 2026-11-28)
+    let tail = t.get(19..).unwrap_or("");
+    if t.len() >= 20 && (t.ends_with(['Z', 'z']) || tail.contains(['+', '-'])) {
         return Timestamp::parse_rfc3339(t).map_err(|e| e.to_string());
     }
     let in_zone = |dt: civil::DateTime| -> Result<Timestamp, String> {
@@ -506,6 +511,18 @@ mod tests {
             assert!(parse_time(bad, now, &tz).is_err(), "{bad:?} accepted");
         }
         assert!(parse_time("99999999999999999999d", now, &tz).is_err());
+        // a multi-byte character across byte 19 (the fuzzer's find, CI 2026-11-28): an error,
+        // never a panic; likewise for the RFC 3339 parser
+        let torn = "`2afri~ca/asmara\u{6}3\u{92}\u{1a}";
+        assert!(!torn.is_char_boundary(19));
+        assert!(parse_time(torn, now, &tz).is_err());
+        for s in [
+            "2024-05-01T12:34:5€Z",
+            "2024-05-01T12:34:56€Z",
+            "2024-05-01T12:34:€€Z",
+        ] {
+            assert!(Timestamp::parse_rfc3339(s).is_err(), "{s:?} accepted");
+        }
     }
 
     #[test]
