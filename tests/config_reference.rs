@@ -110,6 +110,7 @@ fn populated() -> DaemonConfig {
                 merge_writes: false,
                 write_fault_timeout_ms: 500,
                 cycle_trigger: antisurge::io::modbus::link::ModbusCycleTrigger::Reads,
+                command_connection: antisurge::io::modbus::CommandConnection::Own,
             }),
         },
         controller,

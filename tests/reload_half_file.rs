@@ -141,11 +141,11 @@ fn a_config_cut_anywhere_is_refused() {
         count(&events, "config_applied") == 1
     });
     assert_eq!(count(&events, "config_rejected"), 20);
-    let rec = std::fs::read_to_string(&record).expect("record");
-    assert!(
-        rec.contains("12.0"),
-        "the record follows the applied reload: {rec}"
-    );
+    // the record is rewritten after the event is logged: wait for it (the order of two
+    // writes of the daemon, not a time)
+    until(dir, "the record follows the applied reload", || {
+        std::fs::read_to_string(&record).is_ok_and(|rec| rec.contains("12.0"))
+    });
 
     signal(&d, libc::SIGTERM);
     let st = wait(&mut d, Duration::from_secs(30), "controller", dir);

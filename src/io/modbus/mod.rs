@@ -28,9 +28,9 @@ pub use client::{
     RtuConfig, TransportConfig, WriteReport,
 };
 pub use link::{
-    run_controller, run_controller_triggering, run_plant_server, AnotherWriter, ExceptionInfo,
-    FailureCause, HeartbeatRegister, HeartbeatWords, LinkCounters, LinkCounts, LinkError,
-    LinkMonitor, LinkState, ModbusLinkConfig, ModbusServerConfig, Pacing, PlantCounters,
+    run_controller, run_controller_triggering, run_plant_server, AnotherWriter, CommandConnection,
+    ExceptionInfo, FailureCause, HeartbeatRegister, HeartbeatWords, LinkCounters, LinkCounts,
+    LinkError, LinkMonitor, LinkState, ModbusLinkConfig, ModbusServerConfig, Pacing, PlantCounters,
     PlantCounts, PlantServer, WriteFailure, WriteHealth,
 };
 pub use plan::{PlanError, PlannedRequest, ReadPlan, WritePlan};
