@@ -386,7 +386,9 @@ pub fn human(r: &StatusReport) -> String {
         r.flow_source
     );
     let unit = |x: Option<f64>, scale: f64, offset: f64, d: usize, u: &str| {
-        x.map_or("–".to_string(), |v| format!("{:.d$} {u}", v * scale + offset))
+        x.map_or("–".to_string(), |v| {
+            format!("{:.d$} {u}", v * scale + offset)
+        })
     };
     o += &format!(
         "process       suction {}  discharge {}  Δp {}  T suction {}\n",
