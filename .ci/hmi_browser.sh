@@ -32,6 +32,8 @@ TOML
 # issue 24: a machine described from vendor data only (its surge line, no speed-line map) as
 # the controller knows it, the independent simulated skid in process; the operator token
 printf 'hmi-browser-token\n' >token && chmod 0600 token
+# the surge counter as kept across restarts: 7, so that the reset test has something to reset
+mkdir -p state && printf '{"surge_count":7,"safety_on_count":0,"auto":true}\n' >state/state.json
 ANTISURGE_MACHINE__FILE="$root/config/machines/vendor_example.toml" \
 ANTISURGE_PLANT__FILE="$root/tests/plants/vendor_skid_recycle.toml" \
 ANTISURGE_STATUS__OPERATOR_TOKEN_FILE="$work/token" \
@@ -40,5 +42,5 @@ ANTISURGE_STATUS__SOCKET="$work/status.sock" ANTISURGE_STATUS__STATE_DIR="$work/
 ANTISURGE_EVENT_LOG__PATH="$work/events.jsonl" ANTISURGE_SIMULATION__SCENARIO="$work/closure.toml" \
     "$bin" run --config "$root/config/antisurge.toml" >daemon.log 2>&1 &
 for _ in $(seq 50); do curl -sf "http://127.0.0.1:$port/api/status" >/dev/null && break; sleep 0.1; done
-node "$root/.ci/hmi/browser_test.mjs" "http://127.0.0.1:$port/" "$bin" "$work/status.sock" "$root/out/hmi.png" \
+node "$root/.ci/hmi/browser_test.mjs" "http://127.0.0.1:$port/" "$bin" "$work/status.sock" "$root/out/hmi.png" "$work/events.jsonl" \
     || { tail -20 daemon.log; exit 1; }

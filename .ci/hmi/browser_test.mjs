@@ -12,11 +12,17 @@
 // the trend holds the data from before it (served by the daemon); in manual at 0 % the page
 // shows the valve protection holds and why; a throttle step in manual puts the recycle trip
 // in the alarm list, named as in manual.
-// Usage: node browser_test.mjs HMI_URL ANTISURGE_BIN STATUS_SOCKET SCREENSHOT
+// The faceplate's process values include the pressures, the flow element's Δp and the suction
+// temperature (kPa, °C; "–" where status --json has none); the feedback lamp follows
+// status field_faults (and lights when that record holds actuator_feedback_mismatch); resetting
+// the surge counter (seeded at 7) asks first: dismissed, nothing changes; accepted, it is 0 and
+// the event log names who reset it.
+// Usage: node browser_test.mjs HMI_URL ANTISURGE_BIN STATUS_SOCKET SCREENSHOT EVENT_LOG
 import { chromium } from "playwright-core";
 import { execFileSync } from "node:child_process";
+import { readFileSync } from "node:fs";
 
-const [url, bin, socket, shot] = process.argv.slice(2);
+const [url, bin, socket, shot, events] = process.argv.slice(2);
 const fail = (m) => { console.error("FAIL: " + m); process.exit(1); };
 const browser = await chromium.launch({
   executablePath: "/usr/bin/chromium",
@@ -81,8 +87,9 @@ console.log(`(for comparison, the page's value vs the latest status read right a
 const face = await page.evaluate(() => {
   const m = document.getElementById("map").dataset;
   const pv = {};
-  for (const td of document.querySelectorAll("[data-pv]")) pv[td.dataset.pv] = td.dataset.value === "" ? null : +td.dataset.value;
-  return { surgeLine: m.surgeLine, xTicks: m.xTicks, yTicks: m.yTicks, pv, cycle: document.getElementById("cycle").dataset.value,
+  const pvText = {};
+  for (const td of document.querySelectorAll("[data-pv]")) { pv[td.dataset.pv] = td.dataset.value === "" ? null : +td.dataset.value; pvText[td.dataset.pv] = td.textContent.trim(); }
+  return { pvText, surgeLine: m.surgeLine, xTicks: m.xTicks, yTicks: m.yTicks, pv, cycle: document.getElementById("cycle").dataset.value,
            who: document.getElementById("who").textContent, scrollW: document.documentElement.scrollWidth, innerW: window.innerWidth };
 });
 console.log(`faceplate: ${face.who}; x ticks ${face.xTicks}; y ticks ${face.yTicks}; page ${face.scrollW} px wide in ${face.innerW}`);
@@ -93,13 +100,96 @@ if (face.scrollW > face.innerW) fail(`horizontal scroll at 1280 px: ${face.scrol
 {
   const st = JSON.parse(execFileSync(bin, ["status", "--json", "--socket", socket, "--cycle", face.cycle]).toString());
   const rpm = st.omega_rad_s == null ? null : st.omega_rad_s * 60 / 2 / Math.PI;
-  const want = { flow: st.flow_map, ratio: st.pressure_ratio, m: st.m_kg_s, speed: rpm, out: st.valve_output_pct, pos: st.valve_position_pct };
+  const kilo = (x) => x == null ? null : x / 1000;
+  const want = { flow: st.flow_map, ratio: st.pressure_ratio, m: st.m_kg_s, speed: rpm, out: st.valve_output_pct, pos: st.valve_position_pct,
+                 ps: kilo(st.p_suction_pa), pd: kilo(st.p_discharge_pa), dp: kilo(st.orifice_dp_pa), ts: st.t_suction_k };
+  // the page shows the suction temperature in °C: compared in K, the unit of status --json
+  const shownOf = (k) => k === "ts" && face.pv.ts != null ? face.pv.ts + 273.15 : face.pv[k];
   for (const [k, v] of Object.entries(want)) {
-    if (v == null) continue;
-    const shown = face.pv[k];
+    const shown = shownOf(k);
+    // no such value in the status (no usable transmitter): the page shows "–", never a number
+    if (v == null) { if (shown != null || face.pvText[k] !== "–") fail(`process value ${k}: status null, page ${shown} "${face.pvText[k]}"`); continue; }
     if (!(Math.abs(shown - v) <= 0.01 * Math.max(Math.abs(v), 1e-9))) fail(`process value ${k}: page ${shown}, status ${v} (cycle ${face.cycle})`);
   }
-  console.log(`process values match status --json --cycle ${face.cycle} within 1 %: ${JSON.stringify(face.pv)}`);
+  // the pressures and the flow element's Δp are measured on this skid: they must be there
+  for (const k of ["ps", "pd", "dp"]) if (want[k] == null) fail(`status --json has no ${k}: ${JSON.stringify(st)}`);
+  // and the text the operator reads, with its unit, says the same (rounded to its digits)
+  for (const [k, u] of [["ps", "kPa"], ["pd", "kPa"], ["dp", "kPa"], ["ts", "°C"]]) {
+    const t = face.pvText[k];
+    if (want[k] == null) continue;
+    if (!t.endsWith(" " + u)) fail(`process value ${k} without its unit ${u}: "${t}"`);
+    const v = parseFloat(t) + (k === "ts" ? 273.15 : 0);
+    if (!(Math.abs(v - want[k]) <= 0.01 * Math.abs(want[k]))) fail(`process value ${k}: page text "${t}", status ${want[k]}`);
+  }
+  console.log(`process values match status --json --cycle ${face.cycle} within 1 %: ${JSON.stringify(face.pv)}; ` +
+    `shown ${["ps", "pd", "dp", "ts"].map((k) => k + " " + face.pvText[k]).join(", ")}; ` +
+    `status p_suction_pa ${st.p_suction_pa}, p_discharge_pa ${st.p_discharge_pa}, orifice_dp_pa ${st.orifice_dp_pa}, t_suction_k ${st.t_suction_k}`);
+}
+// the actuator feedback lamp, drawn from status field_faults (the fault record antisurge
+// status shows): off with the daemon's own data, on when that record holds the mismatch
+{
+  const lamp = () => page.evaluate(() => { const l = document.querySelector('[data-lamp="feedback"]');
+    return l ? { on: l.dataset.on, text: l.textContent, cls: l.className } : null; });
+  const st = JSON.parse(execFileSync(bin, ["status", "--json", "--socket", socket]).toString());
+  const real = await lamp();
+  if (!real) fail("no feedback lamp on the page");
+  const mismatch = (st.field_faults || []).includes("actuator_feedback_mismatch");
+  if ((real.on === "1") !== mismatch) fail(`feedback lamp ${JSON.stringify(real)} vs status field_faults ${JSON.stringify(st.field_faults)}`);
+  // the same page on a status whose fault record holds a latched mismatch of the recycle valve
+  await page.route("**/api/status", async (route) => {
+    const r = await route.fetch(); const j = await r.json();
+    j.field_faults = [...(j.field_faults || []), "actuator_feedback_mismatch"];
+    j.links = { ...(j.links || {}), feedback: ["recycle_valve"] };
+    await route.fulfill({ response: r, json: j });
+  });
+  await page.waitForFunction(() => document.querySelector('[data-lamp="feedback"]')?.dataset.on === "1", null, { timeout: 5000 })
+    .catch(() => fail("the feedback lamp does not light on a status with actuator_feedback_mismatch"));
+  const lit = await lamp();
+  if (!/mismatch/i.test(lit.text) || !/recycle valve/.test(lit.text) || !lit.cls.includes("on")) fail(`lit feedback lamp: ${JSON.stringify(lit)}`);
+  await page.unroute("**/api/status");
+  await page.waitForFunction(() => document.querySelector('[data-lamp="feedback"]')?.dataset.on === "0", null, { timeout: 5000 })
+    .catch(() => fail("the feedback lamp stays lit after the mismatch left the status"));
+  console.log(`feedback lamp: "${real.text}" with status field_faults ${JSON.stringify(st.field_faults)}; "${lit.text}" (${lit.cls}) with actuator_feedback_mismatch in them`);
+}
+// resetting the surge counter asks first: dismissed, nothing is sent and the counter stays;
+// accepted, it is 0 and the event log has the reset with who did it
+{
+  const count = () => JSON.parse(execFileSync(bin, ["status", "--json", "--socket", socket]).toString()).surge_count;
+  const before = count();
+  if (!(before > 0)) fail(`surge counter ${before} at the reset test: the run seeds 7 (a reset to 0 from 0 proves nothing)`);
+  await page.fill("#token", "hmi-browser-token");
+  let posts = 0;
+  const onReq = (r) => { if (r.method() === "POST" && r.url().endsWith("/api/op")) posts++; };
+  page.on("request", onReq);
+  let asked = null;
+  page.once("dialog", async (d) => { asked = d.message(); await d.dismiss(); });
+  await page.click("button:text-is(\"reset surge counter…\")");
+  await page.waitForTimeout(1500);
+  const afterDismiss = count();
+  if (asked == null) fail("no confirmation asked before resetting the surge counter");
+  if (posts !== 0) fail(`dismissed, yet ${posts} operator action(s) sent`);
+  if (afterDismiss !== before) fail(`dismissed, yet the surge counter went ${before} -> ${afterDismiss}`);
+  console.log(`reset surge counter, dismissed: asked "${asked}"; nothing sent; counter ${before} -> ${afterDismiss}`);
+  page.once("dialog", (d) => d.accept());
+  const answer = page.waitForResponse((r) => r.url().endsWith("/api/op"));
+  await page.click("button:text-is(\"reset surge counter…\")");
+  const resp = await answer;
+  if (resp.status() !== 200) fail(`accepted: POST /api/op answered ${resp.status()}`);
+  let after = count();
+  for (let i = 0; i < 50 && after !== 0; i++) { await page.waitForTimeout(100); after = count(); }
+  if (after !== 0) fail(`accepted, the surge counter reads ${after}`);
+  // the event log is written by its own task: read it until both lines are there (bounded)
+  const parse = (l) => { try { return JSON.parse(l); } catch { return {}; } };
+  let reset = null, who = null;
+  for (let i = 0; i < 50 && !(reset && who); i++) {
+    const log = readFileSync(events, "utf8").split("\n").filter(Boolean).map(parse);
+    reset = log.find((e) => e.event === "surge_counter" && e.previous_count === before && e.count === 0);
+    who = log.find((e) => e.event === "note" && /^operator action \(HMI 127\.0\.0\.1:\d+\): surge counter \d+ → 0$/.test(e.text || ""));
+    if (!(reset && who)) await page.waitForTimeout(100);
+  }
+  if (!reset || !who) fail(`event log without the reset (${JSON.stringify(reset)}) or who did it (${JSON.stringify(who)})`);
+  page.off("request", onReq);
+  console.log(`reset surge counter, accepted: counter ${before} -> ${after}; event log: ${JSON.stringify(reset)} and "${who.text}"`);
 }
 // the trends come from the daemon: a reload shows what was before it
 const beforeReload = Date.now() / 1000;

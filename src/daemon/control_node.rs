@@ -322,6 +322,25 @@ impl ControlNode {
             }
         };
         let (safety_on, trips) = self.core.safety_on_and_trips();
+        // the process values the cycle used (NaN where it had none: a skid without the
+        // transmitter, or one that failed its checks): the pressures from its measurements;
+        // the Δp voted where redundant, else the reading that passed supervision; the suction
+        // temperature only when measured (the nominal one the cycle falls back to is no
+        // measurement)
+        let v = &out.validity;
+        let orifice_dp_pa = if !v.ok(SensorId::OrificeDp) {
+            f64::NAN
+        } else {
+            match self.core.vote().of(SensorId::OrificeDp) {
+                Some(vote) => vote.value,
+                None => raw.values.get(SensorId::OrificeDp),
+            }
+        };
+        let t_suction_k = if v.ok(SensorId::TSuction) {
+            m.t_suction_k
+        } else {
+            f64::NAN
+        };
         let flow_source = if !m.m_kg_s.is_finite() {
             FlowSourceNow::None
         } else if m.flow_fallback && !m.m_observer_kg_s.is_finite() {
@@ -345,6 +364,10 @@ impl ControlNode {
             pressure_ratio: r,
             m_kg_s: m.m_kg_s,
             omega_rad_s: m.omega_rad_s,
+            p_suction_pa: m.p_suction_pa,
+            p_discharge_pa: m.p_discharge_pa,
+            orifice_dp_pa,
+            t_suction_k,
             surge_line_flow: surge_line,
             control_line_flow: control_line,
             trip_line_flow: trip_line,

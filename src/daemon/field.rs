@@ -379,12 +379,16 @@ pub struct LinkCounters {
     pub modbus: Option<Arc<LinkMonitor>>,
     /// The Modbus link's name in events (`modbus:<address>`).
     pub modbus_name: Option<String>,
+    /// The actuators whose feedback is supervised (`[feedback]` of the signal map), by name:
+    /// the HMI's feedback lamp says which (none: "not supervised").
+    pub feedback: Vec<&'static str>,
 }
 
 impl LinkCounters {
     /// JSON view.
     pub fn to_json(&self) -> serde_json::Value {
         serde_json::json!({
+            "feedback": self.feedback,
             "can": self.can.as_ref().map(|c| serde_json::to_value(c.snapshot()).unwrap_or_default()),
             "modbus": self.modbus.as_ref().map(|m| {
                 let mut v = serde_json::to_value(m.counters().snapshot()).unwrap_or_default();
@@ -421,6 +425,12 @@ pub fn spawn_controller_links(
         // the feedback follows the valve's own positioner model (crate::io::feedback)
         sup = sup.with_valve(crate::signals::ActuatorId::RecycleValve, v.spec);
     }
+    counters.feedback = map
+        .feedback
+        .keys()
+        .filter(|a| crate::io::feedback::feedback_sensor(**a).is_some())
+        .map(|a| a.name())
+        .collect();
     if !sup.is_empty() {
         // feedback counts as fresh for its input timeout (else: no judgement)
         let mut timeouts_s = [0.2; crate::signals::SensorId::COUNT];

@@ -108,6 +108,19 @@ pub struct StatusReport {
     pub m_kg_s: Option<f64>,
     /// Shaft speed, rad/s.
     pub omega_rad_s: Option<f64>,
+    /// Suction pressure the cycle used, Pa (null: no usable transmitter).
+    #[serde(default)]
+    pub p_suction_pa: Option<f64>,
+    /// Discharge pressure the cycle used, Pa (null: no usable transmitter).
+    #[serde(default)]
+    pub p_discharge_pa: Option<f64>,
+    /// Flow element's Δp the cycle used (voted where redundant), Pa (null: none usable).
+    #[serde(default)]
+    pub orifice_dp_pa: Option<f64>,
+    /// Suction temperature measured, K (null: no usable transmitter; the cycle then uses the
+    /// machine's nominal temperature).
+    #[serde(default)]
+    pub t_suction_k: Option<f64>,
     /// Surge, control and trip line flows at the current ratio (map flow units).
     pub surge_line_flow: Option<f64>,
     /// Control-line flow (with safety-on) at the current ratio.
@@ -247,6 +260,10 @@ impl StatusReport {
             pressure_ratio: f(s.pressure_ratio),
             m_kg_s: f(s.m_kg_s),
             omega_rad_s: f(s.omega_rad_s),
+            p_suction_pa: f(s.p_suction_pa),
+            p_discharge_pa: f(s.p_discharge_pa),
+            orifice_dp_pa: f(s.orifice_dp_pa),
+            t_suction_k: f(s.t_suction_k),
             surge_line_flow: f(s.surge_line_flow),
             control_line_flow: f(s.control_line_flow),
             trip_line_flow: f(s.trip_line_flow),
@@ -367,6 +384,18 @@ pub fn human(r: &StatusReport) -> String {
             .map(|v| format!("{v:.4}"))
             .unwrap_or_else(|| "–".into()),
         r.flow_source
+    );
+    let unit = |x: Option<f64>, scale: f64, offset: f64, d: usize, u: &str| {
+        x.map_or("–".to_string(), |v| {
+            format!("{:.d$} {u}", v * scale + offset)
+        })
+    };
+    o += &format!(
+        "process       suction {}  discharge {}  Δp {}  T suction {}\n",
+        unit(r.p_suction_pa, 1e-3, 0.0, 1, "kPa"),
+        unit(r.p_discharge_pa, 1e-3, 0.0, 1, "kPa"),
+        unit(r.orifice_dp_pa, 1e-3, 0.0, 3, "kPa"),
+        unit(r.t_suction_k, 1.0, -273.15, 1, "°C"),
     );
     o += &format!(
         "valve         output {}  position {}\n",
@@ -501,6 +530,28 @@ mod tests {
             "{text}"
         );
         assert!(text.contains("surges        3"), "{text}");
+        assert!(
+            text.contains("process       suction –  discharge –  Δp –  T suction –"),
+            "{text}"
+        );
+        let mut pv = s;
+        pv.p_suction_pa = 101_325.0;
+        pv.p_discharge_pa = 2.5e5;
+        pv.orifice_dp_pa = 1234.0;
+        pv.t_suction_k = 293.15;
+        let r = StatusReport::new(&pv, 1.0, serde_json::Value::Null, serde_json::Value::Null);
+        let json = serde_json::to_value(&r).expect("json");
+        assert_eq!(json["p_suction_pa"], 101_325.0);
+        assert_eq!(json["p_discharge_pa"], 2.5e5);
+        assert_eq!(json["orifice_dp_pa"], 1234.0);
+        assert_eq!(json["t_suction_k"], 293.15);
+        let text = human(&r);
+        assert!(
+            text.contains(
+                "process       suction 101.3 kPa  discharge 250.0 kPa  Δp 1.234 kPa  T suction 20.0 °C"
+            ),
+            "{text}"
+        );
         let back: StatusReport =
             serde_json::from_str(&serde_json::to_string(&r).expect("json")).expect("parse");
         assert_eq!(back, r);

@@ -80,6 +80,17 @@ pub struct LiveSnapshot {
     pub m_kg_s: f64,
     /// Shaft speed, rad/s.
     pub omega_rad_s: f64,
+    /// Suction pressure the cycle used, Pa (NaN: not usable or not bound).
+    pub p_suction_pa: f64,
+    /// Discharge pressure the cycle used, Pa (NaN: not usable or not bound).
+    pub p_discharge_pa: f64,
+    /// Flow element's Δp the cycle used (the vote's value where redundant), Pa (NaN: no
+    /// usable flow element, e.g. a skid without one or a frozen transmitter).
+    pub orifice_dp_pa: f64,
+    /// Suction temperature the cycle measured, K (NaN where the skid has no usable
+    /// transmitter: the cycle then uses the machine's nominal temperature, which is no
+    /// measurement and is not shown as one).
+    pub t_suction_k: f64,
     /// Surge-line flow at the current ratio.
     pub surge_line_flow: f64,
     /// Control-line flow at the current ratio (with the safety-on shift).
@@ -161,6 +172,10 @@ impl Default for LiveSnapshot {
             pressure_ratio: f64::NAN,
             m_kg_s: f64::NAN,
             omega_rad_s: f64::NAN,
+            p_suction_pa: f64::NAN,
+            p_discharge_pa: f64::NAN,
+            orifice_dp_pa: f64::NAN,
+            t_suction_k: f64::NAN,
             surge_line_flow: f64::NAN,
             control_line_flow: f64::NAN,
             trip_line_flow: f64::NAN,
@@ -285,10 +300,10 @@ impl LiveBoard {
             opt(c.and_then(|c| c.max)),
             opt(c.and_then(|c| c.age_ms)),
             opt(c.and_then(|c| c.timeout_ms)),
-            0,
-            0,
-            0,
-            0,
+            s.p_suction_pa.to_bits(),
+            s.p_discharge_pa.to_bits(),
+            s.orifice_dp_pa.to_bits(),
+            s.t_suction_k.to_bits(),
             0,
         ];
         let mut w = {
@@ -364,6 +379,10 @@ impl LiveBoard {
             pressure_ratio: f(7),
             m_kg_s: f(8),
             omega_rad_s: f(9),
+            p_suction_pa: f(24),
+            p_discharge_pa: f(25),
+            orifice_dp_pa: f(26),
+            t_suction_k: f(27),
             surge_line_flow: f(10),
             control_line_flow: f(11),
             trip_line_flow: f(12),
@@ -435,6 +454,10 @@ mod tests {
             pressure_ratio: 2.5,
             m_kg_s: 1.6,
             omega_rad_s: 900.0,
+            p_suction_pa: 1.01e5,
+            p_discharge_pa: 2.5e5,
+            orifice_dp_pa: 1.2e4,
+            t_suction_k: 293.15,
             surge_line_flow: 1.0,
             control_line_flow: 1.1,
             trip_line_flow: 1.05,
