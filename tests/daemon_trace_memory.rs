@@ -3,7 +3,9 @@
 //! the default rates (1 kHz steps, a trace row every 5 ms: 720 001 rows, 181 MiB if kept, as
 //! the daemon's in-process plant kept them until exit) goes through the writer thread with a
 //! peak of heap bytes in use far below the trace, no larger than a 10-minute run's, no row
-//! dropped, and no allocation in the second half of the run (plant thread and writer alike).
+//! dropped, and no allocation in the second half of a run (plant thread and writer alike;
+//! counted on the 10-minute run, which ends long before the test harness's own notice of a
+//! test running for over 60 s, which allocates).
 //! The node is stepped on a made-up clock, as fast as it goes (paced to the writer).
 //! One test in this binary: the heap figures are the whole process's.
 
@@ -106,16 +108,17 @@ fn an_hour_of_real_time_plant_streams_in_bounded_heap() {
     let kept = hour.rows as usize * row;
     // what is held: the writer's queue (2 s of rows, 106 kB), the file's and the settle log's
     // buffers (64 KiB each), the tail (3 s of (t, flow)), the plant and the node
-    let bound = 2 * MIB;
+    let bound = MIB;
     eprintln!(
         "peak heap above start: 10 min {:.3} MiB, 1 h {:.3} MiB (bound {:.1} MiB; the kept \
-         trace would be {:.0} MiB; trace.csv {:.0} MiB); allocations in the second half of \
-         the hour: {}",
+         trace would be {:.0} MiB; trace.csv {:.0} MiB); allocations in the second half: \
+         10 min {}, 1 h {} (the test harness's notice at 60 s among them)",
         short.peak as f64 / MIB as f64,
         hour.peak as f64 / MIB as f64,
         bound as f64 / MIB as f64,
         kept as f64 / MIB as f64,
         hour.file_bytes as f64 / MIB as f64,
+        short.second_half_allocs,
         hour.second_half_allocs,
     );
     assert!(hour.peak < bound, "peak {} B ≥ bound {bound} B", hour.peak);
@@ -127,7 +130,7 @@ fn an_hour_of_real_time_plant_streams_in_bounded_heap() {
         hour.peak
     );
     assert_eq!(
-        hour.second_half_allocs, 0,
+        short.second_half_allocs, 0,
         "the plant step or the trace writer allocates"
     );
 }

@@ -60,13 +60,14 @@ pub fn drive(
     }
 }
 
-/// Pacing for [`drive`] with a streamed trace: when the writer thread is more than 200 rows
-/// behind, wait until it is within 50 (the node itself never waits; a test that wants every
-/// row must not outrun the writer). `backlog`: the writer's
+/// Pacing for [`drive`] with a streamed trace: when the writer thread is more than 300 rows
+/// behind (of the 401 its queue holds at the default 5-ms trace period), wait until it is
+/// within 100 (the node itself never waits; a test that wants every row must not outrun the
+/// writer). `backlog`: the writer's
 /// [`antisurge::sim::trace_handoff::TraceWriter::backlog`].
 pub fn keep_up(backlog: impl Fn() -> u64) {
-    if backlog() > 200 {
-        while backlog() > 50 {
+    if backlog() > 300 {
+        while backlog() > 100 {
             std::thread::sleep(std::time::Duration::from_millis(1));
         }
     }
