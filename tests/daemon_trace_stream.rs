@@ -49,7 +49,10 @@ fn the_streamed_trace_is_the_bytes_of_the_kept_trace() {
         4001,
         "20 s at a 5-ms trace period, and the header"
     );
-    assert!(old_csv == new_csv, "the streamed trace differs from the kept one");
+    assert!(
+        old_csv == new_csv,
+        "the streamed trace differs from the kept one"
+    );
     assert!(new_result.trace.is_empty(), "no trace kept");
 
     let mut a = old_result.summary.clone();
@@ -108,7 +111,11 @@ fn complete_rows(path: &Path) -> Vec<Vec<String>> {
     for (k, r) in rows.iter().enumerate() {
         assert_eq!(r.len(), COLUMNS.len(), "row {k}: {r:?}");
         let t: f64 = r[0].parse().expect("t_s");
-        assert_eq!(r[0], format!("{:.7e}", k as f64 * 0.005), "row {k}: t = {t}");
+        assert_eq!(
+            r[0],
+            format!("{:.7e}", k as f64 * 0.005),
+            "row {k}: t = {t}"
+        );
         for v in &r[1..] {
             assert!(v.is_empty() || v.parse::<f64>().is_ok(), "row {k}: {v:?}");
         }
@@ -128,7 +135,15 @@ fn run_out_streams_the_trace_with_no_row_dropped() {
     let mut ctl = spawn(
         dir,
         "run",
-        &["run", "--config", &cfg, "--duration-s", "4", "--out", &out_s],
+        &[
+            "run",
+            "--config",
+            &cfg,
+            "--duration-s",
+            "4",
+            "--out",
+            &out_s,
+        ],
     );
     let st = wait(&mut ctl, Duration::from_secs(60), "run", dir);
     assert!(st.success(), "run exit {st:?}:\n{}", logs(dir));
@@ -188,9 +203,7 @@ fn a_killed_run_leaves_the_rows_written_so_far() {
             &out_s,
         ],
     );
-    let lines = || {
-        std::fs::read(&trace).map_or(0, |b| b.iter().filter(|c| **c == b'\n').count())
-    };
+    let lines = || std::fs::read(&trace).map_or(0, |b| b.iter().filter(|c| **c == b'\n').count());
     until(dir, "trace rows in trace.csv", || lines() > 200);
     let seen = lines();
     until(dir, "more trace rows in trace.csv", || lines() > seen + 200);
@@ -199,6 +212,13 @@ fn a_killed_run_leaves_the_rows_written_so_far() {
     let st = wait(&mut ctl, Duration::from_secs(10), "run", dir);
     assert!(!st.success());
     let rows = complete_rows(&trace);
-    assert!(rows.len() + 1 >= before_kill, "{} < {before_kill}", rows.len());
-    assert!(!out.join("summary.json").exists(), "no summary of a killed run");
+    assert!(
+        rows.len() + 1 >= before_kill,
+        "{} < {before_kill}",
+        rows.len()
+    );
+    assert!(
+        !out.join("summary.json").exists(),
+        "no summary of a killed run"
+    );
 }

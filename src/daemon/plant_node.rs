@@ -331,8 +331,8 @@ pub fn start_trace(
     scenario: &crate::scenario::Scenario,
     dir: &Path,
 ) -> Result<(TraceHandoff, TraceWriter), crate::sim::SimError> {
-    let volumetric = desc.map.flow_coordinate
-        == crate::physics::compressor_map::FlowCoordinate::InletVolumeM3S;
+    let volumetric =
+        desc.map.flow_coordinate == crate::physics::compressor_map::FlowCoordinate::InletVolumeM3S;
     TraceWriter::start(
         dir,
         volumetric,

@@ -176,7 +176,10 @@ fn spawn_in_process_plant(
                     PlantRun::handing_trace_to(&desc, &scenario, handoff),
                     Some(writer),
                 ),
-                None => (PlantRun::new(&desc, &scenario).map(PlantRun::without_trace), None),
+                None => (
+                    PlantRun::new(&desc, &scenario).map(PlantRun::without_trace),
+                    None,
+                ),
             };
             let run = run.map_err(|e| anyhow!("{e}"))?;
             let mut node = PlantNode::new(

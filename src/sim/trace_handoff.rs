@@ -31,6 +31,10 @@ pub const POLL_S: f64 = 0.02;
 /// for a late wake-up.
 pub const FLUSH_PERIOD_S: f64 = 0.5;
 
+/// Shortest time between two warnings of dropped rows, s: a writer that stays behind is told
+/// about without flooding the log.
+pub const WARN_PERIOD_S: f64 = 10.0;
+
 /// Counters shared by the two ends.
 #[derive(Debug, Default)]
 struct Shared {
@@ -207,9 +211,11 @@ fn write_rows(
 ) -> Result<(u64, TailStats), std::io::Error> {
     let flush_every = Duration::from_secs_f64(FLUSH_PERIOD_S);
     let poll = Duration::from_secs_f64(POLL_S);
+    let warn_every = Duration::from_secs_f64(WARN_PERIOD_S);
     let mut last_flush = Instant::now();
     let mut taken = 0u64;
     let mut dropped_seen = 0u64;
+    let mut last_warning: Option<Instant> = None;
     loop {
         // abandoned before the drain: every row pushed is in the queue now
         let over = rx.is_abandoned();
@@ -221,9 +227,11 @@ fn write_rows(
         }
         shared.taken.store(taken, Ordering::Release);
         let dropped = shared.dropped.load(Ordering::Acquire);
-        if dropped > dropped_seen {
-            tracing::warn!(target: "plant", "trace.csv: {} trace rows dropped so far (the writer fell behind the plant by more than {HANDOFF_S} s); the trace has gaps", dropped);
+        // a warning when rows are dropped, at most every WARN_PERIOD_S
+        if dropped > dropped_seen && last_warning.is_none_or(|t| t.elapsed() >= warn_every) {
+            tracing::warn!(target: "plant", "trace.csv: {dropped} trace rows dropped so far (the writer fell behind the plant by more than {HANDOFF_S} s); the trace has gaps");
             dropped_seen = dropped;
+            last_warning = Some(Instant::now());
         }
         if over {
             break;
@@ -275,8 +283,12 @@ mod tests {
         assert_eq!((written.rows, written.dropped), (3000, 0));
         let mut whole = Vec::new();
         write_csv(&mut whole, &rows, true).expect("write");
-        assert_eq!(std::fs::read(dir.path().join("trace.csv")).expect("read"), whole);
-        assert_eq!(written.tail.last(), rows.last().copied());
+        assert_eq!(
+            std::fs::read(dir.path().join("trace.csv")).expect("read"),
+            whole
+        );
+        let bits = |r: Option<TraceRow>| r.map(|r| r.values().map(f64::to_bits));
+        assert_eq!(bits(written.tail.last()), bits(rows.last().copied()));
     }
 
     #[test]
