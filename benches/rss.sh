@@ -20,8 +20,67 @@
 # before the streaming, to compare), default the one this script builds.
 #
 #   benches/rss.sh sim [SIM_S] [BIN]
+#
+# `run-out` mode: peak resident memory (getrusage of the child) of `antisurge run --out DIR
+# --duration-s RUN_S` (default 120) on the shipped config with a scenario of an hour (the
+# same long hold as `sim` mode), so the in-process plant traces for the whole run: 200 rows a
+# second stream to trace.csv (issue 25; before, the daemon kept them until exit, 52 kB a
+# second). Compare two durations to see whether memory grows with the run; BIN as for `sim`.
+#
+#   benches/rss.sh run-out [RUN_S] [BIN]
 set -euo pipefail
 cd "$(dirname "$0")/.."
+long_scenario() {
+    cat >"$1" <<SCENARIO
+name = "long-hold"
+description = "throttle 60 % -> 20 % over 2 s at 5 s, then held (benches/rss.sh)"
+duration_s = $2
+
+[initial]
+throttle = 0.6
+
+[[event]]
+at_s = 5.0
+ramp = { signal = "throttle", to = 0.2, over_s = 2.0 }
+SCENARIO
+}
+free_port() { python3 -c 'import socket; s=socket.socket(); s.bind(("127.0.0.1",0)); print(s.getsockname()[1])'; }
+if [[ ${1:-} == run-out ]]; then
+    run_s=${2:-120}
+    bin=${3:-}
+    if [[ -z $bin ]]; then
+        nice -n 10 cargo build --release --quiet
+        bin=$PWD/target/release/antisurge
+    fi
+    dir=$(mktemp -d)
+    trap 'rm -rf "$dir"' EXIT
+    long_scenario "$dir/long.toml" 3600
+    ANTISURGE_SIMULATION__SCENARIO="$dir/long.toml" \
+    ANTISURGE_EVENT_LOG__PATH="$dir/events.jsonl" \
+    ANTISURGE_STATUS__SOCKET="$dir/status.sock" \
+    ANTISURGE_STATUS__STATE_DIR="$dir/state" \
+    ANTISURGE_STATUS__STATS_FILE="$dir/stats.json" \
+    ANTISURGE_STATUS__METRICS_LISTEN="127.0.0.1:$(free_port)" \
+    ANTISURGE_STATUS__HMI_LISTEN="127.0.0.1:$(free_port)" \
+    python3 - "$bin" "$dir" "$run_s" <<'PY'
+import os, resource, subprocess, sys
+bin, d, run_s = sys.argv[1], sys.argv[2], sys.argv[3]
+r = subprocess.run([bin, "run", "--config", "config/antisurge.toml", "--duration-s", run_s,
+                    "--out", f"{d}/out"], capture_output=True, text=True)
+if r.returncode != 0:
+    sys.exit(f"rss.sh: antisurge run failed:\n{r.stdout}{r.stderr}")
+kib = resource.getrusage(resource.RUSAGE_CHILDREN).ru_maxrss
+with open(f"{d}/out/trace.csv", "rb") as f:
+    rows = sum(1 for _ in f) - 1
+size = os.path.getsize(f"{d}/out/trace.csv")
+line = next((l.split("INFO ")[-1] for l in (r.stdout + r.stderr).splitlines()
+             if "trace rows written" in l), "")
+print(f"antisurge run --out --duration-s {run_s} {bin}: {line}")
+print(f"  trace.csv                  {rows} rows, {size / 2**20:.1f} MiB")
+print(f"  max RSS (getrusage)        {kib:6d} KiB = {kib / 1024:5.1f} MiB = {kib * 1024 / 1e6:5.1f} MB")
+PY
+    exit 0
+fi
 if [[ ${1:-} == sim ]]; then
     sim_s=${2:-3600}
     bin=${3:-}
@@ -31,18 +90,7 @@ if [[ ${1:-} == sim ]]; then
     fi
     dir=$(mktemp -d)
     trap 'rm -rf "$dir"' EXIT
-    cat >"$dir/long.toml" <<SCENARIO
-name = "long-hold"
-description = "throttle 60 % -> 20 % over 2 s at 5 s, then held (benches/rss.sh sim)"
-duration_s = $sim_s
-
-[initial]
-throttle = 0.6
-
-[[event]]
-at_s = 5.0
-ramp = { signal = "throttle", to = 0.2, over_s = 2.0 }
-SCENARIO
+    long_scenario "$dir/long.toml" "$sim_s"
     python3 - "$bin" "$dir" <<'PY'
 import os, resource, subprocess, sys
 bin, d = sys.argv[1], sys.argv[2]
@@ -67,7 +115,6 @@ bin=$PWD/target/release/antisurge
 dir=$(mktemp -d)
 pid=
 trap '[[ -n $pid ]] && kill "$pid" 2>/dev/null; rm -rf "$dir"' EXIT
-free_port() { python3 -c 'import socket; s=socket.socket(); s.bind(("127.0.0.1",0)); print(s.getsockname()[1])'; }
 ANTISURGE_EVENT_LOG__PATH="$dir/events.jsonl" \
 ANTISURGE_STATUS__SOCKET="$dir/status.sock" \
 ANTISURGE_STATUS__STATE_DIR="$dir/state" \

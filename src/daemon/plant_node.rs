@@ -16,7 +16,9 @@ use crate::runtime::handoff::{
 };
 use crate::signals::{ActuatorCommands, ActuatorId, SensorId};
 use crate::sim::summary::DeviceWatchdogTrip;
+use crate::sim::trace_handoff::{TraceHandoff, TraceWriter};
 use crate::sim::{ControllerView, PlantRun, SimResult};
+use std::path::Path;
 use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
 use std::sync::Arc;
 
@@ -304,4 +306,55 @@ impl<'a> PlantNode<'a> {
     pub fn result(&self, law: &str) -> SimResult {
         self.run.finish(law)
     }
+
+    /// End the run's trace handoff ([`PlantRun::close_handoff`]): the writer thread writes
+    /// the last rows and ends. The rows dropped, `None` if the trace is not handed over.
+    pub fn close_trace(&mut self) -> Option<u64> {
+        self.run.close_handoff()
+    }
+
+    /// The result of a run whose trace went to a writer thread ([`PlantRun::finish_written`]).
+    pub fn result_written(
+        &self,
+        law: &str,
+        written: &crate::sim::trace_handoff::WrittenTrace,
+    ) -> Result<SimResult, crate::sim::SimError> {
+        self.run.finish_written(law, written)
+    }
+}
+
+/// Start writing a plant node's trace to `dir/trace.csv` as the run goes: the writer thread
+/// ([`TraceWriter`]) and the handoff for the plant's run ([`PlantRun::handing_trace_to`]). Call
+/// it from a thread of ordinary priority, before the plant thread starts.
+pub fn start_trace(
+    desc: &PlantDescription,
+    scenario: &crate::scenario::Scenario,
+    dir: &Path,
+) -> Result<(TraceHandoff, TraceWriter), crate::sim::SimError> {
+    let volumetric =
+        desc.map.flow_coordinate == crate::physics::compressor_map::FlowCoordinate::InletVolumeM3S;
+    TraceWriter::start(
+        dir,
+        volumetric,
+        crate::sim::runner::trace_period_s(scenario),
+        scenario.last_event_s(),
+    )
+}
+
+/// After the plant's loop: end the trace handoff, wait for the writer to write the last rows,
+/// log the rows written and dropped, and return the result (its summary with the dropped
+/// count).
+pub fn finish_trace(
+    node: &mut PlantNode<'_>,
+    writer: TraceWriter,
+    law: &str,
+) -> Result<SimResult, crate::sim::SimError> {
+    node.close_trace();
+    let written = writer.finish()?;
+    if written.dropped > 0 {
+        tracing::warn!(target: "plant", "{}: {} trace rows written, {} dropped (the trace writer fell behind; the trace has gaps)", written.path.display(), written.rows, written.dropped);
+    } else {
+        tracing::info!(target: "plant", "{}: {} trace rows written, 0 dropped", written.path.display(), written.rows);
+    }
+    node.result_written(law, &written)
 }

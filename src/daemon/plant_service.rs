@@ -1,6 +1,7 @@
 //! `antisurge plant`: the simulated skid as a node on the same buses and register map as
 //! the controller. Runs the configured scenario in real time from the controller's first
-//! heartbeat, then writes `trace.csv` and `summary.json`.
+//! heartbeat, writing `trace.csv` as it goes (from a writer thread) and `summary.json` at
+//! the end.
 
 use super::config::{self, Transport};
 use super::field::{spawn_plant_links, PlantLinks};
@@ -79,7 +80,6 @@ pub fn run(opts: &PlantOptions) -> Result<()> {
 
     // the plant thread
     let desc = l.sim_plant().map_err(|e| anyhow!("{e}"))?.clone();
-    let desc_map = desc.map;
     // the device watchdog time: the map's Modbus watchdog contract, else the simulation's
     let hb_ms = l
         .signal_map
@@ -90,12 +90,17 @@ pub fn run(opts: &PlantOptions) -> Result<()> {
     let hold = l.config.simulation.hold_after_end;
     let rt_settings = l.config.cycle;
     let (st, stp, lk) = (Arc::clone(&status), Arc::clone(&stop), links.clone());
+    // the trace streams to out_dir/trace.csv from a writer thread started here, of ordinary
+    // priority (the plant thread below takes real-time priority and only hands it the rows)
+    let (handoff, writer) = super::plant_node::start_trace(&desc, &scenario, &out_dir)
+        .map_err(|e| anyhow!("plant trace: {e}"))?;
     let plant = std::thread::Builder::new()
         .name("antisurge-plant".into())
         .spawn(move || -> Result<crate::sim::SimResult> {
             let granted = setup_current_thread(&rt_settings);
             tracing::info!(target: "rt", "plant thread: {granted}");
-            let run = PlantRun::new(&desc, &scenario).map_err(|e| anyhow!("{e}"))?;
+            let run = PlantRun::handing_trace_to(&desc, &scenario, handoff)
+                .map_err(|e| anyhow!("{e}"))?;
             let mut node = PlantNode::new(
                 &desc,
                 run,
@@ -120,7 +125,8 @@ pub fn run(opts: &PlantOptions) -> Result<()> {
                     .find(|l| l.code() == c)
                     .copied()
             });
-            Ok(node.result(law.map_or("unknown", |l| l.name())))
+            super::plant_node::finish_trace(&mut node, writer, law.map_or("unknown", |l| l.name()))
+                .map_err(|e| anyhow!("{e}"))
         })?;
 
     // wait for the end of the scenario or a signal
@@ -159,7 +165,7 @@ pub fn run(opts: &PlantOptions) -> Result<()> {
     let mut result = result;
     result.summary.field_failsafe_entries = Some(status.failsafe_entries.load(Ordering::Relaxed));
     result.summary.device_watchdog = status.device_watchdog();
-    crate::sim::output::write_data(&out_dir, &result, &desc_map).map_err(|e| anyhow!("{e}"))?;
+    crate::sim::output::write_summary(&out_dir, &result.summary).map_err(|e| anyhow!("{e}"))?;
     let s = &result.summary;
     println!(
         "plant {} · scenario {} · law {}: {} · {} surge cycles · min flow {:.3} kg/s · field fail-safe entered {} time(s)\n  files in {}/",

@@ -156,17 +156,32 @@ fn spawn_in_process_plant(
     let law = l.law.name().to_string();
     let status = Arc::new(PlantStatus::default());
     let st = Arc::clone(&status);
+    // the trace streams to out_dir/trace.csv from a writer thread started here, of ordinary
+    // priority (issue 25: the whole trace was kept until exit); the plant thread only hands
+    // it the rows
+    let trace = match &out_dir {
+        Some(dir) => Some(
+            super::plant_node::start_trace(&desc, &scenario, dir)
+                .map_err(|e| anyhow!("in-process plant trace: {e}"))?,
+        ),
+        None => None,
+    };
     let handle = std::thread::Builder::new()
         .name("antisurge-plant".into())
         .stack_size(crate::runtime::rt_loop::WORKER_THREAD_STACK_BYTES)
         .spawn(move || -> Result<Option<PathBuf>> {
-            let run = PlantRun::new(&desc, &scenario).map_err(|e| anyhow!("{e}"))?;
             // a trace no one writes is not kept (issue 25: 3 MB of the default run's RSS)
-            let run = if out_dir.is_some() {
-                run
-            } else {
-                run.without_trace()
+            let (run, writer) = match trace {
+                Some((handoff, writer)) => (
+                    PlantRun::handing_trace_to(&desc, &scenario, handoff),
+                    Some(writer),
+                ),
+                None => (
+                    PlantRun::new(&desc, &scenario).map(PlantRun::without_trace),
+                    None,
+                ),
             };
+            let run = run.map_err(|e| anyhow!("{e}"))?;
             let mut node = PlantNode::new(
                 &desc,
                 run,
@@ -179,9 +194,10 @@ fn spawn_in_process_plant(
             let period = (scenario.file.control_period_s * 1e9).round() as u64;
             let stats = CycleStats::default();
             run_periodic(period, &stop, &stats, |_| node.step(monotonic_ns()));
-            if let Some(dir) = out_dir {
-                let result = node.result(&law);
-                crate::sim::output::write_data(&dir, &result, &desc.map)
+            if let (Some(dir), Some(writer)) = (out_dir, writer) {
+                let result = super::plant_node::finish_trace(&mut node, writer, &law)
+                    .map_err(|e| anyhow!("{e}"))?;
+                crate::sim::output::write_summary(&dir, &result.summary)
                     .map_err(|e| anyhow!("{e}"))?;
                 return Ok(Some(dir));
             }

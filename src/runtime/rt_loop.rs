@@ -70,7 +70,7 @@ pub const IO_THREAD_STACK_BYTES: usize = 512 * 1024;
 pub const CONTROL_THREAD_STACK_BYTES: usize = 1024 * 1024;
 
 /// Stack of the daemon's worker threads that parse, format or simulate (in-process plant,
-/// black-box recorder), bytes.
+/// black-box recorder, trace writer), bytes.
 pub const WORKER_THREAD_STACK_BYTES: usize = 512 * 1024;
 
 /// Stack of the daemon's small service threads (watchdog, event-log writer), bytes.

@@ -8,6 +8,7 @@ pub mod stream;
 pub mod summary;
 pub mod table;
 pub mod trace;
+pub mod trace_handoff;
 
 pub use case::PlantCase;
 pub use runner::{

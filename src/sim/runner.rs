@@ -6,6 +6,7 @@ use super::summary::{
     LawEventCounts, ModeEpisode, Summary,
 };
 use super::trace::{CsvTraceWriter, TraceRow};
+use super::trace_handoff::{TraceHandoff, WrittenTrace};
 use crate::control::core::{ControlCore, CoreSettings, Mode};
 use crate::control::law::LawEvent;
 use crate::control::measurements::{OperatorInputs, RawSensors};
@@ -190,6 +191,9 @@ enum TraceSink {
     Memory(Vec<TraceRow>),
     /// Written to `trace.csv` as they come, with a bounded picture of them.
     Stream(Box<StreamSink>),
+    /// Handed to a writer thread that writes them to `trace.csv` (a plant stepped in real
+    /// time: [`PlantRun::handing_trace_to`]).
+    Handoff(TraceHandoff),
     /// Not kept.
     Off,
 }
@@ -481,6 +485,27 @@ impl ControllerView {
 impl<'a> PlantRun<'a> {
     /// Start the plant at the scenario's initial state.
     pub fn new(desc: &'a PlantDescription, scenario: &'a Scenario) -> Result<Self, SimError> {
+        Self::build(desc, scenario, None)
+    }
+
+    /// [`PlantRun::new`] with the trace rows handed to a writer thread as they come instead of
+    /// kept ([`super::trace_handoff::TraceWriter`]): for a plant stepped in real time, whose
+    /// thread must not write files. No trace store is reserved. [`PlantRun::close_handoff`]
+    /// ends the handoff, [`PlantRun::finish_written`] makes the result with the writer's
+    /// settle log.
+    pub fn handing_trace_to(
+        desc: &'a PlantDescription,
+        scenario: &'a Scenario,
+        handoff: TraceHandoff,
+    ) -> Result<Self, SimError> {
+        Self::build(desc, scenario, Some(TraceSink::Handoff(handoff)))
+    }
+
+    fn build(
+        desc: &'a PlantDescription,
+        scenario: &'a Scenario,
+        trace: Option<TraceSink>,
+    ) -> Result<Self, SimError> {
         let init = desc.file.initial;
         let timeline = Timeline::new(scenario, init.throttle, init.recycle_valve, init.feed);
         let st0 = timeline.initial();
@@ -500,7 +525,7 @@ impl<'a> PlantRun<'a> {
         let t0_torque = plant.truth().load_torque_nm;
         let dt = scenario.file.control_period_s;
         let n_steps = (scenario.file.duration_s / dt).round() as usize;
-        let trace_every = ((scenario.file.trace_period_s / dt).round() as usize).max(1);
+        let trace_every = trace_every(scenario);
         let frozen = plant.sensors();
         let last_recycle_pos = plant.truth().recycle_valve_position;
         let sup = CoreSettings::defaults_for(&model).supervisor;
@@ -549,9 +574,11 @@ impl<'a> PlantRun<'a> {
             law_events: LawEventCounts::default(),
             // preallocation bounded (TRACE_PREALLOC_ROWS); a longer trace grows as it is
             // written, so a day-long scenario does not lock its whole trace at start
-            trace: TraceSink::Memory(Vec::with_capacity(
-                (n_steps / trace_every + 2).min(TRACE_PREALLOC_ROWS),
-            )),
+            trace: trace.unwrap_or_else(|| {
+                TraceSink::Memory(Vec::with_capacity(
+                    (n_steps / trace_every + 2).min(TRACE_PREALLOC_ROWS),
+                ))
+            }),
             tail: TailStats::new(scenario.last_event_s(), trace_every as f64 * dt),
             trace_every,
             surge_margin: Box::new(move |q, r| model.surge_margin(q, r)),
@@ -589,6 +616,38 @@ impl<'a> PlantRun<'a> {
             pictures: PictureTrace::with_rows(self.n_steps() / self.trace_every + 1),
         }));
         Ok(self)
+    }
+
+    /// End the handoff of [`PlantRun::handing_trace_to`] (the writer thread then writes the last
+    /// rows and ends): the rows dropped because its queue was full. `None` for a run whose
+    /// trace is not handed over.
+    pub fn close_handoff(&mut self) -> Option<u64> {
+        match std::mem::replace(&mut self.trace, TraceSink::Off) {
+            TraceSink::Handoff(h) => Some(h.dropped()),
+            other => {
+                self.trace = other;
+                None
+            }
+        }
+    }
+
+    /// The result of a run whose trace was handed to a writer thread
+    /// ([`PlantRun::handing_trace_to`]), labelled with the law's name: the settle time from the
+    /// writer's settle log, the rows it dropped in the summary.
+    pub fn finish_written(&self, law: &str, written: &WrittenTrace) -> Result<SimResult, SimError> {
+        let (mut result, error) = self.summarize_with(law, Some(&written.tail));
+        match error {
+            Some(SimError::Output { source, .. }) => {
+                return Err(SimError::Output {
+                    path: written.path.clone(),
+                    source,
+                })
+            }
+            Some(e) => return Err(e),
+            None => {}
+        }
+        result.summary.trace_rows_dropped = Some(written.dropped);
+        Ok(result)
     }
 
     /// Finish a streamed trace ([`PlantRun::stream_to`]): the file flushed, and what the
@@ -787,6 +846,7 @@ impl<'a> PlantRun<'a> {
                     s.csv.push(&row);
                     s.pictures.push(&row);
                 }
+                TraceSink::Handoff(h) => h.push(&row),
                 TraceSink::Off => {}
             }
         }
@@ -821,6 +881,16 @@ impl<'a> PlantRun<'a> {
     }
 
     fn summarize(&self, law: &str) -> (SimResult, Option<SimError>) {
+        self.summarize_with(law, None)
+    }
+
+    /// The result; the settle time from `written` (a trace handed to a writer thread), else
+    /// from the run's own tail and trace.
+    fn summarize_with(
+        &self,
+        law: &str,
+        written: Option<&TailStats>,
+    ) -> (SimResult, Option<SimError>) {
         let wall_s = self.wall.elapsed().as_secs_f64();
         let trace: &[TraceRow] = match &self.trace {
             TraceSink::Memory(rows) => rows,
@@ -870,7 +940,8 @@ impl<'a> PlantRun<'a> {
         }
         let mut error = None;
         let settle = if stable {
-            self.tail
+            written
+                .unwrap_or(&self.tail)
                 .settle_time(trace, 0.02, 1e-4)
                 .unwrap_or_else(|source| {
                     error = Some(SimError::Output {
@@ -915,6 +986,7 @@ impl<'a> PlantRun<'a> {
             realtime_factor: duration / wall_s.max(1e-9),
             field_failsafe_entries: None,
             device_watchdog: None,
+            trace_rows_dropped: None,
         };
         (
             SimResult {
@@ -924,6 +996,18 @@ impl<'a> PlantRun<'a> {
             error,
         )
     }
+}
+
+/// Control steps between two trace rows of `scenario` (its trace period rounded to whole
+/// control periods, at least one).
+fn trace_every(scenario: &Scenario) -> usize {
+    ((scenario.file.trace_period_s / scenario.file.control_period_s).round() as usize).max(1)
+}
+
+/// Time between two trace rows of `scenario`, s: its trace period rounded to whole control
+/// periods.
+pub fn trace_period_s(scenario: &Scenario) -> f64 {
+    trace_every(scenario) as f64 * scenario.file.control_period_s
 }
 
 /// Run a scenario on a plant with a law. `progress` receives the completed fraction.

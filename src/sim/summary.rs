@@ -189,6 +189,11 @@ pub struct Summary {
     /// after which last heartbeat change), so a test can bound the watchdog's timing.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub device_watchdog: Option<DeviceWatchdogTrip>,
+    /// Real-time plant (`antisurge run --out`, `antisurge plant`) only: trace rows the plant
+    /// thread dropped because the trace writer's queue was full (the trace has gaps where
+    /// this is not 0).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub trace_rows_dropped: Option<u64>,
 }
 
 /// When the plant's device watchdog first failed the field devices safe, and when it last

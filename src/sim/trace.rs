@@ -275,6 +275,15 @@ impl<W: Write> CsvTraceWriter<W> {
         }
     }
 
+    /// Write out the rows held in the buffer: whole lines (the buffer holds whole lines and
+    /// is written out whole), so a reader of complete lines sees no torn row. An error is kept as
+    /// [`CsvTraceWriter::push`]'s are.
+    pub fn flush(&mut self) {
+        if self.error.is_none() {
+            self.error = self.out.flush().err();
+        }
+    }
+
     /// Rows written so far.
     pub fn rows(&self) -> u64 {
         self.rows

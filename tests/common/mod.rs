@@ -72,6 +72,7 @@ pub mod daemon;
 pub mod faults;
 pub mod node;
 pub mod peak_alloc;
+pub mod plant_node;
 
 /// Mean of one trace column over the rows from `t0_s` on (a settled tail), NaN if none.
 pub fn mean_from(
