@@ -12,7 +12,8 @@ pub struct SimulationSection {
     /// Scenario name (`config/scenarios`) or file, relative to the main config file.
     #[serde(default = "d_scenario")]
     pub scenario: String,
-    /// Where the plant writes `trace.csv` and `summary.json` when the scenario ends.
+    /// Where `antisurge plant` streams `trace.csv` and writes `summary.json` when the scenario
+    /// ends (`antisurge run`'s in-process plant takes `--out DIR` instead).
     #[serde(default)]
     pub out_dir: Option<PathBuf>,
     /// Field devices go to their own fail-safe when no controller heartbeat arrived for this
