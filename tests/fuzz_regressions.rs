@@ -120,3 +120,13 @@ fn implausible_scale_is_refused() {
         }
     }
 }
+
+/// `event_reader` (CI, 2026-11-28): a `--since` argument whose byte 19 falls inside a
+/// multi-byte character panicked in the slicing of the time parser; it is an error now.
+#[test]
+fn a_since_argument_torn_at_byte_19_is_an_error() {
+    let input = b"`2afri~ca/asmara\x063\xc2\x92\x1a";
+    let text = std::str::from_utf8(input).expect("the crash input is UTF-8");
+    let now = antisurge::events::Timestamp::now();
+    assert!(antisurge::events::reader::parse_since(text, now).is_err());
+}
