@@ -25,21 +25,7 @@ static GLOBAL: Peak = Peak;
 const MIB: usize = 1 << 20;
 
 fn scenario(duration_s: f64) -> antisurge::scenario::Scenario {
-    common::scenario_text(&format!(
-        r#"
-name = "long-hold"
-description = "throttle closure at 5 s, then held"
-duration_s = {duration_s}
-[initial]
-throttle = 0.6
-[[event]]
-at_s = 0.0
-noise = {{ sensors = ["p_discharge", "p_suction"], amplitude = 2000.0, distribution = "uniform" }}
-[[event]]
-at_s = 5.0
-ramp = {{ signal = "throttle", to = 0.2, over_s = 2.0 }}
-"#
-    ))
+    common::long_hold_scenario(duration_s)
 }
 
 /// What [`streamed_run`] saw.

@@ -601,14 +601,7 @@ impl<'a> PlantRun<'a> {
     /// a log in an unnamed file in `dir`). `volumetric`: the map's flow coordinate is inlet
     /// volume flow (the file's last column). [`PlantRun::close_trace`] finishes the file.
     pub fn stream_to(mut self, dir: &Path, volumetric: bool) -> Result<Self, SimError> {
-        let err = |path: &Path| {
-            let path = path.to_path_buf();
-            move |source| SimError::Output { path, source }
-        };
-        std::fs::create_dir_all(dir).map_err(err(dir))?;
-        let path = dir.join("trace.csv");
-        let file = std::fs::File::create(&path).map_err(err(&path))?;
-        self.tail.log_settle_in(dir).map_err(err(dir))?;
+        let (file, path) = super::stream::open_trace(dir, &mut self.tail)?;
         self.trace = TraceSink::Stream(Box::new(StreamSink {
             csv: CsvTraceWriter::new(file, volumetric),
             path,

@@ -7,7 +7,7 @@ use super::trace::TraceRow;
 use std::borrow::Cow;
 use std::collections::VecDeque;
 use std::io::Write;
-use std::path::Path;
+use std::path::{Path, PathBuf};
 
 /// Rows the picture keeps exactly: a run of up to this many trace rows (82 s at the default
 /// 5-ms trace period) is drawn from every row, as the whole trace was. A longer run keeps the
@@ -467,6 +467,23 @@ impl TailStats {
         }
         Ok(settle.finish(last.t_s))
     }
+}
+
+/// Open `dir/trace.csv` for a streamed trace (the directory created) and move `tail`'s settle
+/// log into `dir`: the one start of `sim --out` and of the daemon's handed-off trace.
+pub(crate) fn open_trace(
+    dir: &Path,
+    tail: &mut TailStats,
+) -> Result<(std::fs::File, PathBuf), super::SimError> {
+    let err = |path: &Path| {
+        let path = path.to_path_buf();
+        move |source| super::SimError::Output { path, source }
+    };
+    std::fs::create_dir_all(dir).map_err(err(dir))?;
+    let path = dir.join("trace.csv");
+    let file = std::fs::File::create(&path).map_err(err(&path))?;
+    tail.log_settle_in(dir).map_err(err(dir))?;
+    Ok((file, path))
 }
 
 #[cfg(test)]

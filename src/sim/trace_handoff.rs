@@ -118,15 +118,8 @@ impl TraceWriter {
         trace_period_s: f64,
         t_last_event_s: f64,
     ) -> Result<(TraceHandoff, TraceWriter), SimError> {
-        let err = |path: &Path| {
-            let path = path.to_path_buf();
-            move |source| SimError::Output { path, source }
-        };
-        std::fs::create_dir_all(dir).map_err(err(dir))?;
-        let path = dir.join("trace.csv");
-        let file = std::fs::File::create(&path).map_err(err(&path))?;
         let mut tail = TailStats::new(t_last_event_s, trace_period_s);
-        tail.log_settle_in(dir).map_err(err(dir))?;
+        let (file, path) = super::stream::open_trace(dir, &mut tail)?;
         let cap = queue_rows(trace_period_s);
         let (tx, rx) = rtrb::RingBuffer::new(cap);
         let shared = Arc::new(Shared::default());
@@ -137,7 +130,10 @@ impl TraceWriter {
             // sized like the daemon's other workers: under mlockall a whole stack is resident
             .stack_size(crate::runtime::rt_loop::WORKER_THREAD_STACK_BYTES)
             .spawn(move || write_rows(rx, cap, csv, tail, &sh))
-            .map_err(err(&path))?;
+            .map_err(|source| SimError::Output {
+                path: path.clone(),
+                source,
+            })?;
         Ok((
             TraceHandoff {
                 tx,

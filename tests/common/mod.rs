@@ -40,6 +40,26 @@ pub fn scenario_text(text: &str) -> Scenario {
     Scenario::from_file(file, path, text).unwrap_or_else(|e| panic!("{e}"))
 }
 
+/// The long-hold scenario of the memory tests: transmitter noise from the start, the
+/// throttle closed 60 % -> 20 % over 2 s at 5 s, then held for `duration_s`.
+pub fn long_hold_scenario(duration_s: f64) -> Scenario {
+    scenario_text(&format!(
+        r#"
+name = "long-hold"
+description = "throttle closure at 5 s, then held"
+duration_s = {duration_s}
+[initial]
+throttle = 0.6
+[[event]]
+at_s = 0.0
+noise = {{ sensors = ["p_discharge", "p_suction"], amplitude = 2000.0, distribution = "uniform" }}
+[[event]]
+at_s = 5.0
+ramp = {{ signal = "throttle", to = 0.2, over_s = 2.0 }}
+"#
+    ))
+}
+
 /// Run a scenario through the same code path as `antisurge sim`.
 pub fn simulate(plant: &PlantCase, scenario: &Scenario, law: LawId) -> SimResult {
     simulate_with(plant, scenario, law, &mut |_, _| {})
