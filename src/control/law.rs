@@ -456,6 +456,8 @@ pub enum TripCause {
     TripLine,
     /// The operating point was predicted to cross the trip line within the lead time.
     PredictedCrossing,
+    /// The throttle's closing predicted the crossing before the flow showed it.
+    ThrottleClosure,
     /// The shaft decelerated like a drive trip (emergency shutdown).
     SpeedDecay,
 }

@@ -8,6 +8,7 @@
 //! | recycle trip | [`trip`] | `[controller.recycle_pi.trip]` | open-loop step on crossing, or predicted crossing, of the trip line |
 //! | closing limiter | [`closing`] | `[controller.recycle_pi.closing]` | closes no faster than a rate, never below the opening the control line needs |
 //! | safety-on | [`safety_on`] | `[controller.recycle_pi.safety_on]` | moves the control line right after each detected surge |
+//! | throttle watch | [`throttle`] | `[controller.recycle_pi.throttle]` | the process valve's closing, seen before the flow follows, predicts the crossing for the trip |
 //! | ESD detection | [`esd`] | `[controller.recycle_pi.esd]` | opens fully on a drive trip (shaft deceleration) |
 //! | start and resume | [`start_opening`] | none | bumpless from the *measured* valve position |
 //!
@@ -48,12 +49,15 @@ pub mod closing;
 pub mod esd;
 pub mod pi;
 pub mod safety_on;
+pub mod samples;
+pub mod throttle;
 pub mod trip;
 
 pub use closing::{ClosingConfig, ClosingLimiter};
 pub use esd::{EsdConfig, EsdDetector};
 pub use pi::{ControlVariable, Pi, PiConfig};
 pub use safety_on::{SafetyOn, SafetyOnConfig};
+pub use throttle::{ThrottleConfig, ThrottlePrediction, ThrottleWatch};
 pub use trip::{RecycleTrip, TripConfig, TripKind};
 
 use super::law::{LawError, LawEvent, LawId, LawInputs, LawOutput, SurgeLaw, TripCause};
@@ -81,6 +85,8 @@ pub struct RecyclePiConfig {
     pub pi: PiConfig,
     /// The recycle trip.
     pub trip: TripConfig,
+    /// The throttle watch (feeds the trip).
+    pub throttle: ThrottleConfig,
     /// The closing limiter.
     pub closing: ClosingConfig,
     /// Safety-on.
@@ -97,6 +103,7 @@ impl Default for RecyclePiConfig {
             fallback_speed_line_check: true,
             pi: PiConfig::default(),
             trip: TripConfig::default(),
+            throttle: ThrottleConfig::default(),
             closing: ClosingConfig::default(),
             safety_on: SafetyOnConfig::default(),
             esd: EsdConfig::default(),
@@ -158,6 +165,7 @@ pub struct RecyclePi {
     q_ref: f64,
     pi: Pi,
     trip: RecycleTrip,
+    throttle: ThrottleWatch,
     closing: ClosingLimiter,
     safety_on: SafetyOn,
     esd: EsdDetector,
@@ -272,6 +280,7 @@ impl RecyclePi {
             q_ref,
             pi: Pi::new(kp_z, ki_z, cfg.pi.z_filter_hz),
             trip: RecycleTrip::new(&cfg.trip, stroke_time_s),
+            throttle: ThrottleWatch::new(&cfg.throttle),
             closing: ClosingLimiter::new(&cfg.closing, characteristic),
             safety_on: SafetyOn::new(&cfg.safety_on),
             esd: EsdDetector::new(&cfg.esd),
@@ -352,9 +361,11 @@ impl RecyclePi {
             && self.cfg.control_line == old.cfg.control_line
             && self.cfg.pi.z_filter_hz == old.cfg.pi.z_filter_hz;
         self.trip.take_over(&old.trip);
+        self.throttle.take_over(&old.throttle);
         if !same_z || !old.u_last.is_finite() {
             // the counters stay; the rest starts afresh from the applied opening
             self.trip.restart();
+            self.throttle.restart();
             return false;
         }
         self.pi.take_over(&old.pi);
@@ -393,6 +404,7 @@ impl SurgeLaw for RecyclePi {
         self.u_last = u0;
         self.pi.start(u0, z0);
         self.trip.restart();
+        self.throttle.restart();
         self.esd.restart();
         self.part = OutputPart::Pi;
         self.last_fallback = m.flow_fallback;
@@ -457,9 +469,32 @@ impl SurgeLaw for RecyclePi {
             } else {
                 0.0
             };
-        let (trip_demand, trip_fired) =
-            self.trip
-                .update(margin, t_sample_s, trip_line, gap, self.u_last, age_s, dt);
+        let mut throttle = self.throttle.update(
+            m.throttle_position,
+            t_sample_s,
+            self.trip.horizon_s(age_s),
+            self.cfg.trip.rate_window_s,
+            self.cfg.trip.noise_factor,
+            dt,
+        );
+        // the throttle passes the compressor flow less what the recycle valve returns
+        let share = throttle_share(inputs.model, m);
+        throttle.flow_ratio = 1.0 - share * (1.0 - throttle.flow_ratio);
+        let (trip_demand, trip_fired) = self.trip.update(
+            margin,
+            t_sample_s,
+            trip_line,
+            gap,
+            self.u_last,
+            age_s,
+            throttle,
+            dt,
+        );
+        if trip_fired == Some(TripKind::Throttle) {
+            self.throttle.stepped();
+        } else if !self.trip.holding() {
+            self.throttle.released();
+        }
 
         // ESD detection on the shaft speed
         let esd_started =
@@ -512,6 +547,7 @@ impl SurgeLaw for RecyclePi {
                 cause: match kind {
                     TripKind::Level => TripCause::TripLine,
                     TripKind::Predicted => TripCause::PredictedCrossing,
+                    TripKind::Throttle => TripCause::ThrottleClosure,
                 },
             })
         } else if self.safety_on.take_pending() {
@@ -531,6 +567,30 @@ impl SurgeLaw for RecyclePi {
         if self.safety_on.on_surge() {
             self.scl.shift = self.safety_on.shift();
         }
+    }
+}
+
+/// The fraction of the compressor flow that leaves through the throttle: 1 − w_r/w_c, the
+/// recycle flow w_r = C_v(u) √(2 ρ_d (p_d − p_s)) (seed 002 eq. 2.15) at the measured valve
+/// position, from the valve capacity of the machine data, ρ_d at the discharge pressure and
+/// the polytropic discharge temperature T_s R^σ (seed 002 eq. 2.2). Where the capacity, the
+/// position or a pressure is unknown: 1, the whole compressor flow (the bound the closing
+/// limiter uses too: the recycle flow is at most the compressor flow).
+pub fn throttle_share(model: &ControlModel, m: &super::measurements::Measurements) -> f64 {
+    let Some(valve) = model.recycle_valve else {
+        return 1.0;
+    };
+    let cv = valve.spec.cv_m2(m.recycle_position);
+    let r = m.p_discharge_pa / m.p_suction_pa;
+    let t_d = m.t_suction_k * r.max(1.0).powf(model.gas.polytropic_exponent);
+    let rho_d = model.gas.density_kg_m3(m.p_discharge_pa, t_d);
+    let dp = m.p_discharge_pa - m.p_suction_pa;
+    let w_r = cv * (2.0 * rho_d * dp.max(0.0)).sqrt();
+    let share = 1.0 - w_r / m.m_kg_s;
+    if share.is_finite() && m.m_kg_s > 0.0 {
+        share.clamp(0.0, 1.0)
+    } else {
+        1.0
     }
 }
 

@@ -88,25 +88,17 @@ pub enum TripKind {
     Level,
     /// The margin is predicted to pass the trip line within the lead time.
     Predicted,
+    /// The throttle's closing, seen before the flow follows, predicts the crossing
+    /// ([`super::throttle`]).
+    Throttle,
 }
 
-/// Length of the ring of distinct samples: a 20 ms window at 1 kHz needs 21.
-const RING: usize = 48;
+use super::samples::{DistinctSamples, RING};
 
-/// Time constant of the noise estimate, s: long against a surge period (≤ 1 s), so a surge's
-/// own swing, whose second difference is small at the sample rates used, hardly moves it.
-const NOISE_TAU_S: f64 = 1.0;
-
-/// Second differences in the noise estimate before the prediction arms: a plain mean of 8
-/// half second differences is within ±35 % of σ (two standard errors), which the 3σ
-/// allowance absorbs; fewer let a lucky low estimate fire the prediction on noise.
-const PREDICTION_ARMS_AFTER: u32 = 8;
-
-/// Or the prediction arms after this much loop time with a usable margin, s: one noise time
-/// constant. Transmitters that read the same value poll after poll for that long show no noise
-/// at their resolution (a steady, noise-free skid sends no distinct samples to count), and
-/// their first motion is the disturbance itself.
-const PREDICTION_ARMS_AFTER_S: f64 = NOISE_TAU_S;
+/// Samples of the trend ring over one lead time (the ring holds [`RING`]): the fitted slope's
+/// noise is √12 σ/(T √n), n = 40 samples cut it by 4.5 against the two ends' √2 σ/T.
+const TREND_SAMPLES: usize = RING - 8;
+use super::throttle::ThrottlePrediction;
 
 /// The recycle trip's state (fixed size).
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -120,22 +112,11 @@ pub struct RecycleTrip {
     noise_factor: f64,
     /// Time the valve needs to travel one step, s (repeat interval).
     repeat_s: f64,
-    margins: [f64; RING],
-    times_s: [f64; RING],
-    /// The last sample time at which each sample's value was read again (a value that stood
-    /// still over several polls was still there at its last poll: an approach that follows
-    /// began after it).
-    seen_s: [f64; RING],
-    at: usize,
-    len: usize,
-    /// Noise of the margin (σ), and the samples in it so far.
-    noise: f64,
-    noise_n: u32,
-    /// Loop time with a usable margin so far, s (arms the prediction, see
-    /// [`PREDICTION_ARMS_AFTER_S`]).
-    watched_s: f64,
-    /// Mean interval between distinct samples, s (NaN: unknown).
-    sample_dt_s: f64,
+    /// The margin's distinct samples, their noise and slope.
+    samples: DistinctSamples,
+    /// The margin's trend: distinct samples at least [`TREND_SAMPLES`]-th of the valve's
+    /// lead time apart, fitted over that lead time (see [`RecycleTrip::judge`]).
+    trend: DistinctSamples,
     /// Measurement time from which the condition has held (NaN: not holding).
     since_s: f64,
     /// Whether the condition holds (confirmed) at the newest sample, and its kind and depth.
@@ -179,15 +160,8 @@ impl RecycleTrip {
             hold_s: cfg.hold_s.max(0.0),
             noise_factor: cfg.noise_factor.max(0.0),
             repeat_s: travel_s.max(cfg.rate_window_s),
-            margins: [f64::NAN; RING],
-            times_s: [f64::NAN; RING],
-            seen_s: [f64::NAN; RING],
-            at: 0,
-            len: 0,
-            noise: 0.0,
-            noise_n: 0,
-            watched_s: 0.0,
-            sample_dt_s: f64::NAN,
+            samples: DistinctSamples::new(),
+            trend: DistinctSamples::new(),
             since_s: f64::NAN,
             firing: None,
             pending: None,
@@ -210,11 +184,8 @@ impl RecycleTrip {
     /// The prediction horizon with the loop's delay: the valve's lead, twice the sample age
     /// `age_s` and one sample period.
     pub fn horizon_s(&self, age_s: f64) -> f64 {
-        let period = if self.sample_dt_s.is_finite() {
-            self.sample_dt_s
-        } else {
-            0.0
-        };
+        let dt = self.samples.sample_dt_s();
+        let period = if dt.is_finite() { dt } else { 0.0 };
         let age = if age_s.is_finite() {
             age_s.max(0.0)
         } else {
@@ -226,7 +197,8 @@ impl RecycleTrip {
     /// Forget the samples and any held trip (a (re)start: the last samples are old). The
     /// noise estimate is kept: the transmitters are the same.
     pub fn restart(&mut self) {
-        self.len = 0;
+        self.samples.clear();
+        self.trend.clear();
         self.since_s = f64::NAN;
         self.firing = None;
         self.pending = None;
@@ -237,7 +209,8 @@ impl RecycleTrip {
     /// Forget the samples but keep a held trip (the flow source switched: the step between
     /// two sources is no approach).
     pub fn forget_samples(&mut self) {
-        self.len = 0;
+        self.samples.clear();
+        self.trend.clear();
         self.since_s = f64::NAN;
         self.pending = None;
     }
@@ -268,94 +241,16 @@ impl RecycleTrip {
 
     /// The measured noise of the margin (σ, fraction of surge-line flow).
     pub fn noise(&self) -> f64 {
-        self.noise
-    }
-
-    fn sample(&self, back: usize) -> (f64, f64) {
-        let i = (self.at + RING - back) % RING;
-        (self.margins[i], self.times_s[i])
-    }
-
-    /// The last time sample `back` was read again.
-    fn seen(&self, back: usize) -> f64 {
-        self.seen_s[(self.at + RING - back) % RING]
-    }
-
-    /// Record a margin sample taken at measurement time `t_s` when it is new: a later sample
-    /// time *and* a different value (a value held by a slower poll is one sample, whether or
-    /// not the bus tells its age; a margin that truly stands still carries no rate);
-    /// returns whether it was.
-    fn push(&mut self, margin: f64, t_s: f64) -> bool {
-        if !(margin.is_finite() && t_s.is_finite()) {
-            return false;
-        }
-        if self.len > 0 {
-            let (m0, t0) = self.sample(0);
-            if t_s <= t0 + 1e-9 {
-                return false;
-            }
-            if margin == m0 {
-                // the same value at a later poll: still there then
-                self.seen_s[self.at] = self.seen_s[self.at].max(t_s);
-                return false;
-            }
-            let dt = t_s - t0;
-            // (an outage is no sample period: at most 0.1 s counts)
-            let dt_c = dt.min(0.1);
-            self.sample_dt_s = if self.sample_dt_s.is_finite() {
-                self.sample_dt_s + (dt_c / NOISE_TAU_S).min(1.0) * (dt_c - self.sample_dt_s)
-            } else {
-                dt_c
-            };
-            if self.len > 1 {
-                let (m1, _) = self.sample(1);
-                // σ ≈ |m_k − 2 m_k−1 + m_k−2|/2 for white noise (E|·| = 1.95 σ), ≈ 0 on a ramp
-                let d2 = 0.5 * (margin - 2.0 * m0 + m1).abs();
-                self.noise_n = self.noise_n.saturating_add(1);
-                // a 1-s average, but a plain mean over its first samples (from zero a 1-s
-                // average reads no noise during the first second after a start); once the
-                // margin was watched for a noise time constant the estimate stands, zero
-                // included: a disturbance's first samples after a standstill are no noise
-                // to average in at full weight
-                let w = (dt / NOISE_TAU_S).clamp(0.0, 1.0);
-                let w = if self.watched_s >= NOISE_TAU_S {
-                    w
-                } else {
-                    w.max(1.0 / f64::from(self.noise_n))
-                };
-                self.noise += w * (d2 - self.noise);
-            }
-        }
-        self.at = (self.at + 1) % RING;
-        self.margins[self.at] = margin;
-        self.times_s[self.at] = t_s;
-        self.seen_s[self.at] = t_s;
-        self.len = (self.len + 1).min(RING);
-        true
-    }
-
-    /// Slope of the margin over the rate window, 1/s, and the window's span, s (NaN without
-    /// two samples). The window starts at the last poll that still read the oldest sample's
-    /// value: after a margin that stood still for seconds, the motion began after its last
-    /// reading, not seconds ago.
-    fn slope(&self) -> (f64, f64) {
-        if self.len < 2 {
-            return (f64::NAN, f64::NAN);
-        }
-        let (m0, t0) = self.sample(0);
-        let mut k = 1;
-        while k + 1 < self.len && t0 - self.seen(k) < self.rate_window_s {
-            k += 1;
-        }
-        let (mk, _) = self.sample(k);
-        let span = t0 - self.seen(k);
-        ((m0 - mk) / span, span)
+        self.samples.noise()
     }
 
     /// One cycle. `margin` is the surge margin now (measured at `t_s`), `trip_line` the trip
     /// line and `gap` the distance from the trip line to the control line (both fractions of
     /// surge-line flow at the measured ratio); `u_now` the valve output of the last cycle;
-    /// `age_s` how old the sample was when the law got it (bus latency, 0 in process).
+    /// `age_s` how old the sample was when the law got it (bus latency, 0 in process);
+    /// `throttle` the throttle watch's prediction for this cycle ([`ThrottlePrediction`]: the
+    /// flow the throttle will still pass at the end of the horizon, relative to what it passed,
+    /// and whether its sample is new; [`ThrottlePrediction::NONE`] without a throttle).
     /// Returns the opening the trip demands (NaN: none) and the kind of a step taken now.
     #[allow(clippy::too_many_arguments)] // one cycle's inputs, each a named quantity
     pub fn update(
@@ -366,6 +261,7 @@ impl RecycleTrip {
         gap: f64,
         u_now: f64,
         age_s: f64,
+        throttle: ThrottlePrediction,
         dt_s: f64,
     ) -> (f64, Option<TripKind>) {
         if !self.enabled {
@@ -373,13 +269,16 @@ impl RecycleTrip {
         }
         self.since_step_s += dt_s.max(0.0);
         self.since_sample_s += dt_s.max(0.0);
-        if margin.is_finite() {
-            self.watched_s += dt_s.max(0.0);
+        self.samples.watch(margin, dt_s);
+        let new_margin = self.samples.push(margin, t_s);
+        if new_margin {
+            self.trend
+                .push_spaced(margin, t_s, self.lead_time_s / TREND_SAMPLES as f64);
         }
-        if self.push(margin, t_s) {
+        if new_margin || (throttle.new_sample && !self.samples.is_empty()) {
             self.since_sample_s = 0.0;
-            self.judge(trip_line, age_s);
-        } else if let (Some((TripKind::Predicted, _)), true) =
+            self.judge(trip_line, age_s, t_s, throttle.flow_ratio);
+        } else if let (Some((TripKind::Predicted | TripKind::Throttle, _)), true) =
             (self.firing, self.since_sample_s > self.repeat_s)
         {
             // a prediction is about the samples' motion: with no new sample for a repeat
@@ -398,7 +297,7 @@ impl RecycleTrip {
             // the hold counts from the last time the condition held
             self.hold_left_s = self.hold_s.max(dt_s);
             let fresh = self.level <= 0.0 || self.since_step_s.is_infinite();
-            let escalate = kind == TripKind::Level && self.kind == TripKind::Predicted;
+            let escalate = kind == TripKind::Level && self.kind != TripKind::Level;
             let repeat = self.since_step_s >= self.repeat_s;
             if fresh || escalate || repeat {
                 let base = if u_now.is_finite() { u_now } else { 0.0 };
@@ -425,56 +324,74 @@ impl RecycleTrip {
         }
     }
 
-    /// Judge the newest sample: set `firing` when the level or predicted condition has held
+    /// Judge the newest samples (the margin's, and the throttle's prediction `throttle_ratio`,
+    /// taken at `t_s`): set `firing` when the level, predicted or throttle condition has held
     /// over the confirmation span.
-    fn judge(&mut self, trip_line: f64, age_s: f64) {
-        let (m0, t0) = self.sample(0);
+    fn judge(&mut self, trip_line: f64, age_s: f64, t_s: f64, throttle_ratio: f64) {
+        let (m0, _) = self.samples.sample(0);
         let k = self.noise_factor;
+        let noise = self.samples.noise();
         // (capped: a very noisy margin must still trip before the surge line)
-        let allowance = (k * self.noise).min(0.5 * trip_line.max(0.0));
+        let allowance = (k * noise).min(0.5 * trip_line.max(0.0));
         let threshold = trip_line - allowance;
-        let (slope, span) = self.slope();
+        let (slope, span, _) = self.samples.slope(self.rate_window_s);
         let slope_noise = if span > 0.0 {
-            std::f64::consts::SQRT_2 * self.noise / span
+            std::f64::consts::SQRT_2 * noise / span
         } else {
             0.0
         };
         // (the prediction needs the noise of its slope: armed once the noise estimate has
-        // PREDICTION_ARMS_AFTER samples or PREDICTION_ARMS_AFTER_S passed; a fresh law judges
-        // only the level until then)
-        let armed =
-            self.noise_n >= PREDICTION_ARMS_AFTER || self.watched_s >= PREDICTION_ARMS_AFTER_S;
-        let predicted = if slope.is_finite() && armed {
-            m0 + self.horizon_s(age_s) * (slope + k * slope_noise).min(0.0)
+        // enough samples or enough time passed; a fresh law judges only the level until then)
+        // two views of the approach, the more pessimistic one counts: the slope over the
+        // short rate window sees a slam at once; a least-squares trend over one lead time
+        // (the valve's travel of one step: the trend seen over one horizon, extrapolated
+        // over the next) sees a slow approach the short window's noise allowance hides
+        // (at 1 kHz and 0.3 % margin noise the short window cannot see an approach slower
+        // than ≈ 0.6/s, which crosses a 5 % gap in under 0.1 s)
+        let horizon = self.horizon_s(age_s);
+        let armed = self.samples.armed();
+        let mut predicted = if slope.is_finite() && armed {
+            m0 + horizon * (slope + k * slope_noise).min(0.0)
         } else {
             m0
         };
+        let (trend, per_sigma) = self.trend.fitted_slope(self.lead_time_s);
+        if trend.is_finite() && armed {
+            predicted = predicted.min(m0 + horizon * (trend + k * noise * per_sigma).min(0.0));
+        }
+        // the throttle's prediction: the compressor flow falls with the flow the throttle
+        // passes, q (1 + m) → q (1 + m) · ratio, from the margin the point has now
+        let by_throttle = if throttle_ratio.is_finite() && throttle_ratio < 1.0 {
+            (1.0 + m0) * throttle_ratio.max(0.0) - 1.0
+        } else {
+            f64::INFINITY
+        };
         // the step is sized on the penetration beyond the noise of the newest sample (k σ),
         // so a noisy sample neither fires the trip nor enlarges its step
-        let beyond = |p: f64| (threshold - p - k * self.noise).max(0.0);
+        let beyond = |p: f64| (threshold - p - k * noise).max(0.0);
+        let deepest = predicted.min(by_throttle);
         let cond = if m0 < threshold {
             // (sized on the deeper of where the point is and where it is heading: at a slow
             // poll the first sample after a slam is already past the line)
-            Some((TripKind::Level, beyond(predicted.min(m0))))
-        } else if predicted < threshold {
-            Some((TripKind::Predicted, beyond(predicted)))
+            Some((TripKind::Level, beyond(deepest.min(m0))))
+        } else if predicted < threshold && predicted <= by_throttle {
+            Some((TripKind::Predicted, beyond(deepest)))
+        } else if by_throttle < threshold {
+            Some((TripKind::Throttle, beyond(deepest)))
         } else {
             None
         };
         match cond {
             Some(c) => {
                 if !self.since_s.is_finite() {
-                    self.since_s = t0;
+                    self.since_s = t_s;
                     self.pending_s = 0.0;
                 }
                 self.pending = Some(c);
-                let period = if self.sample_dt_s.is_finite() {
-                    self.sample_dt_s
-                } else {
-                    0.0
-                };
+                let dt = self.samples.sample_dt_s();
+                let period = if dt.is_finite() { dt } else { 0.0 };
                 // each sample covers its own period
-                self.firing = if t0 - self.since_s + period >= self.confirm_s - 1e-9 {
+                self.firing = if t_s - self.since_s + period >= self.confirm_s - 1e-9 {
                     Some(c)
                 } else {
                     None
@@ -507,7 +424,7 @@ mod tests {
         while (k as f64) * dt < t_end {
             let t = k as f64 * dt;
             let t_sample = (t / period).floor() * period;
-            let (d, fired) = trip.update(margin(t_sample), t_sample, LINE, GAP, u, 0.0, dt);
+            let (d, fired) = trip.update(margin(t_sample), t_sample, LINE, GAP, u, 0.0, ThrottlePrediction::NONE, dt);
             if fired.is_some() {
                 return Some((t, d));
             }
@@ -572,7 +489,7 @@ mod tests {
         let mut fired = false;
         for k in 0..20_000 {
             let t = k as f64 * 1e-3;
-            let (_, f) = trip.update(0.10 + 0.03 * noise(3, t), t, LINE, GAP, 0.1, 0.0, 1e-3);
+            let (_, f) = trip.update(0.10 + 0.03 * noise(3, t), t, LINE, GAP, 0.1, 0.0, ThrottlePrediction::NONE, 1e-3);
             fired |= f.is_some();
         }
         assert!(fired);
@@ -594,7 +511,7 @@ mod tests {
             } else {
                 0.10 + quantum * f64::from(k / 100 % 2)
             };
-            let (_, f) = trip.update(m, t_sample, LINE, GAP, 0.0, t - t_sample, dt);
+            let (_, f) = trip.update(m, t_sample, LINE, GAP, 0.0, t - t_sample, ThrottlePrediction::NONE, dt);
             if k < 402 {
                 assert_eq!(f, None, "no trip in the standstill ({t} s)");
             } else {
@@ -631,7 +548,7 @@ mod tests {
             } else {
                 0.10 + 1e-6 * (k % 2) as f64
             };
-            fired = fired.or(fast.update(m, t, LINE, GAP, 0.1, 0.0, 1e-3).1);
+            fired = fired.or(fast.update(m, t, LINE, GAP, 0.1, 0.0, ThrottlePrediction::NONE, 1e-3).1);
         }
         assert_eq!(fired, None);
         let mut slow = RecycleTrip::new(&TripConfig::default(), 2.0);
@@ -642,7 +559,7 @@ mod tests {
             } else {
                 0.10 + 1e-6 * (k % 2) as f64
             };
-            fired = fired.or(slow.update(m, t, LINE, GAP, 0.1, 0.0, 0.02).1);
+            fired = fired.or(slow.update(m, t, LINE, GAP, 0.1, 0.0, ThrottlePrediction::NONE, 0.02).1);
         }
         assert_eq!(fired, Some(TripKind::Level));
     }
@@ -660,7 +577,7 @@ mod tests {
             } else {
                 0.10 + 1e-5 * (k % 2) as f64
             };
-            let (d, f) = trip.update(m, t, LINE, GAP, last, 0.0, dt);
+            let (d, f) = trip.update(m, t, LINE, GAP, last, 0.0, ThrottlePrediction::NONE, dt);
             if f.is_some() {
                 steps += 1;
             }
