@@ -152,7 +152,6 @@ fn recycle_pi_never_surges_more_than_baseline_pi() {
 /// Safety line of issue 22 on the reduced campaign: recycle-pi has zero surge cycles in every
 /// case the late oracle holds. Every failing case is listed with the command that reruns it.
 #[test]
-#[ignore = "not met by recycle-pi: 3 of the 26 reduced cases the late oracle holds (from the control line) surge once (cases 7, 16, 21; baseline-pi surges in 11 of the 26, 66 cycles); the detection of a throttle step under 0.3-1.4 % transmitter noise comes too late for valves with 30-200 ms dead time, which the law does not know"]
 fn recycle_pi_holds_every_case_the_late_oracle_holds() {
     let failures = safety_failures(|r| {
         let rp = r.recycle_pi.surge_cycles;

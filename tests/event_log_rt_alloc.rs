@@ -121,6 +121,7 @@ fn all_rt_events(i: u64) -> [RtEvent; 9] {
         RecycleTrip {
             reason: TripReason::SurgeDetected,
             cause: None,
+            criterion: Some(antisurge::control::law::TripCause::ThrottleClosure),
         }
         .into(),
     ]

@@ -449,8 +449,9 @@ pub enum LawEvent {
     },
 }
 
-/// Why a law's recycle trip fired.
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+/// Why a law's recycle trip fired (the event log's `criterion`).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
+#[serde(rename_all = "snake_case")]
 pub enum TripCause {
     /// The operating point crossed the trip line.
     TripLine,

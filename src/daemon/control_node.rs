@@ -594,11 +594,12 @@ impl ControlNode {
                 self.push(RecycleTrip {
                     reason: TripReason::External,
                     cause: Some(cause),
+                    criterion: None,
                 });
             }
         }
         match out.law_event {
-            Some(LawEvent::RecycleTrip { .. }) => {
+            Some(LawEvent::RecycleTrip { cause: criterion, .. }) => {
                 let m = &out.measurements;
                 let margin = self.core.model().surge_margin(m.flow_map, m.pressure_ratio);
                 let trip = self.core.control_line().map(|(_, t)| 100.0 * t);
@@ -608,6 +609,7 @@ impl ControlNode {
                 self.push(RecycleTrip {
                     reason: TripReason::FastApproach,
                     cause: Some(cause),
+                    criterion: Some(criterion),
                 })
             }
             Some(LawEvent::SafetyOnShift {

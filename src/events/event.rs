@@ -229,6 +229,10 @@ pub struct RecycleTrip {
     /// Detail: the surge margin and trip line, %.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub cause: Option<Cause>,
+    /// Which of the law's criteria fired (`trip_line`, `predicted_crossing`,
+    /// `throttle_closure`, `speed_decay`); absent for trips from outside the law.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub criterion: Option<crate::control::law::TripCause>,
 }
 
 /// A redundant transmitter changed state (voted out and by which check, deviating, healthy
@@ -852,6 +856,7 @@ pub(crate) mod tests {
                 Event::RecycleTrip(RecycleTrip {
                     reason: TripReason::SurgeDetected,
                     cause: None,
+                    criterion: None,
                 }),
                 r#"{"ts":"2024-05-01T12:34:56.123456Z","seq":42,"event":"recycle_trip","reason":"surge_detected"}"#,
             ),

@@ -271,6 +271,7 @@ mod tests {
         let ev = RecycleTrip {
             reason: TripReason::Operator,
             cause: None,
+            criterion: None,
         };
         assert!(tx.try_push(ev));
         assert!(tx.try_push(ev));

@@ -985,7 +985,8 @@ mod tests {
             t(2),
             RtEvent::RecycleTrip(crate::events::RecycleTrip {
                 reason: TripReason::External,
-                cause: None
+                cause: None,
+                criterion: None,
             })
         ));
         let s = log.sender();

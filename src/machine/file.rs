@@ -123,7 +123,8 @@ pub struct RecycleValveToml {
     /// Fail position (default open).
     #[serde(default)]
     pub fail_position: FailPosition,
-    /// Capacity as an effective area, m² (optional: recycle-pi does not use it).
+    /// Capacity as an effective area, m² (optional: recycle-pi's throttle watch takes the
+    /// throttle's share of the compressor flow from it; without it, the whole flow).
     #[serde(default)]
     pub cv_max_m2: Option<f64>,
 }

@@ -510,7 +510,19 @@ impl SurgeLaw for RecyclePi {
             } else {
                 self.u_last
             };
-            ClosingLimiter::approach_cap_per_s(u_pos, margin, trip_line, self.trip.horizon_s(age_s))
+            if self.trip.approaching() {
+                // the point still moves towards the line (the plant answering an earlier
+                // closing, or a disturbance): closing now would add to an approach whose
+                // end is not yet known; the closing waits until the point settles
+                0.0
+            } else {
+                ClosingLimiter::approach_cap_per_s(
+                    u_pos,
+                    margin,
+                    trip_line,
+                    self.trip.horizon_s(age_s),
+                )
+            }
         } else {
             f64::INFINITY
         };

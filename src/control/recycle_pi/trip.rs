@@ -117,6 +117,8 @@ pub struct RecycleTrip {
     /// The margin's trend: distinct samples at least [`TREND_SAMPLES`]-th of the valve's
     /// lead time apart, fitted over that lead time (see [`RecycleTrip::judge`]).
     trend: DistinctSamples,
+    /// The margin's drift: the same over the hold time (see [`RecycleTrip::approaching`]).
+    drift: DistinctSamples,
     /// Measurement time from which the condition has held (NaN: not holding).
     since_s: f64,
     /// Whether the condition holds (confirmed) at the newest sample, and its kind and depth.
@@ -162,6 +164,7 @@ impl RecycleTrip {
             repeat_s: travel_s.max(cfg.rate_window_s),
             samples: DistinctSamples::new(),
             trend: DistinctSamples::new(),
+            drift: DistinctSamples::new(),
             since_s: f64::NAN,
             firing: None,
             pending: None,
@@ -199,6 +202,7 @@ impl RecycleTrip {
     pub fn restart(&mut self) {
         self.samples.clear();
         self.trend.clear();
+        self.drift.clear();
         self.since_s = f64::NAN;
         self.firing = None;
         self.pending = None;
@@ -211,6 +215,7 @@ impl RecycleTrip {
     pub fn forget_samples(&mut self) {
         self.samples.clear();
         self.trend.clear();
+        self.drift.clear();
         self.since_s = f64::NAN;
         self.pending = None;
     }
@@ -237,6 +242,14 @@ impl RecycleTrip {
     /// Whether the trip holds the valve now.
     pub fn holding(&self) -> bool {
         self.hold_left_s > 0.0
+    }
+
+    /// Whether the margin's drift, fitted over the hold time (one period of the slowest
+    /// surge: the time the pressures take to answer a valve move), falls beyond its noise (k σ
+    /// of the fitted slope): the point is still moving towards the surge line.
+    pub fn approaching(&self) -> bool {
+        let (trend, per_sigma) = self.drift.fitted_slope(self.hold_s);
+        trend.is_finite() && trend + self.noise_factor * self.samples.noise() * per_sigma < 0.0
     }
 
     /// The measured noise of the margin (σ, fraction of surge-line flow).
@@ -274,6 +287,8 @@ impl RecycleTrip {
         if new_margin {
             self.trend
                 .push_spaced(margin, t_s, self.lead_time_s / TREND_SAMPLES as f64);
+            self.drift
+                .push_spaced(margin, t_s, self.hold_s / TREND_SAMPLES as f64);
         }
         if new_margin || (throttle.new_sample && !self.samples.is_empty()) {
             self.since_sample_s = 0.0;
