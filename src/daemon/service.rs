@@ -561,7 +561,7 @@ async fn serve(loaded: Loaded, opts: RunOptions) -> Result<()> {
     let (bb_tx, recorder) = crate::blackbox::Recorder::start(
         bb_dir,
         blackbox_header(&loaded),
-        crate::blackbox::DEFAULT_CAPACITY,
+        crate::blackbox::history_capacity(cfg.cycle.period_ns()),
     )
     .context("cannot start the black-box recorder")?;
     let node = node.with_black_box(bb_tx);
