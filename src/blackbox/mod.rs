@@ -804,6 +804,13 @@ mod tests {
         assert_eq!(cycles, vec![6, 7, 8, 9]);
     }
 
+    /// A record of a controller without redundant transmitters: no spare, no vote.
+    fn plain(k: u64) -> CycleRecord {
+        let mut r = record(k);
+        r.voted = [f64::NAN; crate::control::vote::VOTABLE.len()];
+        r
+    }
+
     /// A record with the spare transmitters of the votable measurements set.
     fn with_spares(k: u64) -> CycleRecord {
         let mut r = record(k);
@@ -820,7 +827,7 @@ mod tests {
         // records without spares, then with: the ring keeps the spares' part only from the
         // first record that has one, and the file is byte for byte the one the records make
         let recs: Vec<CycleRecord> = (0..30)
-            .map(|k| if k < 12 { record(k) } else { with_spares(k) })
+            .map(|k| if k < 12 { plain(k) } else { with_spares(k) })
             .collect();
         for cap in [8, 20, 50] {
             let mut ring = Ring::new(cap);
@@ -841,11 +848,10 @@ mod tests {
             assert_eq!(a, b, "capacity {cap}");
         }
         // and the part of a record without spares is what the file says for none
-        assert!(!Spares::of(&record(1)).any());
+        assert!(!Spares::of(&plain(1)).any());
         assert!(Spares::of(&with_spares(1)).any());
-        let mut voted_only = record(1);
-        voted_only.voted = [f64::NAN; crate::control::vote::VOTABLE.len()];
-        assert!(!Spares::of(&voted_only).any());
+        assert!(Spares::of(&record(1)).any(), "a vote alone is kept");
+        let mut voted_only = plain(1);
         voted_only.voted[2] = 3.0;
         assert!(Spares::of(&voted_only).any());
     }
