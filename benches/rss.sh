@@ -11,7 +11,8 @@
 # layer, so the run neither touches ./out nor collides with another daemon; every setting
 # that sizes memory is the shipped one. Nothing timing-related is asserted.
 #
-#   benches/rss.sh [DURATION_S]    (default 20)
+#   benches/rss.sh [DURATION_S] [BIN]    (default 20 s; BIN: another build, e.g. the .deb's
+#                                         `cargo build --profile dist` → target/dist/antisurge)
 #
 # `sim` mode: peak resident memory (getrusage of the child) of `antisurge sim --out` on a
 # scenario of SIM_S simulated seconds (default 3600: one hour, 720 001 trace rows at the
@@ -110,8 +111,11 @@ PY
     exit 0
 fi
 dur=${1:-20}
-nice -n 10 cargo build --release --quiet
-bin=$PWD/target/release/antisurge
+bin=${2:-}
+if [[ -z $bin ]]; then
+    nice -n 10 cargo build --release --quiet
+    bin=$PWD/target/release/antisurge
+fi
 dir=$(mktemp -d)
 pid=
 trap '[[ -n $pid ]] && kill "$pid" 2>/dev/null; rm -rf "$dir"' EXIT
@@ -140,7 +144,7 @@ pid=
 ru=$(python3 -c 'import json,sys; print(json.load(open(sys.argv[1]))["max_rss_kib"])' "$dir/stats.json")
 grep -m1 "control thread at" "$dir/run.log" | sed 's/^.*INFO //' || true
 fmt() { awk -v k="$1" 'BEGIN { printf "%6d KiB = %5.1f MiB = %5.1f MB", k, k / 1024, k * 1024 / 1e6 }'; }
-echo "antisurge run, default config, after ${dur} s:"
+echo "antisurge run, default config, after ${dur} s ($bin):"
 echo "  VmRSS now                  $(fmt "$rss")"
 echo "  VmRSS highest (1-s samples) $(fmt "$peak_rss")"
 echo "  VmHWM (kernel peak)        $(fmt "$hwm")"

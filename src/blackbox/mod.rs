@@ -4,9 +4,10 @@
 //! - The control thread fills one [`CycleRecord`] per cycle (the inputs the core saw with their
 //!   ages, the operator inputs, the commands, mode, law and its diagnostics) and pushes it into
 //!   a lock-free SPSC ring ([`BlackBoxTx::push`]: a copy, no allocation, no lock, never waits;
-//!   a full ring drops the record and counts it).
-//! - The recorder thread ([`Recorder`]) drains that ring every 20 ms into its own fixed-size
-//!   ring of the last [`DEFAULT_CAPACITY`] cycles and writes it to a file when a cycle reports
+//!   a full queue drops the record and counts it). The queue holds what the loop produces in
+//!   one drain period plus [`TOLERATED_STALL_S`] of recorder stall ([`handoff_capacity`]).
+//! - The recorder thread ([`Recorder`]) drains that queue every [`DRAIN_PERIOD_S`] into its own
+//!   fixed-size ring of the last [`HISTORY_S`] of cycles and writes it to a file when a cycle reports
 //!   fail-safe or a surge (after [`POST_TRIGGER_CYCLES`] more cycles, so the file shows what
 //!   followed) and at exit. File I/O never touches the control thread's budget.
 //! - Time in a record is the tick's (`deadline_ns`, `wake_ns`, and the `t_s` the core was given,
@@ -31,14 +32,47 @@ use std::path::{Path, PathBuf};
 use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
 use std::sync::Arc;
 
-/// Records the recorder keeps (10 s at 1 kHz; about 3 MB).
+/// History the recorder keeps, s: the ring holds this many seconds of cycles at the loop's
+/// rate ([`history_capacity`]).
+pub const HISTORY_S: f64 = 10.0;
+/// Records the recorder keeps at the default 1 kHz ([`HISTORY_S`] of cycles). In memory a
+/// record takes 312 bytes, plus 160 for the spare transmitters' readings and votes once a
+/// cycle has any (3.1 MB, or 4.7 MB with redundant transmitters).
 pub const DEFAULT_CAPACITY: usize = 10_000;
 /// Cycles recorded after a trigger before the file is written.
 pub const POST_TRIGGER_CYCLES: u64 = 2_000;
 /// Most trigger dumps per run (the exit dump is always written).
 pub const MAX_TRIGGER_DUMPS: usize = 16;
-/// Capacity of the control thread → recorder ring, records.
-const CHANNEL_CAPACITY: usize = 4096;
+/// How often the recorder drains the control thread → recorder queue, s.
+pub const DRAIN_PERIOD_S: f64 = 0.020;
+/// The longest stall of the recorder thread the hand-off queue absorbs without dropping a
+/// record, s, on top of one [`DRAIN_PERIOD_S`]: a dump of the whole ring to a file (10 000
+/// rows, 5.9 MB: under 0.04 s on the development machine, benches/README.md; the rest is room
+/// for a slow disk) or the thread being descheduled. A longer stall drops records, counted in
+/// the next file's header (`dropped`).
+pub const TOLERATED_STALL_S: f64 = 1.0;
+
+/// Records the ring keeps for [`HISTORY_S`] at a control period of `period_ns`.
+pub fn history_capacity(period_ns: u64) -> usize {
+    records_in(HISTORY_S, period_ns)
+}
+
+/// Capacity of the control thread → recorder queue at a control period of `period_ns`,
+/// records: what the loop produces in one drain period plus the tolerated stall
+/// ([`DRAIN_PERIOD_S`] + [`TOLERATED_STALL_S`]; 1 020 records, 0.7 MB, at 1 kHz).
+pub fn handoff_capacity(period_ns: u64) -> usize {
+    records_in(DRAIN_PERIOD_S + TOLERATED_STALL_S, period_ns)
+}
+
+/// Cycles in `span_s` at `period_ns` (rounded up; at least 1; a zero period counts as 1 ms).
+fn records_in(span_s: f64, period_ns: u64) -> usize {
+    let period_s = if period_ns == 0 {
+        1e-3
+    } else {
+        period_ns as f64 * 1e-9
+    };
+    ((span_s / period_s).ceil() as usize).max(1)
+}
 /// First token of a black-box file.
 pub const MAGIC: &str = "# antisurge-blackbox 1 ";
 
@@ -147,6 +181,14 @@ impl BlackBoxTx {
     }
 }
 
+/// The control thread → recorder queue for a control period of `period_ns`, sized by
+/// [`handoff_capacity`].
+fn handoff(period_ns: u64) -> (BlackBoxTx, rtrb::Consumer<CycleRecord>) {
+    let (tx, rx) = rtrb::RingBuffer::new(handoff_capacity(period_ns));
+    let dropped = Arc::new(AtomicU64::new(0));
+    (BlackBoxTx { tx, dropped }, rx)
+}
+
 /// The recorder thread.
 pub struct Recorder {
     handle: std::thread::JoinHandle<Vec<PathBuf>>,
@@ -160,16 +202,15 @@ impl Recorder {
         header: Header,
         capacity: usize,
     ) -> std::io::Result<(BlackBoxTx, Recorder)> {
-        let (tx, rx) = rtrb::RingBuffer::new(CHANNEL_CAPACITY);
-        let dropped = Arc::new(AtomicU64::new(0));
+        let (tx, rx) = handoff(header.period_ns);
+        let dropped = Arc::clone(&tx.dropped);
         let stop = Arc::new(AtomicBool::new(false));
         let st = Arc::clone(&stop);
-        let dr = Arc::clone(&dropped);
         let handle = std::thread::Builder::new()
             .name("antisurge-bbox".into())
             .stack_size(crate::runtime::rt_loop::WORKER_THREAD_STACK_BYTES)
-            .spawn(move || recorder_loop(rx, dir, header, capacity.max(1), &st, &dr))?;
-        Ok((BlackBoxTx { tx, dropped }, Recorder { handle, stop }))
+            .spawn(move || recorder_loop(rx, dir, header, capacity.max(1), &st, &dropped))?;
+        Ok((tx, Recorder { handle, stop }))
     }
 
     /// Drain what is left, write the exit file, stop; returns every file written.
@@ -179,30 +220,193 @@ impl Recorder {
     }
 }
 
-/// Fixed-size ring of records (oldest overwritten).
+/// A record as the ring keeps it: a [`CycleRecord`] without the spare transmitters' readings
+/// and votes ([`Spares`]), which only cycles that have them store.
+#[derive(Debug, Clone, Copy)]
+struct Kept {
+    cycle: u64,
+    deadline_ns: u64,
+    wake_ns: u64,
+    t_s: f64,
+    values: SensorSnapshot,
+    age_s: [f64; SensorId::COUNT],
+    op: OperatorInputs,
+    commands: ActuatorCommands,
+    mode: u8,
+    law: u8,
+    flow_fallback: bool,
+    surge_started: bool,
+    law_diagnostic: f64,
+    law_torque_nm: f64,
+    m_used_kg_s: f64,
+    m_observer_kg_s: f64,
+    updates_applied: u64,
+}
+
+/// The part of a record the file holds for the measurements that can take a vote: transmitters
+/// `b` and `c` with their ages, and the vote, in [`VOTABLE`](crate::control::vote::VOTABLE)
+/// order. (A [`SpareReadings`](crate::control::measurements::SpareReadings) has room for every
+/// sensor; the file, and so the ring, only the votable ones.)
+#[derive(Debug, Clone, Copy, PartialEq)]
+struct Spares {
+    values: [[f64; 2]; crate::control::vote::VOTABLE.len()],
+    age_s: [[f64; 2]; crate::control::vote::VOTABLE.len()],
+    voted: [f64; crate::control::vote::VOTABLE.len()],
+}
+
+impl Spares {
+    /// No spare transmitter, no vote: what a record without them reads back as.
+    const NONE: Spares = Spares {
+        values: [[f64::NAN; 2]; crate::control::vote::VOTABLE.len()],
+        age_s: [[f64::INFINITY; 2]; crate::control::vote::VOTABLE.len()],
+        voted: [f64::NAN; crate::control::vote::VOTABLE.len()],
+    };
+
+    fn of(r: &CycleRecord) -> Spares {
+        let mut s = Spares::NONE;
+        for (k, id) in crate::control::vote::VOTABLE.into_iter().enumerate() {
+            for slot in 1..=2 {
+                let (v, age) = r.raw.spare.get(id, slot);
+                s.values[k][slot - 1] = v;
+                s.age_s[k][slot - 1] = age;
+            }
+        }
+        s.voted = r.voted;
+        s
+    }
+
+    /// Whether the file would show anything but "none" (NaN values and votes, ∞ ages: every
+    /// NaN is written `NaN`, so this is exact for the file).
+    fn any(&self) -> bool {
+        self.values.iter().flatten().any(|v| !v.is_nan())
+            || self.age_s.iter().flatten().any(|a| *a != f64::INFINITY)
+            || self.voted.iter().any(|v| !v.is_nan())
+    }
+}
+
+impl Kept {
+    fn of(r: &CycleRecord) -> Kept {
+        Kept {
+            cycle: r.cycle,
+            deadline_ns: r.deadline_ns,
+            wake_ns: r.wake_ns,
+            t_s: r.t_s,
+            values: r.raw.values,
+            age_s: r.raw.age_s,
+            op: r.op,
+            commands: r.commands,
+            mode: r.mode,
+            law: r.law,
+            flow_fallback: r.flow_fallback,
+            surge_started: r.surge_started,
+            law_diagnostic: r.law_diagnostic,
+            law_torque_nm: r.law_torque_nm,
+            m_used_kg_s: r.m_used_kg_s,
+            m_observer_kg_s: r.m_observer_kg_s,
+            updates_applied: r.updates_applied,
+        }
+    }
+
+    /// The record again, as the file holds it (spares of the votable measurements only).
+    fn record(&self, s: &Spares) -> CycleRecord {
+        let mut spare = crate::control::measurements::SpareReadings::NONE;
+        for (k, id) in crate::control::vote::VOTABLE.into_iter().enumerate() {
+            for slot in 1..=2 {
+                spare.set(id, slot, s.values[k][slot - 1], s.age_s[k][slot - 1]);
+            }
+        }
+        CycleRecord {
+            cycle: self.cycle,
+            deadline_ns: self.deadline_ns,
+            wake_ns: self.wake_ns,
+            t_s: self.t_s,
+            raw: RawSensors {
+                values: self.values,
+                age_s: self.age_s,
+                spare,
+            },
+            op: self.op,
+            commands: self.commands,
+            mode: self.mode,
+            law: self.law,
+            law_diagnostic: self.law_diagnostic,
+            law_torque_nm: self.law_torque_nm,
+            m_used_kg_s: self.m_used_kg_s,
+            m_observer_kg_s: self.m_observer_kg_s,
+            flow_fallback: self.flow_fallback,
+            surge_started: self.surge_started,
+            updates_applied: self.updates_applied,
+            voted: s.voted,
+        }
+    }
+}
+
+/// Fixed-size ring of records (oldest overwritten). The spare transmitters' part is a parallel
+/// ring allocated (on the recorder thread) by the first record that has any: a controller
+/// without redundant transmitters keeps 312 bytes a cycle instead of 472.
 struct Ring {
-    buf: Vec<CycleRecord>,
+    buf: Vec<Kept>,
+    spares: Option<Vec<Spares>>,
+    capacity: usize,
     next: usize,
     full: bool,
 }
 
 impl Ring {
-    fn push(&mut self, r: CycleRecord) {
-        if self.buf.len() < self.buf.capacity() {
-            self.buf.push(r);
+    fn new(capacity: usize) -> Ring {
+        let capacity = capacity.max(1);
+        Ring {
+            buf: Vec::with_capacity(capacity),
+            spares: None,
+            capacity,
+            next: 0,
+            full: false,
+        }
+    }
+
+    fn push(&mut self, r: &CycleRecord) {
+        let kept = Kept::of(r);
+        let s = Spares::of(r);
+        if self.spares.is_none() && s.any() {
+            // the records so far had none
+            let mut v = Vec::with_capacity(self.capacity);
+            v.resize(self.buf.len(), Spares::NONE);
+            self.spares = Some(v);
+        }
+        if self.buf.len() < self.capacity {
+            self.buf.push(kept);
+            if let Some(v) = &mut self.spares {
+                v.push(s);
+            }
         } else {
-            self.buf[self.next] = r;
+            self.buf[self.next] = kept;
+            if let Some(v) = &mut self.spares {
+                v[self.next] = s;
+            }
             self.full = true;
         }
-        self.next = (self.next + 1) % self.buf.capacity();
+        self.next = (self.next + 1) % self.capacity;
     }
-    fn in_order(&self) -> impl Iterator<Item = &CycleRecord> {
-        let (a, b) = if self.full {
-            self.buf.split_at(self.next)
+
+    fn in_order(&self) -> impl Iterator<Item = CycleRecord> + '_ {
+        let order = if self.full {
+            (self.next..self.buf.len()).chain(0..self.next)
         } else {
-            (&self.buf[..0], &self.buf[..])
+            (0..self.buf.len()).chain(0..0)
         };
-        b.iter().chain(a.iter())
+        order.map(|i| {
+            let s = self.spares.as_ref().map_or(&Spares::NONE, |v| &v[i]);
+            self.buf[i].record(s)
+        })
+    }
+
+    fn last_cycle(&self) -> Option<u64> {
+        if self.buf.is_empty() {
+            None
+        } else {
+            let i = (self.next + self.capacity - 1) % self.capacity;
+            Some(self.buf[i].cycle)
+        }
     }
 }
 
@@ -214,24 +418,20 @@ fn recorder_loop(
     stop: &AtomicBool,
     dropped: &AtomicU64,
 ) -> Vec<PathBuf> {
-    let mut ring = Ring {
-        buf: Vec::with_capacity(capacity),
-        next: 0,
-        full: false,
-    };
+    let mut ring = Ring::new(capacity);
     let mut written = Vec::new();
     let mut trigger_dumps = 0usize;
     let mut pending: Option<(u64, &'static str)> = None;
     let mut last_dump_cycle: Option<u64> = None;
     let mut prev_mode = 0u8;
     let dump = |ring: &Ring, reason: &str, header: &mut Header, written: &mut Vec<PathBuf>| {
-        let Some(last) = ring.in_order().last().map(|r| r.cycle) else {
+        let Some(last) = ring.last_cycle() else {
             return;
         };
         header.reason = reason.to_string();
         header.dropped = dropped.load(Ordering::Relaxed);
         let path = dir.join(format!("blackbox-{reason}-cycle{last}.csv"));
-        match write_file(&path, header, ring.in_order()) {
+        match write_records(&path, header, ring.in_order()) {
             Ok(()) => {
                 tracing::info!(target: "blackbox", "black box ({reason}) written to {}", path.display());
                 written.push(path);
@@ -253,7 +453,7 @@ fn recorder_loop(
                     pending = Some((r.cycle + POST_TRIGGER_CYCLES, "surge"));
                 }
             }
-            ring.push(r);
+            ring.push(&r);
             if let Some((at, reason)) = pending {
                 if r.cycle >= at {
                     dump(&ring, reason, &mut header, &mut written);
@@ -270,7 +470,7 @@ fn recorder_loop(
             dump(&ring, "exit", &mut header, &mut written);
             return written;
         }
-        std::thread::sleep(std::time::Duration::from_millis(20));
+        std::thread::sleep(std::time::Duration::from_secs_f64(DRAIN_PERIOD_S));
     }
 }
 
@@ -366,6 +566,14 @@ pub fn write_file<'a>(
     header: &Header,
     records: impl Iterator<Item = &'a CycleRecord>,
 ) -> Result<(), BlackBoxError> {
+    write_records(path, header, records.copied())
+}
+
+fn write_records(
+    path: &Path,
+    header: &Header,
+    records: impl Iterator<Item = CycleRecord>,
+) -> Result<(), BlackBoxError> {
     let io = |source| BlackBoxError::Io {
         path: path.to_path_buf(),
         source,
@@ -379,7 +587,7 @@ pub fn write_file<'a>(
     writeln!(w, "{MAGIC}{json}").map_err(io)?;
     writeln!(w, "{}", columns().join(",")).map_err(io)?;
     for r in records {
-        write_row(&mut w, r).map_err(io)?;
+        write_row(&mut w, &r).map_err(io)?;
     }
     w.flush().map_err(io)
 }
@@ -587,16 +795,108 @@ mod tests {
 
     #[test]
     fn ring_keeps_the_last_records_in_order() {
-        let mut ring = Ring {
-            buf: Vec::with_capacity(4),
-            next: 0,
-            full: false,
-        };
+        let mut ring = Ring::new(4);
         for k in 0..10 {
-            ring.push(record(k));
+            ring.push(&record(k));
         }
+        assert_eq!(ring.last_cycle(), Some(9));
         let cycles: Vec<u64> = ring.in_order().map(|r| r.cycle).collect();
         assert_eq!(cycles, vec![6, 7, 8, 9]);
+    }
+
+    /// A record of a controller without redundant transmitters: no spare, no vote.
+    fn plain(k: u64) -> CycleRecord {
+        let mut r = record(k);
+        r.voted = [f64::NAN; crate::control::vote::VOTABLE.len()];
+        r
+    }
+
+    /// A record with the spare transmitters of the votable measurements set.
+    fn with_spares(k: u64) -> CycleRecord {
+        let mut r = record(k);
+        for (n, id) in crate::control::vote::VOTABLE.into_iter().enumerate() {
+            r.raw
+                .spare
+                .set(id, 1, 1e5 + k as f64 + n as f64, 1e-3 * n as f64);
+        }
+        r
+    }
+
+    #[test]
+    fn the_ring_writes_the_file_the_records_make() {
+        // records without spares, then with: the ring keeps the spares' part only from the
+        // first record that has one, and the file is byte for byte the one the records make
+        let recs: Vec<CycleRecord> = (0..30)
+            .map(|k| if k < 12 { plain(k) } else { with_spares(k) })
+            .collect();
+        for cap in [8, 20, 50] {
+            let mut ring = Ring::new(cap);
+            for r in &recs[..11] {
+                ring.push(r);
+            }
+            assert!(ring.spares.is_none(), "no spare seen yet: none kept");
+            for r in &recs[11..] {
+                ring.push(r);
+            }
+            assert!(ring.spares.is_some());
+            let dir = tempfile::tempdir().expect("tmp");
+            let (a, b) = (dir.path().join("a.csv"), dir.path().join("b.csv"));
+            write_records(&a, &header(), ring.in_order()).expect("write");
+            let tail = &recs[recs.len().saturating_sub(cap)..];
+            write_file(&b, &header(), tail.iter()).expect("write");
+            let (a, b) = (std::fs::read(&a).expect("a"), std::fs::read(&b).expect("b"));
+            assert_eq!(a, b, "capacity {cap}");
+        }
+        // and the part of a record without spares is what the file says for none
+        assert!(!Spares::of(&plain(1)).any());
+        assert!(Spares::of(&with_spares(1)).any());
+        assert!(Spares::of(&record(1)).any(), "a vote alone is kept");
+        let mut voted_only = plain(1);
+        voted_only.voted[2] = 3.0;
+        assert!(Spares::of(&voted_only).any());
+    }
+
+    #[test]
+    fn the_ring_keeps_the_documented_bytes_a_cycle() {
+        // HISTORY_S and DEFAULT_CAPACITY's documentation (and the README's memory figures)
+        assert_eq!(std::mem::size_of::<Kept>(), 312);
+        assert_eq!(std::mem::size_of::<Spares>(), 160);
+    }
+
+    #[test]
+    fn the_ring_spans_its_history_in_seconds() {
+        assert_eq!(history_capacity(1_000_000), DEFAULT_CAPACITY);
+        assert_eq!(history_capacity(1_000_000) as f64 * 1e-3, HISTORY_S);
+        assert_eq!(history_capacity(2_000_000), 5_000);
+        assert_eq!(history_capacity(250_000), 40_000);
+    }
+
+    #[test]
+    fn the_handoff_queue_absorbs_the_documented_stall() {
+        // the recorder drains every DRAIN_PERIOD_S; while it stalls TOLERATED_STALL_S (a dump,
+        // descheduling) on top, the loop keeps pushing: nothing may be dropped. Pushed here
+        // with no reader at all, at the loop rates the config allows around the default.
+        for period_ns in [100_000u64, 250_000, 1_000_000, 2_000_000, 10_000_000] {
+            let (mut tx, _rx) = handoff(period_ns);
+            let produced =
+                ((DRAIN_PERIOD_S + TOLERATED_STALL_S) / (period_ns as f64 * 1e-9)).ceil() as u64;
+            for k in 0..produced {
+                tx.push(record(k));
+            }
+            assert_eq!(
+                tx.dropped.load(Ordering::Relaxed),
+                0,
+                "period {period_ns} ns: {produced} records in a drain period and the stall"
+            );
+            // beyond it, records are dropped and counted, never waited for
+            let room = tx.tx.slots() as u64;
+            for k in 0..room + 3 {
+                tx.push(record(produced + k));
+            }
+            assert_eq!(tx.dropped.load(Ordering::Relaxed), 3);
+        }
+        // at 1 kHz: about a second, not the 4 s (2.7 MB) of the old fixed 4 096 records
+        assert_eq!(handoff_capacity(1_000_000), 1_020);
     }
 
     #[test]

@@ -368,8 +368,13 @@ pub fn load_with_time_limit(main: &Path) -> Result<Loaded, Vec<config::Problem>>
             warning: false,
         }]
     };
+    // a sized stack, not Rust's 2 MiB: glibc keeps an exited thread's stack and hands it to
+    // the next thread that asks for no more than 4× less (issue 25: an I/O thread asking for
+    // 512 KiB got the loader's 2 MiB, all of it locked). The parsers bound their nesting
+    // (`a_deeply_nested_config_is_refused_on_the_loader_stack`).
     let spawned = std::thread::Builder::new()
         .name("antisurge-cfg".into())
+        .stack_size(crate::runtime::rt_loop::WORKER_THREAD_STACK_BYTES)
         .spawn(move || {
             let _ = tx.send(config::load(&path));
         });
@@ -561,7 +566,7 @@ async fn serve(loaded: Loaded, opts: RunOptions) -> Result<()> {
     let (bb_tx, recorder) = crate::blackbox::Recorder::start(
         bb_dir,
         blackbox_header(&loaded),
-        crate::blackbox::DEFAULT_CAPACITY,
+        crate::blackbox::history_capacity(cfg.cycle.period_ns()),
     )
     .context("cannot start the black-box recorder")?;
     let node = node.with_black_box(bb_tx);
@@ -855,4 +860,29 @@ async fn serve(loaded: Loaded, opts: RunOptions) -> Result<()> {
     drop(events);
     log.shutdown().map_err(|e| anyhow!("{e}"))?;
     Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn a_deeply_nested_config_is_refused_on_the_loader_stack() {
+        // the loader thread's stack is sized (WORKER_THREAD_STACK_BYTES): a file nested far
+        // beyond any real config must come back as a problem, not overflow the stack
+        let dir = tempfile::tempdir().expect("tmp");
+        for depth in [100usize, 1_000, 100_000] {
+            let main = dir.path().join(format!("nested{depth}.toml"));
+            let text = format!("x = {}1{}\n", "[".repeat(depth), "]".repeat(depth));
+            std::fs::write(&main, text).expect("write");
+            let Err(problems) = load_with_time_limit(&main) else {
+                panic!("depth {depth}: loaded");
+            };
+            assert!(!problems.is_empty(), "depth {depth}");
+        }
+        let main = dir.path().join("inline.toml");
+        let text = format!("x = {}1{}\n", "{ a = ".repeat(50_000), " }".repeat(50_000));
+        std::fs::write(&main, text).expect("write");
+        assert!(load_with_time_limit(&main).is_err());
+    }
 }
