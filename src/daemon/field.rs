@@ -163,6 +163,55 @@ fn modbus_link_name(cfg: &ModbusLinkConfig) -> String {
     }
 }
 
+/// The CAN link's name in the status and on the HMI: `can:<interface>`.
+fn can_link_name(interface: &str) -> String {
+    format!("can:{interface}")
+}
+
+/// The input→link table of a configuration
+/// ([`crate::io::signal_map::SignalMap::input_links`]): each bound transmitter named by the
+/// link of its bus, as the link lamps name them (`links.<kind>.name`). The embedded plant carries
+/// every supervised input on no field link. Built once at start (the links and the signal map
+/// need a restart to change), off the control thread.
+pub fn input_links(l: &Loaded) -> Vec<crate::io::signal_map::InputLink> {
+    if l.config.bus.transport != super::config::Transport::Field {
+        return crate::signals::SensorId::ALL
+            .into_iter()
+            .filter(|id| l.core.supervisor.limits[id.index()].is_some())
+            .map(|input| crate::io::signal_map::InputLink {
+                input,
+                transmitter: "a".into(),
+                link: None,
+            })
+            .collect();
+    }
+    let can = l
+        .config
+        .bus
+        .can
+        .as_ref()
+        .map_or_else(|| "can".to_string(), |c| can_link_name(&c.interface));
+    let modbus = l
+        .config
+        .bus
+        .modbus
+        .as_ref()
+        .map_or_else(|| "modbus".to_string(), modbus_link_name);
+    l.signal_map.input_links(&can, &modbus)
+}
+
+/// A CAN link state's name in the status (`up`, `down`, `idle`, `stopped`): warning and
+/// error-passive count as up (traffic still passes), reconnecting as down.
+fn can_state_name(s: &crate::io::can::bus::BusState) -> &'static str {
+    use crate::io::can::bus::BusState as S;
+    match s {
+        S::Starting => "idle",
+        S::Up | S::ErrorWarning | S::ErrorPassive => "up",
+        S::Down(_) | S::Reconnecting { .. } => "down",
+        S::Stopped => "stopped",
+    }
+}
+
 /// What a link's quality is judged against: its configured poll period and the freshness
 /// budget of the inputs it carries (the smallest input timeout among them; `None` when it
 /// carries no supervised input).
@@ -375,6 +424,10 @@ fn link_state_name(s: LinkState) -> &'static str {
 pub struct LinkCounters {
     /// CAN frame counters (unknown ids, wrong DLC, bad CRC, bus-off, reconnects, …).
     pub can: Option<Arc<crate::io::can::bus::CanCounters>>,
+    /// The CAN link's state, as its task publishes it.
+    pub can_state: Option<watch::Receiver<crate::io::can::bus::BusState>>,
+    /// The CAN link's name in the status (`can:<interface>`).
+    pub can_name: Option<String>,
     /// Modbus link monitor.
     pub modbus: Option<Arc<LinkMonitor>>,
     /// The Modbus link's name in events (`modbus:<address>`).
@@ -389,7 +442,16 @@ impl LinkCounters {
     pub fn to_json(&self) -> serde_json::Value {
         serde_json::json!({
             "feedback": self.feedback,
-            "can": self.can.as_ref().map(|c| serde_json::to_value(c.snapshot()).unwrap_or_default()),
+            "can": self.can.as_ref().map(|c| {
+                let mut v = serde_json::to_value(c.snapshot()).unwrap_or_default();
+                if let Some(o) = v.as_object_mut() {
+                    o.insert("name".into(), self.can_name.clone().unwrap_or_else(|| "can".into()).into());
+                    if let Some(rx) = &self.can_state {
+                        o.insert("state".into(), can_state_name(&rx.borrow()).into());
+                    }
+                }
+                v
+            }),
             "modbus": self.modbus.as_ref().map(|m| {
                 let mut v = serde_json::to_value(m.counters().snapshot()).unwrap_or_default();
                 if let Some(o) = v.as_object_mut() {
@@ -451,8 +513,10 @@ pub fn spawn_controller_links(
     }
     if map.uses_can() {
         let (can, codec) = can_codec(l)?;
-        let (handles, _state) = BusHandles::new(shutdown.clone());
+        let (handles, state) = BusHandles::new(shutdown.clone());
         counters.can = Some(Arc::clone(&handles.counters));
+        counters.can_state = Some(state);
+        counters.can_name = Some(can_link_name(&can.interface));
         let handles = handles.with_hook(bus_event_hook(events.clone(), can.interface.clone()));
         let boards = ControllerBoards {
             sensors: Arc::clone(&sensors),
@@ -604,5 +668,24 @@ mod tests {
         };
         assert_eq!(w.slow(20_000, 1_000, 2_000), None);
         assert!(w.slow(21_000, 1_000, 2_000).is_some());
+    }
+
+    #[test]
+    fn the_can_link_is_named_and_its_state_shown_like_the_modbus_link() {
+        use crate::io::can::bus::{BusState, CanCounters, DownCause};
+        let (tx, rx) = tokio::sync::watch::channel(BusState::Up);
+        let counters = super::LinkCounters {
+            can: Some(std::sync::Arc::new(CanCounters::default())),
+            can_state: Some(rx),
+            can_name: Some(super::can_link_name("can0")),
+            ..super::LinkCounters::default()
+        };
+        let j = counters.to_json();
+        assert_eq!(j["can"]["name"], "can:can0");
+        assert_eq!(j["can"]["state"], "up");
+        tx.send_replace(BusState::Down(DownCause::BusOff));
+        assert_eq!(counters.to_json()["can"]["state"], "down");
+        tx.send_replace(BusState::ErrorPassive);
+        assert_eq!(counters.to_json()["can"]["state"], "up", "traffic still passes");
     }
 }

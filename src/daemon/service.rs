@@ -626,6 +626,7 @@ async fn serve(loaded: Loaded, opts: RunOptions) -> Result<()> {
         live,
         Arc::clone(&stats),
         Arc::new(move || links.to_json()),
+        super::field::input_links(&loaded),
         events.clone(),
         shutdown_rx.clone(),
         &mut tasks,
