@@ -21,9 +21,7 @@ mod common;
 
 use antisurge::signals::SensorId;
 use common::daemon::{logs, signal, spawn, until, wait};
-use common::modbus_skid::{
-    controller_config, hmi_status, lock, start_device, status_json,
-};
+use common::modbus_skid::{controller_config, hmi_status, lock, start_device, status_json};
 use std::time::{Duration, Instant};
 
 /// The controller's signal map: the vendor skid's Modbus map, two more Δp transmitters voting

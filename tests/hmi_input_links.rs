@@ -99,10 +99,9 @@ fn nothing_unbound(v: &serde_json::Value, surface: &str) {
     assert!(v["t_suction_k"].is_null(), "{surface}: t_suction_k {v}");
     for u in UNBOUND {
         for list in ["inputs", "faults", "transmitters"] {
-            let named = v[list].as_array().is_some_and(|a| {
-                a.iter()
-                    .any(|r| r["input"] == u || r["measurement"] == u)
-            });
+            let named = v[list]
+                .as_array()
+                .is_some_and(|a| a.iter().any(|r| r["input"] == u || r["measurement"] == u));
             assert!(!named, "{surface}: the unbound {u} in {list}: {v}");
         }
     }
@@ -137,7 +136,11 @@ fn each_input_names_its_link_a_link_down_marks_them_and_a_skid_without_temperatu
     );
     nothing_unbound(&seen, "/api/status");
     let st = status_json(dir);
-    assert_eq!(rows(&st), expected(&link, false, "ok"), "status --json: {st}");
+    assert_eq!(
+        rows(&st),
+        expected(&link, false, "ok"),
+        "status --json: {st}"
+    );
     nothing_unbound(&st, "status --json");
     assert!(st["p_suction_pa"].is_number(), "{st}");
     let text = status_cli(dir, &[]);
@@ -146,7 +149,10 @@ fn each_input_names_its_link_a_link_down_marks_them_and_a_skid_without_temperatu
         .find(|l| l.starts_with("process"))
         .unwrap_or_else(|| panic!("no process line in antisurge status:\n{text}"));
     assert!(process.ends_with("T suction –"), "{process}");
-    assert!(!process.contains("suction –  "), "the pressures are measured: {process}");
+    assert!(
+        !process.contains("suction –  "),
+        "the pressures are measured: {process}"
+    );
     eprintln!("antisurge status: {process}");
 
     // the device stops: every input of its link is the link's, named, in both surfaces

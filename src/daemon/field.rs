@@ -686,6 +686,10 @@ mod tests {
         tx.send_replace(BusState::Down(DownCause::BusOff));
         assert_eq!(counters.to_json()["can"]["state"], "down");
         tx.send_replace(BusState::ErrorPassive);
-        assert_eq!(counters.to_json()["can"]["state"], "up", "traffic still passes");
+        assert_eq!(
+            counters.to_json()["can"]["state"],
+            "up",
+            "traffic still passes"
+        );
     }
 }

@@ -249,9 +249,7 @@ pub fn hmi_status(port: u16) -> Option<serde_json::Value> {
 
 /// A fresh device on the steady readings, served on a port-0 listener of `rt`: the device,
 /// its port and its task (abort it to stop the device: listener and connections close).
-pub fn start_device(
-    rt: &tokio::runtime::Runtime,
-) -> (Shared, u16, tokio::task::JoinHandle<()>) {
+pub fn start_device(rt: &tokio::runtime::Runtime) -> (Shared, u16, tokio::task::JoinHandle<()>) {
     let shared: Shared = Arc::new(Mutex::new(Device {
         steady: steady_readings(),
         rng: Rng(0x5EED),
