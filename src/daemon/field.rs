@@ -200,6 +200,22 @@ pub fn input_links(l: &Loaded) -> Vec<crate::io::signal_map::InputLink> {
     l.signal_map.input_links(&can, &modbus)
 }
 
+/// Per sensor, the kinds of field link that carry any of its transmitters (bits of
+/// `1 << FieldLinkKind::code`), from the input->link table ([`input_links`]): what the
+/// control thread roots a stale input's cause in. Built once at start.
+pub fn input_link_kinds(
+    table: &[crate::io::signal_map::InputLink],
+) -> [u8; crate::signals::SensorId::COUNT] {
+    let mut kinds = [0u8; crate::signals::SensorId::COUNT];
+    for row in table {
+        if let Some(link) = &row.link {
+            kinds[row.input.index()] |=
+                1 << crate::faults::FieldLinkKind::of_link_name(link).code();
+        }
+    }
+    kinds
+}
+
 /// A CAN link state's name in the status (`up`, `down`, `idle`, `stopped`): warning and
 /// error-passive count as up (traffic still passes), reconnecting as down.
 fn can_state_name(s: &crate::io::can::bus::BusState) -> &'static str {
@@ -691,5 +707,31 @@ mod tests {
             "up",
             "traffic still passes"
         );
+    }
+
+    #[test]
+    fn each_sensor_knows_the_kinds_of_link_that_carry_it() {
+        use crate::faults::FieldLinkKind;
+        use crate::io::signal_map::InputLink;
+        use crate::signals::SensorId;
+        let row = |input, t: &str, link: Option<&str>| InputLink {
+            input,
+            transmitter: t.into(),
+            link: link.map(str::to_string),
+        };
+        let kinds = super::input_link_kinds(&[
+            row(SensorId::PSuction, "a", Some("can:can0")),
+            row(SensorId::OrificeDp, "a", Some("modbus:10.0.0.5:502")),
+            row(SensorId::OrificeDp, "b", Some("can:can0")),
+            row(SensorId::TSuction, "a", None),
+        ]);
+        let (can, modbus) = (
+            1 << FieldLinkKind::Can.code(),
+            1 << FieldLinkKind::Modbus.code(),
+        );
+        assert_eq!(kinds[SensorId::PSuction.index()], can);
+        assert_eq!(kinds[SensorId::OrificeDp.index()], can | modbus);
+        assert_eq!(kinds[SensorId::TSuction.index()], 0, "the embedded plant");
+        assert_eq!(kinds[SensorId::ShaftSpeed.index()], 0, "unbound");
     }
 }

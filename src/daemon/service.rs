@@ -564,7 +564,11 @@ async fn serve(loaded: Loaded, opts: RunOptions) -> Result<()> {
         crate::blackbox::DEFAULT_CAPACITY,
     )
     .context("cannot start the black-box recorder")?;
-    let node = node.with_black_box(bb_tx);
+    let node = node
+        .with_black_box(bb_tx)
+        .with_input_links(super::field::input_link_kinds(&super::field::input_links(
+            &loaded,
+        )));
     let control = spawn_control(
         node,
         cfg.cycle,
