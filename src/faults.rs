@@ -288,6 +288,24 @@ pub mod field {
             .find(|k| LINKS_DOWN[usize::from(k.code() - 1)].load(Ordering::Relaxed) > 0)
     }
 
+    /// The first kind of link among `kinds` (bits of `1 << FieldLinkKind::code`) that is
+    /// down now, if any. Allocation-free.
+    pub fn down_link_among(kinds: u8) -> Option<super::FieldLinkKind> {
+        first_down_among(kinds, |k| {
+            LINKS_DOWN[usize::from(k.code() - 1)].load(Ordering::Relaxed) > 0
+        })
+    }
+
+    /// The first kind among `kinds` for which `down` holds.
+    pub(crate) fn first_down_among(
+        kinds: u8,
+        down: impl Fn(super::FieldLinkKind) -> bool,
+    ) -> Option<super::FieldLinkKind> {
+        super::FieldLinkKind::ALL
+            .into_iter()
+            .find(|k| kinds & (1 << k.code()) != 0 && down(*k))
+    }
+
     /// The active field faults as a fault word. Allocation-free.
     pub fn word() -> u32 {
         let mut f = FaultSet::NONE;
@@ -390,5 +408,25 @@ mod tests {
         assert!(t.starts_with("VAL_ 128 Faults 0 \"healthy\" 1 \"sensor_timeout\""));
         assert!(t.contains("256 \"actuator_feedback_mismatch\""));
         assert!(t.ends_with(" ;"));
+    }
+
+    #[test]
+    fn a_link_down_roots_only_the_inputs_of_its_kind() {
+        use super::field::first_down_among;
+        let can_down = |k: FieldLinkKind| k == FieldLinkKind::Can;
+        let can = 1 << FieldLinkKind::Can.code();
+        let modbus = 1 << FieldLinkKind::Modbus.code();
+        assert_eq!(first_down_among(can, can_down), Some(FieldLinkKind::Can));
+        assert_eq!(first_down_among(modbus, can_down), None, "a Modbus input");
+        assert_eq!(
+            first_down_among(can | modbus, can_down),
+            Some(FieldLinkKind::Can)
+        );
+        assert_eq!(first_down_among(0, can_down), None, "on no field link");
+        assert_eq!(
+            first_down_among(u8::MAX, can_down),
+            Some(FieldLinkKind::Can),
+            "not told: any link"
+        );
     }
 }

@@ -139,6 +139,7 @@ fn the_cycle_never_waits_on_a_node_whose_broker_acknowledges_nothing() {
         commands: Arc::new(Mutex::new(cmd_tx)),
         stats: Arc::clone(&stats),
         links: Arc::new(|| serde_json::json!({})),
+        inputs: Arc::new([]),
         events: log.sender(),
         token_file: dir.path().join("no-token"),
         started: Instant::now(),

@@ -17,6 +17,9 @@
 // status field_faults (and lights when that record holds actuator_feedback_mismatch); resetting
 // the surge counter (seeded at 7) asks first: dismissed, nothing changes; accepted, it is 0 and
 // the event log names who reset it.
+// Issue 23: the input lamps are those of the status's input->link table; on an injected status
+// with a CAN and a Modbus link, the Modbus one down, only that link's inputs turn amber and name
+// it; t_suction_k null shows "–".
 // Usage: node browser_test.mjs HMI_URL ANTISURGE_BIN STATUS_SOCKET SCREENSHOT EVENT_LOG
 import { chromium } from "playwright-core";
 import { execFileSync } from "node:child_process";
@@ -150,6 +153,64 @@ if (face.scrollW > face.innerW) fail(`horizontal scroll at 1280 px: ${face.scrol
   await page.waitForFunction(() => document.querySelector('[data-lamp="feedback"]')?.dataset.on === "0", null, { timeout: 5000 })
     .catch(() => fail("the feedback lamp stays lit after the mismatch left the status"));
   console.log(`feedback lamp: "${real.text}" with status field_faults ${JSON.stringify(st.field_faults)}; "${lit.text}" (${lit.cls}) with actuator_feedback_mismatch in them`);
+}
+// which link carries which input (issue 23): a lamp per input of the status's input->link
+// table (none for a sensor the skid does not have); with two links and one down, only the
+// inputs of that link turn amber and name it, the other link's stay as they are; and a skid
+// without a suction temperature transmitter (t_suction_k null) shows "–"
+{
+  const lamps = () => page.evaluate(() => {
+    const out = {};
+    for (const l of document.querySelectorAll("[data-input],[data-transmitter],[data-link]")) {
+      const k = l.dataset.input ? "input " + l.dataset.input : l.dataset.transmitter ? "tx " + l.dataset.transmitter : "link " + l.dataset.link;
+      out[k] = { state: l.dataset.state, link: l.dataset.link, cls: l.className, text: l.textContent, title: l.title };
+    }
+    return { out, ts: document.querySelector('[data-pv="ts"]').textContent.trim() };
+  });
+  const st = JSON.parse(execFileSync(bin, ["status", "--json", "--socket", socket]).toString());
+  const real = await lamps();
+  const shownInputs = Object.keys(real.out).filter((k) => k.startsWith("input ")).map((k) => k.slice(6)).sort();
+  const tableInputs = [...new Set((st.inputs || []).map((i) => i.input))].sort();
+  if (JSON.stringify(shownInputs) !== JSON.stringify(tableInputs)) fail(`input lamps ${shownInputs} vs the status's inputs ${tableInputs}`);
+  const CAN = "can:can0", MB = "modbus:10.0.0.5:502";
+  const row = (input, transmitter, link, down, state) => ({ input, transmitter, link, link_down: down, state });
+  await page.route("**/api/status", async (route) => {
+    const r = await route.fetch(); const j = await r.json();
+    j.links = { ...(j.links || {}), can: { name: CAN, state: "up" }, modbus: { name: MB, state: "down" } };
+    j.field_faults = [...(j.field_faults || []), "field_link_down"];
+    // the pressures on CAN (p_discharge out of range: its own fault), the Δp a and the valve
+    // position on Modbus (down: stale), Δp b on CAN; no shaft speed, no suction temperature
+    j.inputs = [row("p_suction", "a", CAN, false, "ok"), row("p_discharge", "a", CAN, false, "fault"),
+      row("orifice_dp", "a", MB, true, "link_down"), row("orifice_dp", "b", CAN, false, "ok"),
+      row("recycle_valve_position", "a", MB, true, "link_down")];
+    j.faults = [{ input: "p_discharge" }, { input: "recycle_valve_position" }];
+    j.transmitters = [{ measurement: "orifice_dp", binding: "a", value: null, unit: "Pa", state: "voted_out", reason: "stale" },
+      { measurement: "orifice_dp", binding: "b", value: 19000, unit: "Pa", state: "healthy", reason: null }];
+    j.t_suction_k = null;
+    await route.fulfill({ response: r, json: j });
+  });
+  await page.waitForFunction(() => document.querySelector('[data-input="recycle_valve_position"]')?.dataset.state === "link_down", null, { timeout: 5000 })
+    .catch(() => fail("the input lamps do not follow an injected Modbus link down"));
+  const inj = await lamps();
+  const o = inj.out, amber = (k) => o[k] && o[k].cls.includes("amber"), red = (k) => o[k] && /\bon\b/.test(o[k].cls);
+  for (const k of ["input recycle_valve_position", "tx orifice_dp.a"]) {
+    if (!amber(k) || !o[k].text.includes(MB)) fail(`${k} on the link that is down: not amber or not naming ${MB}: ${JSON.stringify(o[k])}`);
+  }
+  // orifice_dp: one of its transmitters (b) is on the live link, so the measurement is not the link's
+  if (amber("input orifice_dp")) fail(`orifice_dp (b on the live CAN link) marked as the link's: ${JSON.stringify(o["input orifice_dp"])}`);
+  for (const k of ["input p_suction", "tx orifice_dp.b"]) {
+    if (amber(k) || red(k)) fail(`${k} on the healthy link changed: ${JSON.stringify(o[k])}`);
+  }
+  if (!red("input p_discharge") || amber("input p_discharge")) fail(`p_discharge's own fault on the live link is not red: ${JSON.stringify(o["input p_discharge"])}`);
+  for (const u of ["shaft_speed", "t_suction"]) if (o["input " + u]) fail(`a lamp for the unbound ${u}: ${JSON.stringify(o["input " + u])}`);
+  if (!red("link " + MB) || red("link " + CAN)) fail(`link lamps: ${JSON.stringify(o["link " + MB])} / ${JSON.stringify(o["link " + CAN])}`);
+  if (inj.ts !== "–") fail(`suction temperature with t_suction_k null: "${inj.ts}"`);
+  await page.unroute("**/api/status");
+  await page.waitForFunction(() => document.querySelector('[data-input="recycle_valve_position"]')?.dataset.state !== "link_down", null, { timeout: 5000 })
+    .catch(() => fail("the input lamps stay on the injected link down after it left the status"));
+  console.log(`input lamps: ${shownInputs.join(", ")} as the status's input->link table; injected ${MB} down beside ${CAN} up: ` +
+    `"${o["input recycle_valve_position"].text}" (${o["input recycle_valve_position"].cls}), "${o["tx orifice_dp.a"].text}", ` +
+    `p_suction "${o["input p_suction"].cls}", p_discharge own fault "${o["input p_discharge"].cls}"; no shaft speed or temperature lamp; T suction "${inj.ts}"`);
 }
 // resetting the surge counter asks first: dismissed, nothing is sent and the counter stays;
 // accepted, it is 0 and the event log has the reset with who did it

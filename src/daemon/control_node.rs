@@ -104,6 +104,9 @@ pub struct ControlNode {
     /// The ESD / drive-trip input held the recycle valve open in the previous cycle.
     esd_active: bool,
     blackbox: Option<crate::blackbox::BlackBoxTx>,
+    /// Per sensor, the kinds of field link that carry it (bits of `1 << FieldLinkKind::code`;
+    /// `u8::MAX`: not told, any link): a link down roots only the inputs it carries.
+    input_links: [u8; SensorId::COUNT],
     /// What stands in for the flow element during the current fallback.
     fallback_replacement: Replacement,
     /// Each redundant transmitter's state as last reported (events on a change).
@@ -189,6 +192,7 @@ impl ControlNode {
             seen: 0,
             esd_active: false,
             blackbox: None,
+            input_links: [u8::MAX; SensorId::COUNT],
             fallback_replacement: Replacement::Observer,
             // a transmitter is taken as healthy until the first report says otherwise
             transmitters: [[crate::control::vote::TransmitterState::Healthy;
@@ -257,13 +261,15 @@ impl ControlNode {
                 let sup = &self.core.settings().supervisor;
                 let v = &out.validity;
                 let needs_flow = self.core.law() != LawId::None && self.core.auto_requested();
-                Cause::of_unusable_inputs(v, &raw.values.values, &raw.age_s, sup, needs_flow)
-                    .or_else(|| {
-                        Cause::of_unusable_inputs(v, &raw.values.values, &raw.age_s, sup, true)
-                    })
-                    .unwrap_or(Cause::of(CauseKind::InputFault))
-                    // a link that is down is the root of the inputs it carries going stale
-                    .rooted_in_link(crate::faults::field::down_link())
+                let cause =
+                    Cause::of_unusable_inputs(v, &raw.values.values, &raw.age_s, sup, needs_flow)
+                        .or_else(|| {
+                            Cause::of_unusable_inputs(v, &raw.values.values, &raw.age_s, sup, true)
+                        })
+                        .unwrap_or(Cause::of(CauseKind::InputFault));
+                // a link that is down is the root of the inputs it carries going stale
+                let carried_by = cause.input.map_or(u8::MAX, |i| self.input_links[i.index()]);
+                cause.rooted_in_link(crate::faults::field::down_link_among(carried_by))
             }
             Mode::Auto | Mode::Manual if matches!(from, Mode::Init | Mode::FailSafe) => {
                 Cause::of(CauseKind::InputsHealthy)
@@ -387,6 +393,15 @@ impl ControlNode {
                 shift: self.core.margin_shift(),
             },
         });
+    }
+
+    /// The kinds of field link that carry each sensor (from the input->link table built at
+    /// start, [`super::field::input_link_kinds`]): a cause is rooted in a link only when that
+    /// link carries the input (with CAN and Modbus, the CAN link down is not the root of a
+    /// Modbus input's fault).
+    pub fn with_input_links(mut self, kinds: [u8; SensorId::COUNT]) -> Self {
+        self.input_links = kinds;
+        self
     }
 
     /// Record every cycle into the black box (`crate::blackbox`): one copy per cycle into a

@@ -163,6 +163,71 @@ fn modbus_link_name(cfg: &ModbusLinkConfig) -> String {
     }
 }
 
+/// The CAN link's name in the status and on the HMI: `can:<interface>`.
+fn can_link_name(interface: &str) -> String {
+    format!("can:{interface}")
+}
+
+/// The input→link table of a configuration
+/// ([`crate::io::signal_map::SignalMap::input_links`]): each bound transmitter named by the
+/// link of its bus, as the link lamps name them (`links.<kind>.name`). The embedded plant carries
+/// every supervised input on no field link. Built once at start (the links and the signal map
+/// need a restart to change), off the control thread.
+pub fn input_links(l: &Loaded) -> Vec<crate::io::signal_map::InputLink> {
+    if l.config.bus.transport != super::config::Transport::Field {
+        return crate::signals::SensorId::ALL
+            .into_iter()
+            .filter(|id| l.core.supervisor.limits[id.index()].is_some())
+            .map(|input| crate::io::signal_map::InputLink {
+                input,
+                transmitter: "a".into(),
+                link: None,
+            })
+            .collect();
+    }
+    let can = l
+        .config
+        .bus
+        .can
+        .as_ref()
+        .map_or_else(|| "can".to_string(), |c| can_link_name(&c.interface));
+    let modbus = l
+        .config
+        .bus
+        .modbus
+        .as_ref()
+        .map_or_else(|| "modbus".to_string(), modbus_link_name);
+    l.signal_map.input_links(&can, &modbus)
+}
+
+/// Per sensor, the kinds of field link that carry any of its transmitters (bits of
+/// `1 << FieldLinkKind::code`), from the input->link table ([`input_links`]): what the
+/// control thread roots a stale input's cause in. Built once at start.
+pub fn input_link_kinds(
+    table: &[crate::io::signal_map::InputLink],
+) -> [u8; crate::signals::SensorId::COUNT] {
+    let mut kinds = [0u8; crate::signals::SensorId::COUNT];
+    for row in table {
+        if let Some(link) = &row.link {
+            kinds[row.input.index()] |=
+                1 << crate::faults::FieldLinkKind::of_link_name(link).code();
+        }
+    }
+    kinds
+}
+
+/// A CAN link state's name in the status (`up`, `down`, `idle`, `stopped`): warning and
+/// error-passive count as up (traffic still passes), reconnecting as down.
+fn can_state_name(s: &crate::io::can::bus::BusState) -> &'static str {
+    use crate::io::can::bus::BusState as S;
+    match s {
+        S::Starting => "idle",
+        S::Up | S::ErrorWarning | S::ErrorPassive => "up",
+        S::Down(_) | S::Reconnecting { .. } => "down",
+        S::Stopped => "stopped",
+    }
+}
+
 /// What a link's quality is judged against: its configured poll period and the freshness
 /// budget of the inputs it carries (the smallest input timeout among them; `None` when it
 /// carries no supervised input).
@@ -375,6 +440,10 @@ fn link_state_name(s: LinkState) -> &'static str {
 pub struct LinkCounters {
     /// CAN frame counters (unknown ids, wrong DLC, bad CRC, bus-off, reconnects, …).
     pub can: Option<Arc<crate::io::can::bus::CanCounters>>,
+    /// The CAN link's state, as its task publishes it.
+    pub can_state: Option<watch::Receiver<crate::io::can::bus::BusState>>,
+    /// The CAN link's name in the status (`can:<interface>`).
+    pub can_name: Option<String>,
     /// Modbus link monitor.
     pub modbus: Option<Arc<LinkMonitor>>,
     /// The Modbus link's name in events (`modbus:<address>`).
@@ -389,7 +458,16 @@ impl LinkCounters {
     pub fn to_json(&self) -> serde_json::Value {
         serde_json::json!({
             "feedback": self.feedback,
-            "can": self.can.as_ref().map(|c| serde_json::to_value(c.snapshot()).unwrap_or_default()),
+            "can": self.can.as_ref().map(|c| {
+                let mut v = serde_json::to_value(c.snapshot()).unwrap_or_default();
+                if let Some(o) = v.as_object_mut() {
+                    o.insert("name".into(), self.can_name.clone().unwrap_or_else(|| "can".into()).into());
+                    if let Some(rx) = &self.can_state {
+                        o.insert("state".into(), can_state_name(&rx.borrow()).into());
+                    }
+                }
+                v
+            }),
             "modbus": self.modbus.as_ref().map(|m| {
                 let mut v = serde_json::to_value(m.counters().snapshot()).unwrap_or_default();
                 if let Some(o) = v.as_object_mut() {
@@ -451,8 +529,10 @@ pub fn spawn_controller_links(
     }
     if map.uses_can() {
         let (can, codec) = can_codec(l)?;
-        let (handles, _state) = BusHandles::new(shutdown.clone());
+        let (handles, state) = BusHandles::new(shutdown.clone());
         counters.can = Some(Arc::clone(&handles.counters));
+        counters.can_state = Some(state);
+        counters.can_name = Some(can_link_name(&can.interface));
         let handles = handles.with_hook(bus_event_hook(events.clone(), can.interface.clone()));
         let boards = ControllerBoards {
             sensors: Arc::clone(&sensors),
@@ -604,5 +684,54 @@ mod tests {
         };
         assert_eq!(w.slow(20_000, 1_000, 2_000), None);
         assert!(w.slow(21_000, 1_000, 2_000).is_some());
+    }
+
+    #[test]
+    fn the_can_link_is_named_and_its_state_shown_like_the_modbus_link() {
+        use crate::io::can::bus::{BusState, CanCounters, DownCause};
+        let (tx, rx) = tokio::sync::watch::channel(BusState::Up);
+        let counters = super::LinkCounters {
+            can: Some(std::sync::Arc::new(CanCounters::default())),
+            can_state: Some(rx),
+            can_name: Some(super::can_link_name("can0")),
+            ..super::LinkCounters::default()
+        };
+        let j = counters.to_json();
+        assert_eq!(j["can"]["name"], "can:can0");
+        assert_eq!(j["can"]["state"], "up");
+        tx.send_replace(BusState::Down(DownCause::BusOff));
+        assert_eq!(counters.to_json()["can"]["state"], "down");
+        tx.send_replace(BusState::ErrorPassive);
+        assert_eq!(
+            counters.to_json()["can"]["state"],
+            "up",
+            "traffic still passes"
+        );
+    }
+
+    #[test]
+    fn each_sensor_knows_the_kinds_of_link_that_carry_it() {
+        use crate::faults::FieldLinkKind;
+        use crate::io::signal_map::InputLink;
+        use crate::signals::SensorId;
+        let row = |input, t: &str, link: Option<&str>| InputLink {
+            input,
+            transmitter: t.into(),
+            link: link.map(str::to_string),
+        };
+        let kinds = super::input_link_kinds(&[
+            row(SensorId::PSuction, "a", Some("can:can0")),
+            row(SensorId::OrificeDp, "a", Some("modbus:10.0.0.5:502")),
+            row(SensorId::OrificeDp, "b", Some("can:can0")),
+            row(SensorId::TSuction, "a", None),
+        ]);
+        let (can, modbus) = (
+            1 << FieldLinkKind::Can.code(),
+            1 << FieldLinkKind::Modbus.code(),
+        );
+        assert_eq!(kinds[SensorId::PSuction.index()], can);
+        assert_eq!(kinds[SensorId::OrificeDp.index()], can | modbus);
+        assert_eq!(kinds[SensorId::TSuction.index()], 0, "the embedded plant");
+        assert_eq!(kinds[SensorId::ShaftSpeed.index()], 0, "unbound");
     }
 }

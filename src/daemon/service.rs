@@ -569,7 +569,11 @@ async fn serve(loaded: Loaded, opts: RunOptions) -> Result<()> {
         crate::blackbox::history_capacity(cfg.cycle.period_ns()),
     )
     .context("cannot start the black-box recorder")?;
-    let node = node.with_black_box(bb_tx);
+    let node = node
+        .with_black_box(bb_tx)
+        .with_input_links(super::field::input_link_kinds(&super::field::input_links(
+            &loaded,
+        )));
     let control = spawn_control(
         node,
         cfg.cycle,
@@ -631,6 +635,7 @@ async fn serve(loaded: Loaded, opts: RunOptions) -> Result<()> {
         live,
         Arc::clone(&stats),
         Arc::new(move || links.to_json()),
+        super::field::input_links(&loaded),
         events.clone(),
         shutdown_rx.clone(),
         &mut tasks,

@@ -132,6 +132,21 @@ fn to_si(mut r: RegisterBinding, q: Quantity) -> RegisterBinding {
     r
 }
 
+/// One input the field links carry: a transmitter of a measurement and the link it comes
+/// in on. The status and the HMI name the link of each input from this table, so that a link
+/// that is down marks only the inputs it carries (the root-cause rule: a link failure is the
+/// link's, never a sensor's, and an unbound sensor shows nowhere).
+#[derive(Debug, Clone, PartialEq, Eq, Serialize, Deserialize)]
+pub struct InputLink {
+    /// The measurement.
+    pub input: SensorId,
+    /// The transmitter: `a` (`[sensors.<input>]`), `b` or `c` (`[vote.<input>]`).
+    pub transmitter: String,
+    /// The link that carries it, as the link lamps name it (`can:<interface>`,
+    /// `modbus:<address>`); `None`: no field link (the embedded plant).
+    pub link: Option<String>,
+}
+
 /// A problem in a signal map.
 #[derive(Debug, Clone, PartialEq)]
 pub struct MapProblem {
@@ -208,6 +223,33 @@ impl SignalMap {
                 Binding::Can { .. } => None,
             })
             .collect()
+    }
+
+    /// The input→link table (see [`InputLink`]): every bound transmitter, `a` first and
+    /// then the `[vote]` spares, in sensor order, named by the link of its binding's bus
+    /// (`can` / `modbus`: the names the link lamps use). Built once at start (the links and
+    /// the map need a restart to change), never on the control thread.
+    pub fn input_links(&self, can: &str, modbus: &str) -> Vec<InputLink> {
+        let link = |b: &Binding| match b {
+            Binding::Can { .. } => can.to_string(),
+            Binding::Modbus(_) => modbus.to_string(),
+        };
+        let mut out = Vec::new();
+        for (id, b) in &self.sensors {
+            out.push(InputLink {
+                input: *id,
+                transmitter: "a".into(),
+                link: Some(link(b)),
+            });
+            for (slot, spare) in self.vote.get(id).into_iter().flat_map(VoteBinding::spares) {
+                out.push(InputLink {
+                    input: *id,
+                    transmitter: crate::control::vote::TRANSMITTER_NAMES[slot].into(),
+                    link: Some(link(spare)),
+                });
+            }
+        }
+        out
     }
 
     /// Whether any signal uses CAN.
@@ -496,6 +538,42 @@ mod tests {
         assert_eq!(m.modbus_sensors().len(), 1);
         assert!(m.uses_can() && m.uses_modbus());
         assert!(m.check().is_empty());
+    }
+
+    #[test]
+    fn each_bound_transmitter_is_named_by_the_link_of_its_bus_and_an_unbound_sensor_by_none() {
+        // CAN and Modbus on one skid, a Δp vote across both buses
+        let m = parse(
+            "[sensors.p_suction]\ncan = { message = \"PLANT_Pressures\", signal = \"PSuction\" }\n\
+             [sensors.p_discharge]\ncan = { message = \"PLANT_Pressures\", signal = \"PDischarge\" }\n\
+             [sensors.orifice_dp]\nmodbus = { unit_id = 1, table = \"input\", address = 10, data_type = \"f32\" }\n\
+             [vote.orifice_dp]\nb = { can = { message = \"PLANT_Flow\", signal = \"OrificeDpB\" } }\n\
+             c = { modbus = { unit_id = 1, table = \"input\", address = 14, data_type = \"f32\" } }\n",
+        );
+        let t = m.input_links("can:can0", "modbus:10.0.0.5:502");
+        let rows: Vec<(&str, &str, Option<&str>)> = t
+            .iter()
+            .map(|l| (l.input.name(), l.transmitter.as_str(), l.link.as_deref()))
+            .collect();
+        assert_eq!(
+            rows,
+            [
+                ("p_suction", "a", Some("can:can0")),
+                ("p_discharge", "a", Some("can:can0")),
+                ("orifice_dp", "a", Some("modbus:10.0.0.5:502")),
+                ("orifice_dp", "b", Some("can:can0")),
+                ("orifice_dp", "c", Some("modbus:10.0.0.5:502")),
+            ]
+        );
+        // an unbound sensor is in no row: it shows nowhere
+        for unbound in [SensorId::ShaftSpeed, SensorId::TSuction] {
+            assert!(t.iter().all(|l| l.input != unbound), "{unbound:?} in {t:?}");
+        }
+        let json = serde_json::to_value(&t[3]).expect("json");
+        assert_eq!(
+            json,
+            serde_json::json!({"input": "orifice_dp", "transmitter": "b", "link": "can:can0"})
+        );
     }
 
     #[test]

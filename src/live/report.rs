@@ -6,6 +6,7 @@ use serde::{Deserialize, Serialize};
 
 use super::snapshot::{FlowSourceNow, LiveSnapshot};
 use crate::events::cause::Cause;
+use crate::io::signal_map::InputLink;
 use crate::signals::SensorId;
 
 /// One fault lamp: an input that is not usable now.
@@ -13,6 +14,26 @@ use crate::signals::SensorId;
 pub struct FaultLamp {
     /// The input.
     pub input: SensorId,
+}
+
+/// One input the skid's field links carry (a transmitter of a measurement), with the link
+/// that carries it and whether that link is down: the HMI marks amber only the inputs of a
+/// link that is down, naming the link (the root cause), and leaves the healthy link's inputs
+/// as they are. Unbound sensors have no entry.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct InputReport {
+    /// The measurement.
+    pub input: SensorId,
+    /// The transmitter: `a` (`[sensors]`), `b` or `c` (`[vote]`).
+    pub transmitter: String,
+    /// The link that carries it (`can:<interface>`, `modbus:<address>`, as
+    /// `links.<kind>.name`); null: no field link (the embedded plant).
+    pub link: Option<String>,
+    /// Whether that link is down now (`links.<kind>.state` is `down`).
+    pub link_down: bool,
+    /// `ok`; `link_down`: its link is down, the link is the root cause (amber); `fault`: the
+    /// input's own fault on a live link (stale, out of range, voted out, …; red).
+    pub state: String,
 }
 
 /// One redundant transmitter (the HMI draws a lamp per entry).
@@ -154,6 +175,10 @@ pub struct StatusReport {
     /// The degraded policy in force (a degraded vote, a slow field link).
     #[serde(default)]
     pub degraded_policy: DegradedPolicy,
+    /// The inputs the skid's links carry, per transmitter, with their link (empty: no
+    /// table given, e.g. the one-line status).
+    #[serde(default)]
+    pub inputs: Vec<InputReport>,
     /// Faults of the votes now, by category name (`transmitter_deviation`,
     /// `vote_degraded`): the bits the control thread adds to the fault word on the wire.
     #[serde(default)]
@@ -280,8 +305,61 @@ impl StatusReport {
             votes: Vec::new(),
             degraded_policy: DegradedPolicy::default(),
             vote_faults: Vec::new(),
+            inputs: Vec::new(),
         }
         .with_votes(s)
+    }
+
+    /// With the state of each input of `table` (the input→link table built at start from the
+    /// signal map): its link down (from this report's `links.<kind>.name` and `.state`, what
+    /// the link lamps show), or its own fault (a voted transmitter voted out; any other input
+    /// in `faults`).
+    pub fn with_inputs(mut self, table: &[InputLink], s: &LiveSnapshot) -> StatusReport {
+        let down: Vec<&str> = ["can", "modbus"]
+            .iter()
+            .filter_map(|k| {
+                let l = self.links.get(*k)?;
+                (l.get("state")?.as_str()? == "down").then_some(l.get("name")?.as_str()?)
+            })
+            .collect();
+        self.inputs = table
+            .iter()
+            .map(|row| {
+                let link_down = row.link.as_deref().is_some_and(|l| down.contains(&l));
+                let vote = s
+                    .votes
+                    .votes
+                    .iter()
+                    .find(|v| v.bound > 0 && v.input == row.input);
+                let fault = match vote {
+                    Some(v) => crate::control::vote::TRANSMITTER_NAMES
+                        .iter()
+                        .position(|t| *t == row.transmitter)
+                        .is_some_and(|t| {
+                            matches!(
+                                v.states[t],
+                                crate::control::vote::TransmitterState::VotedOut(_)
+                            )
+                        }),
+                    None => s.fault_bits & (1 << row.input.index()) != 0,
+                };
+                InputReport {
+                    input: row.input,
+                    transmitter: row.transmitter.clone(),
+                    link: row.link.clone(),
+                    link_down,
+                    state: if link_down {
+                        "link_down"
+                    } else if fault {
+                        "fault"
+                    } else {
+                        "ok"
+                    }
+                    .into(),
+                }
+            })
+            .collect();
+        self
     }
 
     fn with_votes(mut self, s: &LiveSnapshot) -> StatusReport {
@@ -417,7 +495,17 @@ pub fn human(r: &StatusReport) -> String {
     } else {
         r.faults
             .iter()
-            .map(|l| l.input.name())
+            .map(|l| {
+                // a link that is down is the root: named beside the inputs it carries
+                match r.inputs.iter().find(|i| i.input == l.input && i.link_down) {
+                    Some(i) => format!(
+                        "{} (link {} down)",
+                        l.input.name(),
+                        i.link.as_deref().unwrap_or("?")
+                    ),
+                    None => l.input.name().to_string(),
+                }
+            })
             .collect::<Vec<_>>()
             .join(", ")
     };
@@ -614,6 +702,124 @@ mod tests {
                 "transmitters: orifice_dp.b deviating (deviation), orifice_dp.c voted out (frozen)"
             ),
             "{line}"
+        );
+    }
+
+    #[test]
+    fn a_link_down_marks_only_the_inputs_it_carries_and_names_the_link() {
+        use crate::control::vote::{TransmitterCheck, TransmitterState, VoteRule, VoteStatus};
+        // the table of a skid with both buses (SignalMap::input_links): the pressures on CAN,
+        // the Δp `a` and `c` on Modbus, `b` on CAN; no shaft speed or temperature bound
+        let row = |input, t: &str, link: &str| InputLink {
+            input,
+            transmitter: t.into(),
+            link: Some(link.into()),
+        };
+        let (can, modbus) = ("can:can0", "modbus:10.0.0.5:502");
+        let table = [
+            row(SensorId::PSuction, "a", can),
+            row(SensorId::PDischarge, "a", can),
+            row(SensorId::OrificeDp, "a", modbus),
+            row(SensorId::OrificeDp, "b", can),
+            row(SensorId::OrificeDp, "c", modbus),
+        ];
+        // the Modbus link is down: its transmitters stale and voted out; on the live CAN link
+        // p_discharge is out of range (its own fault), p_suction healthy
+        let mut s = LiveSnapshot {
+            mode: Mode::Auto,
+            fault_bits: 1 << SensorId::PDischarge.index(),
+            ..LiveSnapshot::default()
+        };
+        s.votes.votes[3] = VoteStatus {
+            input: SensorId::OrificeDp,
+            bound: 3,
+            valid: 1,
+            rule: VoteRule::HoldLast,
+            value: 1000.0,
+            values: [f64::NAN, 1000.0, f64::NAN],
+            states: [
+                TransmitterState::VotedOut(TransmitterCheck::Stale),
+                TransmitterState::Healthy,
+                TransmitterState::VotedOut(TransmitterCheck::Stale),
+            ],
+            degraded: true,
+        };
+        let links = serde_json::json!({
+            "can": {"name": can, "state": "up"},
+            "modbus": {"name": modbus, "state": "down"},
+        });
+        let r = StatusReport::new(&s, 1.0, serde_json::Value::Null, links).with_inputs(&table, &s);
+        let got: Vec<(&str, &str, &str, bool)> = r
+            .inputs
+            .iter()
+            .map(|i| {
+                (
+                    i.input.name(),
+                    i.transmitter.as_str(),
+                    i.state.as_str(),
+                    i.link_down,
+                )
+            })
+            .collect();
+        assert_eq!(
+            got,
+            [
+                ("p_suction", "a", "ok", false),
+                ("p_discharge", "a", "fault", false),
+                ("orifice_dp", "a", "link_down", true),
+                ("orifice_dp", "b", "ok", false),
+                ("orifice_dp", "c", "link_down", true),
+            ]
+        );
+        let json = serde_json::to_value(&r).expect("json");
+        assert_eq!(
+            json["inputs"][2],
+            serde_json::json!({"input": "orifice_dp", "transmitter": "a", "link": modbus,
+                "link_down": true, "state": "link_down"})
+        );
+        // no row for an unbound sensor
+        assert!(r
+            .inputs
+            .iter()
+            .all(|i| !matches!(i.input, SensorId::ShaftSpeed | SensorId::TSuction)));
+        let back: StatusReport =
+            serde_json::from_str(&serde_json::to_string(&r).expect("json")).expect("parse");
+        assert_eq!(back, r);
+
+        // the CAN link down instead: its inputs (the pressures, Δp `b`) are the link's, the
+        // faults line names the link beside them; the Modbus transmitters stay as they are
+        let mut s = LiveSnapshot {
+            mode: Mode::FailSafe,
+            fault_bits: (1 << SensorId::PSuction.index()) | (1 << SensorId::PDischarge.index()),
+            ..LiveSnapshot::default()
+        };
+        s.votes.votes[3] = VoteStatus {
+            input: SensorId::OrificeDp,
+            bound: 3,
+            valid: 2,
+            rule: VoteRule::Conservative,
+            value: 1000.0,
+            values: [1000.0, f64::NAN, 1001.0],
+            states: [
+                TransmitterState::Healthy,
+                TransmitterState::VotedOut(TransmitterCheck::Stale),
+                TransmitterState::Healthy,
+            ],
+            degraded: true,
+        };
+        let links = serde_json::json!({
+            "can": {"name": can, "state": "down"},
+            "modbus": {"name": modbus, "state": "up"},
+        });
+        let r = StatusReport::new(&s, 1.0, serde_json::Value::Null, links).with_inputs(&table, &s);
+        let states: Vec<&str> = r.inputs.iter().map(|i| i.state.as_str()).collect();
+        assert_eq!(states, ["link_down", "link_down", "ok", "link_down", "ok"]);
+        let text = human(&r);
+        assert!(
+            text.contains(
+                "faults        p_suction (link can:can0 down), p_discharge (link can:can0 down)"
+            ),
+            "{text}"
         );
     }
 }

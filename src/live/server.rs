@@ -38,6 +38,9 @@ pub struct LiveContext {
     pub stats: Arc<CycleStats>,
     /// Link counters as JSON.
     pub links: Arc<dyn Fn() -> serde_json::Value + Send + Sync>,
+    /// The input→link table, built once at start from the signal map
+    /// ([`crate::io::signal_map::SignalMap::input_links`]): the report's `inputs`.
+    pub inputs: Arc<[crate::io::signal_map::InputLink]>,
     /// Event log.
     pub events: EventSender,
     /// The operator token file.
@@ -83,6 +86,7 @@ impl LiveContext {
             stats,
             (self.links)(),
         )
+        .with_inputs(&self.inputs, s)
     }
 
     /// Check the token and hand the action to the control thread; returns what changed.

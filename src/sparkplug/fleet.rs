@@ -108,6 +108,7 @@ async fn run_async(o: &FleetOptions) -> Result<FleetReport, String> {
             commands: Arc::new(Mutex::new(tx)),
             stats: Arc::new(CycleStats::default()),
             links: Arc::new(|| serde_json::json!({})),
+            inputs: Arc::new([]),
             events: log.sender(),
             token_file: dir.join("no-token"),
             started: Instant::now(),

@@ -90,6 +90,7 @@ pub mod campaign;
 pub mod counting_alloc;
 pub mod daemon;
 pub mod faults;
+pub mod modbus_skid;
 pub mod node;
 pub mod peak_alloc;
 pub mod plant_node;
