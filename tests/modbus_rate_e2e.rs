@@ -1258,16 +1258,18 @@ fn throttle_step(poll_hz: f64, name: &'static str) {
 }
 
 /// First run (recycle-pi before the issue-22 rebuild): 8 and 10 surge cycles in two runs, the
-/// first command above 5 % 243–256 ms after the step (the oracle needs 60 ms).
+/// first command above 5 % 243–256 ms after the step (the oracle needs 60 ms). With the
+/// commands on their own connection, 1 surge cycle in 2 of 5 runs (the trip fired on the second
+/// sample after the step). With the throttle watch (the throttle position register shows the
+/// slam on the first poll after it began): 0 surge cycles, the first command at +39 and +53 ms.
 #[test]
-#[ignore = "not met: 1 surge cycle in 2 of 5 runs with the commands on their own connection (was 6 of 7 on one). The first command lands 52-86 ms after the step; the oracle holds when the valve opens by +65 ms, not at +70 ms. The first sample after the step shows the flow barely moved (the throttle strokes in 20 ms), the trip fires on the second: one read period (~13 ms at 100 Hz on this device) plus a read and a write latency (5-20 ms each) after it"]
 fn throttle_step_at_100_hz_polling_does_not_surge() {
     throttle_step(100.0, "throttle step");
 }
 
-/// First run: 11 surge cycles, the first command above 5 % 272 ms after the step.
+/// First run: 11 surge cycles, the first command above 5 % 272 ms after the step. With the
+/// throttle watch: 0 surge cycles, the first command at +35 and +56 ms.
 #[test]
-#[ignore = "not met: 1 surge cycle in 2 of 5 runs with the commands on their own connection (was 5 of 7 on one); the first command lands 52-96 ms after the step, the oracle needs +65 ms (see the 100 Hz case: the trip fires on the second sample after the step, 20 ms apart at 50 Hz)"]
 fn throttle_step_at_50_hz_polling_does_not_surge() {
     throttle_step(50.0, "throttle step");
 }
