@@ -510,10 +510,12 @@ impl SurgeLaw for RecyclePi {
             } else {
                 self.u_last
             };
-            if self.trip.approaching() {
-                // the point still moves towards the line (the plant answering an earlier
-                // closing, or a disturbance): closing now would add to an approach whose
-                // end is not yet known; the closing waits until the point settles
+            let line = if j > 0.0 { (c - j) / j } else { f64::NAN };
+            if self.trip.drifting_below(line) {
+                // the point still drifts towards the control line and would pass it within a
+                // hold time (the plant answering an earlier closing, or a disturbance):
+                // closing now would add to an approach whose end is not yet known; the
+                // closing waits until the drift settles
                 0.0
             } else {
                 ClosingLimiter::approach_cap_per_s(

@@ -245,11 +245,14 @@ impl RecycleTrip {
     }
 
     /// Whether the margin's drift, fitted over the hold time (one period of the slowest
-    /// surge: the time the pressures take to answer a valve move), falls beyond its noise (k σ
-    /// of the fitted slope): the point is still moving towards the surge line.
-    pub fn approaching(&self) -> bool {
+    /// surge: the time the pressures take to answer a valve move) and moved by its noise (k σ
+    /// of the fitted slope), brings the newest margin below `line` within one more hold time:
+    /// the point is still moving towards the surge line and would pass `line`.
+    pub fn drifting_below(&self, line: f64) -> bool {
         let (trend, per_sigma) = self.drift.fitted_slope(self.hold_s);
-        trend.is_finite() && trend + self.noise_factor * self.samples.noise() * per_sigma < 0.0
+        let (m0, _) = self.samples.sample(0);
+        let rate = trend + self.noise_factor * self.samples.noise() * per_sigma;
+        trend.is_finite() && rate < 0.0 && m0 + self.hold_s * rate < line
     }
 
     /// The measured noise of the margin (σ, fraction of surge-line flow).
