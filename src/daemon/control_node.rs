@@ -614,7 +614,9 @@ impl ControlNode {
             }
         }
         match out.law_event {
-            Some(LawEvent::RecycleTrip { cause: criterion, .. }) => {
+            Some(LawEvent::RecycleTrip {
+                cause: criterion, ..
+            }) => {
                 let m = &out.measurements;
                 let margin = self.core.model().surge_margin(m.flow_map, m.pressure_ratio);
                 let trip = self.core.control_line().map(|(_, t)| 100.0 * t);

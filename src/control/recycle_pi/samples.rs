@@ -308,7 +308,10 @@ mod tests {
         assert!((slope + 0.5).abs() < 1e-9, "{slope}");
         let (_, per_sigma_short) = s.fitted_slope(0.02);
         // 26 samples over 0.2 s against 3 over 0.016 s
-        assert!(per_sigma < 0.1 * per_sigma_short, "{per_sigma} {per_sigma_short}");
+        assert!(
+            per_sigma < 0.1 * per_sigma_short,
+            "{per_sigma} {per_sigma_short}"
+        );
         assert!(s.len() == RING && s.sample(0).1 - s.sample(1).1 >= 0.008 - 1e-9);
     }
 

@@ -148,8 +148,7 @@ impl ThrottleWatch {
         }
         let (theta_now, t_newest) = self.samples.sample(0);
         let now = t_s.max(t_newest);
-        let Some((theta_ref, seen_s)) = self.samples.value_at(now - rate_window_s.max(0.0))
-        else {
+        let Some((theta_ref, seen_s)) = self.samples.value_at(now - rate_window_s.max(0.0)) else {
             return out;
         };
         if theta_ref < MIN_REFERENCE_OPENING {
@@ -222,7 +221,10 @@ mod tests {
             let (r, at) = smallest_ratio(rate, slam, 0.0, 3.0);
             // the closing seen on the first sample, extrapolated, removes most of the flow
             assert!(r < 0.5, "{rate} Hz: {r}");
-            assert!(at <= first + 1e-3 + 1e-9, "{rate} Hz: at {at}, first poll {first}");
+            assert!(
+                at <= first + 1e-3 + 1e-9,
+                "{rate} Hz: at {at}, first poll {first}"
+            );
         }
     }
 

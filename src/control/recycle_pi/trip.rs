@@ -442,7 +442,16 @@ mod tests {
         while (k as f64) * dt < t_end {
             let t = k as f64 * dt;
             let t_sample = (t / period).floor() * period;
-            let (d, fired) = trip.update(margin(t_sample), t_sample, LINE, GAP, u, 0.0, ThrottlePrediction::NONE, dt);
+            let (d, fired) = trip.update(
+                margin(t_sample),
+                t_sample,
+                LINE,
+                GAP,
+                u,
+                0.0,
+                ThrottlePrediction::NONE,
+                dt,
+            );
             if fired.is_some() {
                 return Some((t, d));
             }
@@ -507,7 +516,16 @@ mod tests {
         let mut fired = false;
         for k in 0..20_000 {
             let t = k as f64 * 1e-3;
-            let (_, f) = trip.update(0.10 + 0.03 * noise(3, t), t, LINE, GAP, 0.1, 0.0, ThrottlePrediction::NONE, 1e-3);
+            let (_, f) = trip.update(
+                0.10 + 0.03 * noise(3, t),
+                t,
+                LINE,
+                GAP,
+                0.1,
+                0.0,
+                ThrottlePrediction::NONE,
+                1e-3,
+            );
             fired |= f.is_some();
         }
         assert!(fired);
@@ -529,7 +547,16 @@ mod tests {
             } else {
                 0.10 + quantum * f64::from(k / 100 % 2)
             };
-            let (_, f) = trip.update(m, t_sample, LINE, GAP, 0.0, t - t_sample, ThrottlePrediction::NONE, dt);
+            let (_, f) = trip.update(
+                m,
+                t_sample,
+                LINE,
+                GAP,
+                0.0,
+                t - t_sample,
+                ThrottlePrediction::NONE,
+                dt,
+            );
             if k < 402 {
                 assert_eq!(f, None, "no trip in the standstill ({t} s)");
             } else {
@@ -566,7 +593,9 @@ mod tests {
             } else {
                 0.10 + 1e-6 * (k % 2) as f64
             };
-            fired = fired.or(fast.update(m, t, LINE, GAP, 0.1, 0.0, ThrottlePrediction::NONE, 1e-3).1);
+            fired = fired.or(fast
+                .update(m, t, LINE, GAP, 0.1, 0.0, ThrottlePrediction::NONE, 1e-3)
+                .1);
         }
         assert_eq!(fired, None);
         let mut slow = RecycleTrip::new(&TripConfig::default(), 2.0);
@@ -577,7 +606,9 @@ mod tests {
             } else {
                 0.10 + 1e-6 * (k % 2) as f64
             };
-            fired = fired.or(slow.update(m, t, LINE, GAP, 0.1, 0.0, ThrottlePrediction::NONE, 0.02).1);
+            fired = fired.or(slow
+                .update(m, t, LINE, GAP, 0.1, 0.0, ThrottlePrediction::NONE, 0.02)
+                .1);
         }
         assert_eq!(fired, Some(TripKind::Level));
     }
