@@ -1,7 +1,10 @@
 //! The streamed trace of `antisurge sim` (issue 25: memory bounded by streaming): the bytes of
-//! `trace.csv` are those the whole-trace writer wrote before (a golden file written by the
-//! binary of commit 1ec4728, which kept the whole trace in memory), through the library and
-//! through the binary, and the summary is the one of the run kept in memory.
+//! `trace.csv` are those the whole-trace writer writes (through the library, compared row by row
+//! with the trace kept in memory) and a golden file (first written by the binary of commit
+//! 1ec4728, which kept the whole trace in memory; rewritten by the streaming binary when
+//! recycle-pi's throttle watch changed this run's trajectory, issue 22: the library test below
+//! still holds the streamed bytes equal to the whole-trace writer's), and the summary is the
+//! one of the run kept in memory.
 
 mod common;
 
@@ -90,7 +93,10 @@ fn streamed_trace_is_byte_identical_to_the_whole_trace_and_the_golden_file() {
         "whole-trace trace.csv differs from the golden file"
     );
     assert_eq!(comparable(&summary), comparable(&kept.summary));
-    assert!(summary.settle_time_s.is_some(), "the golden run settles");
+    // (the run no longer settles within its 3 s since the throttle watch trips on its step
+    // and the valve returns at 0.1/s: the settle figure, None, is compared above with the kept
+    // run's)
+    assert!(summary.settle_time_s.is_none(), "{summary:?}");
     assert_eq!(bits(trace.pictures.map_rows()), bits(&kept.trace));
     assert_eq!(bits(&trace.pictures.series_rows()), bits(&kept.trace));
 }

@@ -477,9 +477,13 @@ impl SurgeLaw for RecyclePi {
             self.cfg.trip.noise_factor,
             dt,
         );
-        // the throttle passes the compressor flow less what the recycle valve returns
+        // the throttle passes the compressor flow less what the recycle valve returns; of the
+        // flow it will no longer pass, the part the margin's trend already shows falling over
+        // the horizon is the margin prediction's to judge (a slow ramp the flow follows as it
+        // goes): the throttle predicts what the flow has not yet shown
         let share = throttle_share(inputs.model, m);
-        throttle.flow_ratio = 1.0 - share * (1.0 - throttle.flow_ratio);
+        let shown = self.trip.horizon_s(age_s) * self.trip.trend_fall_per_s() / (1.0 + margin);
+        throttle.flow_ratio = (1.0 - share * (1.0 - throttle.flow_ratio) + shown.max(0.0)).min(1.0);
         let (trip_demand, trip_fired) = self.trip.update(
             margin,
             t_sample_s,

@@ -200,8 +200,15 @@ impl DistinctSamples {
     /// (at least three), per second, and its standard deviation per unit of sample noise
     /// (1/√Σ(t − t̄)²: times σ it is the slope's own noise). NaN without three samples.
     pub fn fitted_slope(&self, window_s: f64) -> (f64, f64) {
+        let (slope, per_sigma, _) = self.fitted_line(window_s);
+        (slope, per_sigma)
+    }
+
+    /// [`DistinctSamples::fitted_slope`], and the fitted line's value at the newest sample's
+    /// time (the level with the samples' noise averaged out).
+    pub fn fitted_line(&self, window_s: f64) -> (f64, f64, f64) {
         if self.len < 3 {
-            return (f64::NAN, f64::NAN);
+            return (f64::NAN, f64::NAN, f64::NAN);
         }
         let (_, t0) = self.sample(0);
         let mut n = 0usize;
@@ -224,9 +231,10 @@ impl DistinctSamples {
             stv += dt * (v - vm);
         }
         if stt <= 0.0 {
-            return (f64::NAN, f64::NAN);
+            return (f64::NAN, f64::NAN, f64::NAN);
         }
-        (stv / stt, 1.0 / stt.sqrt())
+        let slope = stv / stt;
+        (slope, 1.0 / stt.sqrt(), vm - slope * tm)
     }
 
     /// Slope of the value over the last `window_s` (at least one sample interval), per
@@ -306,6 +314,8 @@ mod tests {
         // 8 ms apart: 48 samples span 0.376 s
         let (slope, per_sigma) = s.fitted_slope(0.2);
         assert!((slope + 0.5).abs() < 1e-9, "{slope}");
+        let (_, _, level) = s.fitted_line(0.2);
+        assert!((level - s.sample(0).0).abs() < 1e-9, "{level}");
         let (_, per_sigma_short) = s.fitted_slope(0.02);
         // 26 samples over 0.2 s against 3 over 0.016 s
         assert!(

@@ -244,15 +244,28 @@ impl RecycleTrip {
         self.hold_left_s > 0.0
     }
 
+    /// The rate at which the margin's trend (fitted over one lead time) already falls, 1/s
+    /// (≥ 0; 0 without a trend).
+    pub fn trend_fall_per_s(&self) -> f64 {
+        let (trend, _) = self.trend.fitted_slope(self.lead_time_s);
+        if trend.is_finite() {
+            (-trend).max(0.0)
+        } else {
+            0.0
+        }
+    }
+
     /// Whether the margin's drift, fitted over the hold time (one period of the slowest
     /// surge: the time the pressures take to answer a valve move) and moved by its noise (k σ
-    /// of the fitted slope), brings the newest margin below `line` within one more hold time:
-    /// the point is still moving towards the surge line and would pass `line`.
+    /// of the fitted slope), brings the newest margin below `line` by more than its noise (k σ)
+    /// within one more hold time: the point is still moving towards the surge line and would
+    /// pass `line` (a noisy sample just left of the line is no drift).
     pub fn drifting_below(&self, line: f64) -> bool {
         let (trend, per_sigma) = self.drift.fitted_slope(self.hold_s);
         let (m0, _) = self.samples.sample(0);
-        let rate = trend + self.noise_factor * self.samples.noise() * per_sigma;
-        trend.is_finite() && rate < 0.0 && m0 + self.hold_s * rate < line
+        let noise = self.noise_factor * self.samples.noise();
+        let rate = trend + noise * per_sigma;
+        trend.is_finite() && rate < 0.0 && m0 + self.hold_s * rate < line - noise
     }
 
     /// The measured noise of the margin (σ, fraction of surge-line flow).
