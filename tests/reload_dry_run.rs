@@ -159,6 +159,13 @@ fn a_kp_times_100_edit_is_refused_by_the_dry_run_and_the_valve_does_not_step() {
     assert_eq!(code, 78, "{text}");
     write_atomically(&cfg, &base.replace("KP", "11.0"));
 
+    // (the checks below look at the trace after the closure: let the run reach 12.5 s of plant
+    // time before stopping it, however quickly the reloads above were answered)
+    until(dir, "12.5 s of plant time", || {
+        column(&dir.join("plant"), "cmd_recycle_valve")
+            .last()
+            .is_some_and(|r| r.0 > 12.5)
+    });
     signal(&d, libc::SIGTERM);
     let st = wait(&mut d, Duration::from_secs(30), "controller", dir);
     assert!(st.success(), "controller exit {st:?}:\n{}", logs(dir));
