@@ -343,8 +343,9 @@ fn the_oracle_moves_the_valve_one_latency_period_latency_and_dead_time_after_the
 }
 
 /// The oracles and the held valve start where the laws held the valve when the disturbance
-/// came (the larger of their two openings), not at the skid's drawn initial opening (15-30 %
-/// margin): the valve sits there until the oracle's command arrives.
+/// came (the larger of the openings of the laws that had not surged before it), not at the
+/// skid's drawn initial opening (15-30 % margin): the valve sits there until the oracle's
+/// command arrives.
 #[test]
 fn the_oracle_starts_on_the_control_line_the_laws_held() {
     let b = bases();
@@ -353,7 +354,16 @@ fn the_oracle_starts_on_the_control_line_the_laws_held() {
         let s = skid::draw_skid(&b, cmp::DEFAULT_SEED, k).expect("skid");
         let rp = runner::run(&s, Controller::Law(LawId::RecyclePi), 10.0).expect("recycle-pi");
         let bp = runner::run(&s, Controller::Law(LawId::BaselinePi), 10.0).expect("baseline-pi");
-        let opening = rp.opening_at_event.max(bp.opening_at_event);
+        let settled: Vec<f64> = [&rp, &bp]
+            .iter()
+            .filter(|r| !r.reversed_before_event)
+            .map(|r| r.opening_at_event)
+            .collect();
+        let opening = if settled.is_empty() {
+            rp.opening_at_event.max(bp.opening_at_event)
+        } else {
+            settled.iter().copied().fold(f64::NEG_INFINITY, f64::max)
+        };
         assert!(opening.is_finite(), "case {k}");
         let c = Controller::Oracle { late_periods: 0 };
         let on = cmp::skid_for(c, &s, [&rp, &bp]);
@@ -375,4 +385,37 @@ fn the_oracle_starts_on_the_control_line_the_laws_held() {
     }
     // (the drawn initial opening differs from the control line's in these cases)
     assert!(moved_start > 0, "every case started on its initial opening");
+}
+
+/// A law that surged before the disturbance was recovering from its own surge when it came,
+/// its valve wide open: the oracle does not start from its opening. Case 84 of the campaign:
+/// baseline-pi surges at 3.1 s and holds ≈ 0.75 at 5 s; recycle-pi holds ≈ 0.09 on the line.
+#[test]
+fn a_law_that_surged_before_the_disturbance_does_not_set_the_oracles_start() {
+    let b = bases();
+    let s = skid::draw_skid(&b, cmp::DEFAULT_SEED, 84).expect("skid");
+    let rp = runner::run(&s, Controller::Law(LawId::RecyclePi), 10.0).expect("recycle-pi");
+    let bp = runner::run(&s, Controller::Law(LawId::BaselinePi), 10.0).expect("baseline-pi");
+    assert!(
+        bp.reversed_before_event && !rp.reversed_before_event,
+        "the case no longer shows it: baseline-pi reversed {}, recycle-pi {}",
+        bp.reversed_before_event,
+        rp.reversed_before_event
+    );
+    assert!(bp.opening_at_event > rp.opening_at_event + 0.2);
+    let on = cmp::on_the_control_line(&s, [&rp, &bp]);
+    assert!(
+        (on.plant.file.initial.recycle_valve - rp.opening_at_event).abs() < 1e-12,
+        "the oracle starts at {}, recycle-pi held {}",
+        on.plant.file.initial.recycle_valve,
+        rp.opening_at_event
+    );
+    // both surged before it: the larger opening, as before
+    let mut rp2 = rp;
+    rp2.reversed_before_event = true;
+    let on2 = cmp::on_the_control_line(&s, [&rp2, &bp]);
+    assert_eq!(
+        on2.plant.file.initial.recycle_valve,
+        bp.opening_at_event.clamp(0.0, 1.0)
+    );
 }

@@ -100,6 +100,9 @@ pub struct RunResult {
     /// Mean valve command over the last [`OPENING_WINDOW_S`] before the disturbance, fraction
     /// (NaN: none delivered): where the controller held the valve when the disturbance came.
     pub opening_at_event: f64,
+    /// Whether the compressor flow reversed before the disturbance (the controller was
+    /// recovering from a surge of its own, not holding the control line, when it came).
+    pub reversed_before_event: bool,
 }
 
 /// Window of [`RunResult::opening_at_event`], s: one second, many samples of the noisiest
@@ -327,6 +330,7 @@ pub fn run_traced(
     let mut stayed_auto = true;
     let mut delivered = ActuatorCommands::default();
     let (mut opening_sum, mut opening_n) = (0.0, 0u32);
+    let mut reversed_before_event = false;
     for k in 0..=n {
         let t = k as f64 * dt;
         let (st, mut raw) = pr.sense(t);
@@ -383,6 +387,9 @@ pub fn run_traced(
             opening_n += 1;
         }
         let truth = pr.plant().truth();
+        if t < EVENT_AT_S && truth.m_kg_s < 0.0 {
+            reversed_before_event = true;
+        }
         delivered.set(
             ActuatorId::DriveTorque,
             governor.update(
@@ -411,6 +418,7 @@ pub fn run_traced(
         } else {
             f64::NAN
         },
+        reversed_before_event,
     };
     Ok((r, sim))
 }
