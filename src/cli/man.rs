@@ -44,6 +44,11 @@ const CONFIG_DIR: Entry = (
      config/ directory next to the executable, or /etc/antisurge; without any of them the \
      copies built into the binary are used.",
 );
+const DAEMON_FILES: Entry = (
+    "/etc/antisurge/{plants,maps,scenarios,machines}/",
+    "Plant, map, scenario and machine files the configuration names ([plant] file, \
+     [machine] file, ...), relative to the main configuration file.",
+);
 const SIGNAL_MAP: Entry = (
     "/etc/antisurge/signals.toml, /etc/antisurge/skid.dbc",
     "The signal map (each sensor and actuator bound to a CAN signal or a Modbus register) \
@@ -140,7 +145,15 @@ fn sections(command: &str) -> Sections {
     match command {
         "run" => Sections {
             files: vec![
-                CONFIG, CONF_D, SIGNAL_MAP, CONFIG_DIR, TOKEN, SOCKET, STATE, EVENTS, BLACKBOX,
+                CONFIG,
+                CONF_D,
+                SIGNAL_MAP,
+                DAEMON_FILES,
+                TOKEN,
+                SOCKET,
+                STATE,
+                EVENTS,
+                BLACKBOX,
             ],
             exit_status: vec![
                 ("0", "Stopped by SIGTERM or SIGINT (after commanding the safe state), or after --duration-s."),
@@ -157,7 +170,7 @@ fn sections(command: &str) -> Sections {
             ],
         },
         "plant" => Sections {
-            files: vec![CONFIG, CONF_D, SIGNAL_MAP, CONFIG_DIR],
+            files: vec![CONFIG, CONF_D, SIGNAL_MAP, DAEMON_FILES],
             exit_status: vec![EXIT_OK, EXIT_CONFIG, EXIT_OTHER],
             environment: vec![ENV_CONFIG_DIR, ENV_LAYER, ENV_LOG],
             signals: vec![(
@@ -166,7 +179,7 @@ fn sections(command: &str) -> Sections {
             )],
         },
         "check-config" => Sections {
-            files: vec![CONFIG, CONF_D, SIGNAL_MAP, CONFIG_DIR, TOKEN, SOCKET],
+            files: vec![CONFIG, CONF_D, SIGNAL_MAP, DAEMON_FILES, TOKEN, SOCKET],
             exit_status: vec![
                 ("0", "The configuration is valid (warnings are printed and do not fail)."),
                 ("78", "EX_CONFIG: errors (each with file, line, key and a hint), or with --against-running a key the running files set is missing from the new ones."),
