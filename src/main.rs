@@ -19,48 +19,72 @@ struct Cli {
     command: Option<Command>,
 }
 
+/// The commands, in the order `antisurge --help` lists them (`display_order`): the operator's
+/// first (the controller service, its status, actions, events, config check and reload, the
+/// simulator), then the engineer's tools (the simulated skid, replay, pictures, shell
+/// completions, manual pages), then the developer's benchmarks.
 #[derive(Debug, Subcommand)]
 enum Command {
-    /// Simulate a scenario on a benchmark plant (no hardware needed).
-    Sim(cli::sim::SimArgs),
-    /// Print the benchmark table (every plant × applicable law) that README.md shows.
-    Table(cli::table::TableArgs),
-    /// Print the control benchmark matrix (recycle-pi against baseline-pi) that README.md shows.
-    BenchMatrix(cli::bench_matrix::BenchMatrixArgs),
-    /// Run the robustness campaign: random skids at field-bus loop rates, recycle-pi against
-    /// baseline-pi and the feasibility oracle (`--case K` reruns one case).
-    Campaign(cli::campaign::CampaignArgs),
+    // ---- operator
     /// Run the controller service (SocketCAN / Modbus, or the in-process simulated plant).
+    #[command(display_order = 1)]
     Run(cli::daemon::RunArgs),
-    /// Run the simulated skid as a node on the field buses (hardware-in-the-loop).
-    Plant(cli::daemon::PlantArgs),
+    /// Show the running controller's live status (mode, cause, deviation, valve, surges).
+    #[command(display_order = 2)]
+    Status(cli::status::StatusArgs),
+    /// Operator action on the running controller (needs the operator token).
+    #[command(display_order = 3)]
+    Operate(cli::status::OperateArgs),
+    /// Print the event log readably.
+    #[command(display_order = 4)]
+    Events(cli::daemon::EventsArgs),
     /// Check a configuration (the same checks as start-up and reload); exit status 78 (EX_CONFIG) on errors.
+    #[command(display_order = 5)]
     CheckConfig(cli::daemon::CheckArgs),
     /// Reload the running controller (`systemctl reload` runs it): check the files against
     /// the running configuration, signal the daemon and wait for its answer; non-zero when
     /// it refused them (`--override` passes the valve-step dry run).
+    #[command(display_order = 6)]
     Reload(cli::daemon::ReloadArgs),
-    /// Print the event log readably.
-    Events(cli::daemon::EventsArgs),
-    /// Show the running controller's live status (mode, cause, deviation, valve, surges).
-    Status(cli::status::StatusArgs),
-    /// Operator action on the running controller (needs the operator token).
-    Operate(cli::status::OperateArgs),
-    /// Draw the map and time-series pictures of a trace.csv from `run`, `plant` or HIL.
-    Plot(cli::plot::PlotArgs),
+    /// Simulate a scenario on a benchmark plant (no hardware needed).
+    #[command(display_order = 7)]
+    Sim(cli::sim::SimArgs),
+    // ---- engineer
+    /// Run the simulated skid as a node on the field buses (hardware-in-the-loop).
+    #[command(display_order = 20)]
+    Plant(cli::daemon::PlantArgs),
     /// Run the control core over a black-box recording (bit-exact with the recorded
     /// settings; with `--config`/`--law`, what another setting would have commanded).
+    #[command(display_order = 21)]
     Replay(cli::replay::ReplayArgs),
-    /// N simulated skids, each a Sparkplug B edge node, against one MQTT broker (a fleet
-    /// benchmark: `.ci/sparkplug_fleet.sh` runs it with an independent host).
-    FleetSim(cli::fleet::FleetArgs),
+    /// Draw the map and time-series pictures of a trace.csv from `run`, `plant` or HIL.
+    #[command(display_order = 22)]
+    Plot(cli::plot::PlotArgs),
     /// Print shell completions (bash, zsh, fish, elvish, powershell) to stdout.
+    #[command(display_order = 23)]
     Completions {
         /// The shell.
         shell: clap_complete::Shell,
     },
-    /// Print the manual page (roff) to stdout: `antisurge man > antisurge.1`.
-    Man,
+    /// Print the manual page (roff) to stdout (`antisurge man > antisurge.1`), or write one
+    /// page per command into a directory (`--out DIR`).
+    #[command(display_order = 24)]
+    Man(cli::man::ManArgs),
+    // ---- developer: benchmarks
+    /// Print the benchmark table (every plant × applicable law) that docs/benchmarks.md shows.
+    #[command(display_order = 40)]
+    Table(cli::table::TableArgs),
+    /// Print the control benchmark matrix (recycle-pi against baseline-pi) that docs/benchmarks.md shows.
+    #[command(display_order = 41)]
+    BenchMatrix(cli::bench_matrix::BenchMatrixArgs),
+    /// Run the robustness campaign: random skids at field-bus loop rates, recycle-pi against
+    /// baseline-pi and the feasibility oracle (`--case K` reruns one case).
+    #[command(display_order = 42)]
+    Campaign(cli::campaign::CampaignArgs),
+    /// N simulated skids, each a Sparkplug B edge node, against one MQTT broker (a fleet
+    /// benchmark: `.ci/sparkplug_fleet.sh` runs it with an independent host).
+    #[command(display_order = 43)]
+    FleetSim(cli::fleet::FleetArgs),
 }
 
 fn main() -> std::process::ExitCode {
@@ -104,11 +128,9 @@ fn main() -> std::process::ExitCode {
             );
             Ok(())
         }
-        Some(Command::Man) => {
+        Some(Command::Man(args)) => {
             use clap::CommandFactory;
-            clap_mangen::Man::new(Cli::command())
-                .render(&mut std::io::stdout())
-                .map_err(anyhow::Error::from)
+            cli::man::run(Cli::command(), &args)
         }
         None => {
             // a bare `antisurge` explains itself instead of running anything

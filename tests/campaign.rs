@@ -240,18 +240,19 @@ fn the_same_case_at_50_hz_and_1_khz_comes_equally_close() {
     assert_none("cases differ between 50 Hz and 1 kHz", &failures);
 }
 
-/// README.md's campaign block is the output of `antisurge campaign --reduced --readme`.
+/// docs/benchmarks.md's campaign block is the output of `antisurge campaign --reduced --readme`.
 #[test]
 fn readme_campaign_is_the_output_of_antisurge_campaign_reduced() {
-    let readme = std::fs::read_to_string(common::root().join("README.md")).expect("README.md");
+    let readme = std::fs::read_to_string(common::root().join("docs/benchmarks.md"))
+        .expect("docs/benchmarks.md");
     let begin = "<!-- campaign:begin -->\n";
     let end = "<!-- campaign:end -->\n";
     let start = readme
         .find(begin)
-        .expect("README.md lacks <!-- campaign:begin -->");
+        .expect("docs/benchmarks.md lacks <!-- campaign:begin -->");
     let stop = readme[start..]
         .find(end)
-        .expect("README.md lacks <!-- campaign:end -->")
+        .expect("docs/benchmarks.md lacks <!-- campaign:end -->")
         + start
         + end.len();
     let out = Command::new(env!("CARGO_BIN_EXE_antisurge"))
@@ -269,7 +270,7 @@ fn readme_campaign_is_the_output_of_antisurge_campaign_reduced() {
     assert_eq!(
         &readme[start..stop],
         fresh,
-        "README.md's campaign block differs from `antisurge campaign --reduced --readme`: rerun it and paste its output over the block"
+        "docs/benchmarks.md's campaign block differs from `antisurge campaign --reduced --readme`: rerun it and paste its output over the block"
     );
     // and the binary's table is the library's on the same campaign
     assert!(fresh.contains(&antisurge::campaign::report::markdown(reduced())));

@@ -3,7 +3,7 @@
 //! longest stroke time that would hold and says whether the drive's trip contact must be wired
 //! as `esd_input` for it; a valve fast enough gets no such warning. Every stroke the check
 //! names has a plant variant in `config/plants/variants` that holds the ESD in the situation
-//! named (the README's variant lines), and no variant is left over from an older verdict.
+//! named (the variant lines of the matrix in docs/benchmarks.md), and no variant is left over from an older verdict.
 
 mod common;
 
@@ -176,7 +176,7 @@ fn every_stroke_the_check_names_has_a_variant_that_holds_the_esd() {
                 panic!(
                     "{} at {m} %: the check names a {named} s stroke ({trip:?}) and no variant in \
                      config/plants/variants has it: add one (a copy of the plant with \
-                     stroke_time_s = {named}) and regenerate the README matrix",
+                     stroke_time_s = {named}) and regenerate the matrix in docs/benchmarks.md",
                     p.name()
                 )
             });

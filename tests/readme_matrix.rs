@@ -1,4 +1,4 @@
-//! README.md's control benchmark section is the output of `antisurge bench-matrix`, and the
+//! docs/benchmarks.md's control benchmark section is the output of `antisurge bench-matrix`, and the
 //! safety lines of the matrix hold (zero surge cycles where the valve can do it).
 
 mod common;
@@ -10,16 +10,17 @@ use std::process::Command;
 
 #[test]
 fn readme_matrix_is_the_output_of_antisurge_bench_matrix() {
-    let readme = std::fs::read_to_string(common::root().join("README.md")).expect("README.md");
+    let readme = std::fs::read_to_string(common::root().join("docs/benchmarks.md"))
+        .expect("docs/benchmarks.md");
     let begin = "<!-- matrix:begin -->\n";
     let end = "<!-- matrix:end -->";
     let start = readme
         .find(begin)
-        .expect("README.md lacks <!-- matrix:begin -->")
+        .expect("docs/benchmarks.md lacks <!-- matrix:begin -->")
         + begin.len();
     let stop = readme[start..]
         .find(end)
-        .expect("README.md lacks <!-- matrix:end -->")
+        .expect("docs/benchmarks.md lacks <!-- matrix:end -->")
         + start;
     let out = Command::new(env!("CARGO_BIN_EXE_antisurge"))
         .arg("bench-matrix")
@@ -36,7 +37,7 @@ fn readme_matrix_is_the_output_of_antisurge_bench_matrix() {
     assert_eq!(
         &readme[start..stop],
         fresh,
-        "README.md's matrix differs from `antisurge bench-matrix`: rerun it and paste its output between the markers"
+        "docs/benchmarks.md's matrix differs from `antisurge bench-matrix`: rerun it and paste its output between the markers"
     );
 }
 

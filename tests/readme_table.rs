@@ -1,4 +1,4 @@
-//! README.md's results table is the output of `antisurge table`, not a copy that can drift:
+//! docs/benchmarks.md's results table is the output of `antisurge table`, not a copy that can drift:
 //! this test reruns the command and compares it with the block between the markers.
 
 mod common;
@@ -7,16 +7,17 @@ use std::process::Command;
 
 #[test]
 fn readme_table_is_the_output_of_antisurge_table() {
-    let readme = std::fs::read_to_string(common::root().join("README.md")).expect("README.md");
+    let readme = std::fs::read_to_string(common::root().join("docs/benchmarks.md"))
+        .expect("docs/benchmarks.md");
     let begin = "<!-- table:begin -->\n";
     let end = "<!-- table:end -->";
     let start = readme
         .find(begin)
-        .expect("README.md lacks <!-- table:begin -->")
+        .expect("docs/benchmarks.md lacks <!-- table:begin -->")
         + begin.len();
     let stop = readme[start..]
         .find(end)
-        .expect("README.md lacks <!-- table:end -->")
+        .expect("docs/benchmarks.md lacks <!-- table:end -->")
         + start;
     let in_readme = &readme[start..stop];
 
@@ -35,21 +36,22 @@ fn readme_table_is_the_output_of_antisurge_table() {
     assert!(fresh.lines().count() >= 3 + 5, "table too short:\n{fresh}");
     assert_eq!(
         in_readme, fresh,
-        "README.md's table differs from `antisurge table`: rerun `cargo run --release -- table` and paste its output between the markers"
+        "docs/benchmarks.md's table differs from `antisurge table`: rerun `cargo run --release -- table` and paste its output between the markers"
     );
 }
 
 #[test]
 fn readme_inertia_sweep_is_the_output_of_antisurge_table() {
-    let readme = std::fs::read_to_string(common::root().join("README.md")).expect("README.md");
+    let readme = std::fs::read_to_string(common::root().join("docs/benchmarks.md"))
+        .expect("docs/benchmarks.md");
     let begin = "<!-- inertia:begin -->\n";
     let start = readme
         .find(begin)
-        .expect("README.md lacks <!-- inertia:begin -->")
+        .expect("docs/benchmarks.md lacks <!-- inertia:begin -->")
         + begin.len();
     let stop = readme[start..]
         .find("<!-- inertia:end -->")
-        .expect("README.md lacks <!-- inertia:end -->")
+        .expect("docs/benchmarks.md lacks <!-- inertia:end -->")
         + start;
     let out = Command::new(env!("CARGO_BIN_EXE_antisurge"))
         .args(["table", "--inertia-sweep", "bohagen2007", "--config-dir"])
@@ -65,6 +67,6 @@ fn readme_inertia_sweep_is_the_output_of_antisurge_table() {
     assert_eq!(
         &readme[start..stop],
         fresh,
-        "README.md's inertia sweep differs: rerun `cargo run --release -- table --inertia-sweep bohagen2007`"
+        "docs/benchmarks.md's inertia sweep differs: rerun `cargo run --release -- table --inertia-sweep bohagen2007`"
     );
 }

@@ -1265,7 +1265,8 @@ pub fn markdown(rows: &[CaseResult]) -> String {
         }
     }
     s.push_str(
-        "\nThe energy lines of issue 10, and the oracle: the recycle an ideal controller needs to \
+        "\nThe energy lines (recycle-pi at 10 % within baseline-pi at 10 %; at 5 % within 0.9 × that), \
+         and the oracle: the recycle an ideal controller needs to \
          hold the compressor exactly on the control line from the instant the process needs it \
          (per millisecond max(0, control-line flow − throttle flow) × polytropic head, from the \
          plant's true state along each law's runs at that margin):\n\n",

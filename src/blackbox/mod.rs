@@ -858,7 +858,7 @@ mod tests {
 
     #[test]
     fn the_ring_keeps_the_documented_bytes_a_cycle() {
-        // HISTORY_S and DEFAULT_CAPACITY's documentation (and the README's memory figures)
+        // HISTORY_S and DEFAULT_CAPACITY's documentation (and the memory figures in docs/benchmarks.md)
         assert_eq!(std::mem::size_of::<Kept>(), 312);
         assert_eq!(std::mem::size_of::<Spares>(), 160);
     }

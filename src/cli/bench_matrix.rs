@@ -1,4 +1,4 @@
-//! `antisurge bench-matrix`: the control benchmark matrix of README.md (recycle-pi against the
+//! `antisurge bench-matrix`: the control benchmark matrix of docs/benchmarks.md (recycle-pi against the
 //! textbook baseline-pi on every recycle plant, two margins, process events and signal faults).
 
 use super::locate;

@@ -32,7 +32,7 @@ pub struct CampaignArgs {
     /// Also write the results as JSON to this file.
     #[arg(long)]
     pub json: Option<PathBuf>,
-    /// Print the summary between the README.md markers (`<!-- campaign:begin -->`,
+    /// Print the summary between the docs/benchmarks.md markers (`<!-- campaign:begin -->`,
     /// `<!-- campaign:end -->`), ready to paste.
     #[arg(long)]
     pub readme: bool,

@@ -5,6 +5,7 @@ pub mod campaign;
 pub mod daemon;
 pub mod fleet;
 pub mod locate;
+pub mod man;
 pub mod pictures;
 pub mod plot;
 pub mod replay;

@@ -1,4 +1,4 @@
-//! `antisurge table`: the benchmark table of README.md (every plant × applicable law).
+//! `antisurge table`: the benchmark table of docs/benchmarks.md (every plant × applicable law).
 
 use super::locate;
 use antisurge::scenario::Scenario;

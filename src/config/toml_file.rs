@@ -123,7 +123,7 @@ fn syntax_error(text: &str, path: &Path, e: &toml::de::Error) -> FileError {
 fn hint_for(message: &str) -> Option<String> {
     if message.starts_with("unknown field") {
         // serde lists the expected fields; a typo in a unit suffix is the usual cause
-        Some("keys carry their unit (`_pa`, `_kg_s`, `_m3`, `_s`, `_rad_s`); check spelling against the list above or the reference in README.md".into())
+        Some("keys carry their unit (`_pa`, `_kg_s`, `_m3`, `_s`, `_rad_s`); check spelling against the list above or the annotated config/antisurge.toml (every key with its unit)".into())
     } else if message.starts_with("missing field") {
         Some("add the key; see the commented examples under config/".into())
     } else if message.starts_with("invalid type") {

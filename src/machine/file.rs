@@ -1,6 +1,6 @@
 //! The machine file (`config/machines/*.toml`): vendor data, asking only for what the
 //! controller uses. Every key and its unit is documented in `config/machines/vendor_example.toml`
-//! and README.md ("Commissioning from vendor data").
+//! and docs/commissioning.md ("Commissioning from vendor data").
 //!
 //! Errors are located (file:line, key) with a hint: too few or non-monotone surge points,
 //! flows that look like m³/h where m³/s is expected, a flow element that puts the surge line

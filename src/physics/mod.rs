@@ -2,7 +2,7 @@
 //! no I/O and no heap allocation per evaluation.
 //!
 //! Each formula carries a comment naming its seed and equation. Seeds are numbered as in
-//! `../shared/seeds/README.md`: 000 Bøhagen & Gravdahl, 001 Hemchi & Tebba, 002 Kvangardsnes,
+//! docs/science.md (titles there): 000 Bøhagen & Gravdahl, 001 Hemchi & Tebba, 002 Kvangardsnes,
 //! 003 Liaw, Song & Huang, 004 Sanadgol & Maslen.
 
 pub mod characteristic;

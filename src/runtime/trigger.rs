@@ -34,7 +34,7 @@
 //! wake-up chain, as in ros2_control, but the socket stays with the task that owns its
 //! lifecycle: reconnects, error frames, link state). The control thread does no socket I/O,
 //! so a full device queue or a link going down can never stall or fail a cycle. The hop costs
-//! little: sensor frame to actuator frame on vcan in the HIL VM is p99 148 µs (README,
+//! little: sensor frame to actuator frame on vcan in the HIL VM is p99 148 µs (docs/benchmarks.md,
 //! *Real-time figures*), well inside the period.
 //!
 //! The laws see the measured time between cycles as `dt` (the core derives it from the tick's

@@ -1,4 +1,4 @@
-//! The benchmark table of README.md: for every plant and every law that applies to it, the
+//! The benchmark table of docs/benchmarks.md: for every plant and every law that applies to it, the
 //! minimum stable flow reached versus open loop (operating range gained), the peak actuator
 //! effort and the recycle energy over the throttle-closure scenario. `antisurge table` reruns it.
 
