@@ -31,3 +31,4 @@ pub mod sim;
 pub mod solver;
 pub mod sparkplug;
 pub mod surge;
+pub mod vocab;

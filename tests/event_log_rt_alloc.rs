@@ -8,11 +8,12 @@ use std::time::{Duration, Instant};
 
 use antisurge::events::{
     read_log, DeadlineOverrun, Event, EventFilter, EventLog, EventLogConfig, FallbackEntered,
-    FallbackLeft, FallbackReason, FsyncPolicy, Law, LawChanged, Mode, ModeChanged, OverrunReporter,
+    FallbackLeft, FallbackReason, FsyncPolicy, Law, LawChanged, ModeChanged, OverrunReporter,
     RecycleTrip, Replacement, RtEvent, SafetyOnShift, SurgeCounter, SurgeDetected, Timestamp,
     TripReason,
 };
 use antisurge::signals::SensorId;
+use antisurge::vocab::Mode;
 
 struct Counting;
 

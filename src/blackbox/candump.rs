@@ -331,7 +331,7 @@ pub fn import(
             },
             op,
             commands: cmd,
-            mode: hb.map_or(0, |h| h.mode),
+            mode: hb.map_or(crate::vocab::Mode::Init, |h| h.mode),
             law: hb.map_or(0, |h| h.law),
             law_diagnostic: f64::NAN,
             law_torque_nm: f64::NAN,

@@ -178,7 +178,7 @@ pub fn write_comparison(
     }
     writeln!(w)?;
     for (r, (c, m)) in records.iter().zip(&replayed.commands) {
-        write!(w, "{},{},{}", r.t_s, r.mode, m)?;
+        write!(w, "{},{},{}", r.t_s, r.mode.code(), m)?;
         for id in ActuatorId::ALL {
             write!(w, ",{},{}", r.commands.get(id), c.get(id))?;
         }
@@ -254,7 +254,7 @@ pub fn with_recorded_commands(rows: &[TraceRow], records: &[CycleRecord]) -> Vec
                 cmd_ccv: c.get(ActuatorId::CloseCoupledValve),
                 cmd_throttle: c.get(ActuatorId::Throttle),
                 cmd_tip_clearance_m: c.get(ActuatorId::TipClearance),
-                mode: f64::from(r.mode),
+                mode: f64::from(r.mode.code()),
                 law_diagnostic: r.law_diagnostic,
                 ..*row
             }

@@ -15,44 +15,10 @@ use super::surge_control_line::SurgeControlLine;
 use super::vote::{Vote, VoteSettings};
 use crate::signals::{ActuatorCommands, ActuatorId, SensorId};
 use crate::surge::{Detection, SurgeDetector};
+use crate::vocab::Mode;
 
 /// Arrival times closer than this are the same sample (clock rounding), s.
 const SAME_SAMPLE_S: f64 = 1e-6;
-
-/// Controller mode.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
-pub enum Mode {
-    /// Starting: no valid inputs yet. Nothing is commanded (the field devices hold), for at
-    /// most the start-up grace; then fail-safe.
-    Init,
-    /// Manual: recycle valve from the manual station, speed loop only.
-    Manual,
-    /// Automatic: the selected law runs.
-    Auto,
-    /// Inputs lost: safe state.
-    FailSafe,
-}
-
-impl Mode {
-    /// Name for traces and the event log.
-    pub const fn name(self) -> &'static str {
-        match self {
-            Mode::Init => "init",
-            Mode::Manual => "manual",
-            Mode::Auto => "auto",
-            Mode::FailSafe => "fail_safe",
-        }
-    }
-    /// Numeric code (trace column, heartbeat frame).
-    pub const fn code(self) -> u8 {
-        match self {
-            Mode::Init => 0,
-            Mode::Manual => 1,
-            Mode::Auto => 2,
-            Mode::FailSafe => 3,
-        }
-    }
-}
 
 /// Settings of the control core that are not law gains.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -1182,7 +1148,7 @@ impl ControlCore {
                     cmd.set(ActuatorId::RecycleValve, u);
                 }
             }
-            Mode::Init | Mode::FailSafe => {}
+            Mode::Init | Mode::FailSafe | Mode::Shutdown => {}
         }
         self.last_manual_input = op.recycle_manual;
         // the drive's speed loop runs here only when the controller owns the drive; otherwise

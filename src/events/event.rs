@@ -13,22 +13,7 @@ use serde::{Deserialize, Deserializer, Serialize};
 pub use super::cause::{Cause, CauseKind};
 use super::timestamp::Timestamp;
 use crate::signals::SensorId;
-
-/// Operating mode of the controller.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, Serialize, Deserialize)]
-#[serde(rename_all = "snake_case")]
-pub enum Mode {
-    /// Starting up: inputs not yet validated, outputs held.
-    Init,
-    /// Operator drives the outputs.
-    Manual,
-    /// The control law drives the outputs.
-    Auto,
-    /// Inputs lost: outputs at their safe positions (recycle open).
-    FailSafe,
-    /// Controlled stop.
-    Shutdown,
-}
+use crate::vocab::Mode;
 
 /// The control law: the controller's own identifier (one list of law names).
 pub use crate::control::LawId as Law;

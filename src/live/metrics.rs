@@ -13,9 +13,9 @@ use prometheus_client::metrics::gauge::ConstGauge;
 use prometheus_client::registry::Registry;
 
 use super::snapshot::LiveBoard;
-use crate::control::core::Mode;
 use crate::runtime::rt_loop::CycleStats;
 use crate::signals::SensorId;
+use crate::vocab::Mode;
 
 /// Default endpoint.
 pub const DEFAULT_LISTEN: &str = "127.0.0.1:9650";

@@ -581,9 +581,9 @@ pub fn human(r: &StatusReport) -> String {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::control::core::Mode;
     use crate::events::cause::CauseKind;
     use crate::events::FallbackReason;
+    use crate::vocab::Mode;
 
     #[test]
     fn fail_safe_line_and_text_name_the_input_and_fault() {

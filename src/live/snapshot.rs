@@ -5,13 +5,14 @@
 
 use serde::{Deserialize, Serialize};
 
-use crate::control::core::{MarginShift, Mode};
+use crate::control::core::MarginShift;
 use crate::control::vote::{TransmitterState, VoteRule, VoteStatus, MAX_TRANSMITTERS, VOTABLE};
 use crate::control::LawId;
 use crate::events::cause::{Cause, CauseKind};
 use crate::events::FallbackReason;
 use crate::runtime::handoff::SeqLock;
 use crate::signals::SensorId;
+use crate::vocab::Mode;
 
 /// Where the flow the law uses comes from.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]

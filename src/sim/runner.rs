@@ -7,7 +7,7 @@ use super::summary::{
 };
 use super::trace::{CsvTraceWriter, TraceRow};
 use super::trace_handoff::{TraceHandoff, WrittenTrace};
-use crate::control::core::{ControlCore, CoreSettings, Mode};
+use crate::control::core::{ControlCore, CoreSettings};
 use crate::control::law::LawEvent;
 use crate::control::measurements::{OperatorInputs, RawSensors};
 use crate::control::supervisor::{InputFault, InputLimits};
@@ -20,6 +20,7 @@ use crate::signals::ActuatorCommands;
 use crate::signals::{ActuatorId, SensorId, SensorSnapshot};
 use crate::sim::case::PlantCase;
 use crate::surge::{DetectorConfig, SurgeDetector};
+use crate::vocab::Mode;
 use std::path::{Path, PathBuf};
 use std::time::Instant;
 

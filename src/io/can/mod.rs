@@ -35,4 +35,4 @@ pub use e2e::{
     crc8_sae_j1850, frame_crc, AliveChecker, AliveCounter, AliveStatus, Crc8, FrameError,
     FrameGuard,
 };
-pub use heartbeat::{ControllerMode, Heartbeat, HeartbeatCodec, HeartbeatConfig, HeartbeatNames};
+pub use heartbeat::{Heartbeat, HeartbeatCodec, HeartbeatConfig, HeartbeatNames};
