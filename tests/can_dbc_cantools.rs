@@ -546,7 +546,7 @@ fn rust_frames_decode_identically_in_cantools() {
 #[test]
 #[ignore = "needs Python 3 with cantools (pip install cantools); .ci/run installs it and runs these with --include-ignored"]
 fn heartbeat_faults_decode_as_the_dbc_documents() {
-    use antisurge::faults::{FaultCategory, FaultSet};
+    use antisurge::vocab::faults::{FaultCategory, FaultSet};
     require_cantools();
     let db = CanDatabase::from_file(skid_path()).expect("skid.dbc");
     let hb = HeartbeatCodec::new(&db, &HeartbeatNames::SKID).expect("heartbeat");

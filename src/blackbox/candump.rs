@@ -21,7 +21,7 @@ use crate::control::measurements::{OperatorInputs, RawSensors};
 use crate::io::can::bus::{BusCodec, CanCounters, CanCountersSnapshot, RxHandler};
 use crate::io::can::dbc::FrameId;
 use crate::runtime::handoff::{CommandBoard, HeartbeatBoard, SensorBoard};
-use crate::signals::{ActuatorCommands, ActuatorId};
+use crate::vocab::signals::{ActuatorCommands, ActuatorId};
 use std::path::{Path, PathBuf};
 use std::sync::atomic::Ordering::Relaxed;
 use std::sync::Arc;

@@ -25,7 +25,7 @@ pub mod replay;
 
 use crate::control::measurements::{OperatorInputs, RawSensors};
 use crate::control::ControllerConfig;
-use crate::signals::{ActuatorCommands, ActuatorId, SensorId, SensorSnapshot};
+use crate::vocab::signals::{ActuatorCommands, ActuatorId, SensorId, SensorSnapshot};
 use crate::vocab::Mode;
 use serde::{Deserialize, Serialize};
 use std::io::{BufRead, Write};

@@ -16,8 +16,8 @@ use crate::control::core::{ControlCore, CoreSettings};
 use crate::control::measurements::Measurements;
 use crate::control::model::ControlModel;
 use crate::control::{ControllerConfig, LawId};
-use crate::signals::{ActuatorId, SensorId};
 use crate::sim::trace::TraceRow;
+use crate::vocab::signals::{ActuatorId, SensorId};
 use serde::Serialize;
 
 /// Per-actuator comparison of recorded and replayed commands.
@@ -56,7 +56,7 @@ pub struct ReplayReport {
 #[derive(Debug, Clone)]
 pub struct Replay {
     /// Commands per record, with mode code.
-    pub commands: Vec<(crate::signals::ActuatorCommands, u8)>,
+    pub commands: Vec<(crate::vocab::signals::ActuatorCommands, u8)>,
     /// What the laws saw in each record's cycle (flow, pressure ratio, valve positions): the
     /// operating point of the pictures.
     pub measurements: Vec<Measurements>,

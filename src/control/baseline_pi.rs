@@ -16,7 +16,7 @@
 
 use super::law::{LawInputs, LawOutput, SurgeLaw};
 use super::surge_control_line::SurgeControlLine;
-use crate::signals::{ActuatorCommands, ActuatorId};
+use crate::vocab::signals::{ActuatorCommands, ActuatorId};
 
 /// Proportional gain: valve fraction per unit of normalised deviation (a 5 % deviation moves
 /// the valve 5 %). Chosen as the largest round gains that close the throttle closure without a

@@ -13,8 +13,8 @@ use super::speed_loop::SpeedLoop;
 use super::supervisor::{InputFault, InputLimits, Supervisor, Validity};
 use super::surge_control_line::SurgeControlLine;
 use super::vote::{Vote, VoteSettings};
-use crate::signals::{ActuatorCommands, ActuatorId, SensorId};
 use crate::surge::{Detection, SurgeDetector};
+use crate::vocab::signals::{ActuatorCommands, ActuatorId, SensorId};
 use crate::vocab::Mode;
 
 /// Arrival times closer than this are the same sample (clock rounding), s.

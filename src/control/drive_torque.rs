@@ -92,7 +92,7 @@ use super::measurements::Measurements;
 use super::model::ControlModel;
 use crate::machine::plenum_duct::{PlenumDuctModel, N as PLENUM_N};
 use crate::physics::compressor_map::FlowCoordinate;
-use crate::signals::{ActuatorCommands, ActuatorId};
+use crate::vocab::signals::{ActuatorCommands, ActuatorId};
 use nalgebra::SVector;
 use serde::{Deserialize, Serialize};
 

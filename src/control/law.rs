@@ -11,7 +11,7 @@ use super::measurements::{Measurements, OperatorInputs};
 use super::model::ControlModel;
 use crate::machine::params::ModelKind;
 use crate::machine::MachineData;
-use crate::signals::{ActuatorCommands, ActuatorId, ActuatorSet, SensorId};
+use crate::vocab::signals::{ActuatorCommands, ActuatorId, ActuatorSet, SensorId};
 use serde::{Deserialize, Serialize};
 use std::fmt;
 use std::str::FromStr;

@@ -101,7 +101,7 @@ use crate::machine::params::FeedSpec;
 use crate::physics::compressor_map::FlowCoordinate;
 use crate::physics::gas::Gas;
 use crate::physics::valve::ValveSpec;
-use crate::signals::{ActuatorCommands, ActuatorId};
+use crate::vocab::signals::{ActuatorCommands, ActuatorId};
 use serde::{Deserialize, Serialize};
 use std::f64::consts::PI;
 

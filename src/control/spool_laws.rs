@@ -60,7 +60,7 @@ use super::law::{LawError, LawId, LawInputs, LawOutput, SurgeLaw};
 use super::model::ControlModel;
 use crate::physics::compressor_map::CompressorMap;
 use crate::physics::spool_throttle::throttle_function;
-use crate::signals::{ActuatorCommands, ActuatorId};
+use crate::vocab::signals::{ActuatorCommands, ActuatorId};
 use serde::{Deserialize, Serialize};
 
 // ---------------------------------------------------------------------------------------------

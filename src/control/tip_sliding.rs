@@ -95,7 +95,7 @@ use super::model::ControlModel;
 use crate::physics::compressor_map::FlowCoordinate;
 use crate::physics::thrust_bearing::ThrustBearingServo;
 use crate::physics::tip_clearance::TipClearanceEffect;
-use crate::signals::{ActuatorCommands, ActuatorId};
+use crate::vocab::signals::{ActuatorCommands, ActuatorId};
 use serde::{Deserialize, Serialize};
 
 /// Where the law takes the plenum pressure rate ṗ from.

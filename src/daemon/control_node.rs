@@ -22,8 +22,8 @@ use crate::events::event::{
 use crate::events::{OverrunReporter, RtSender};
 use crate::runtime::handoff::{OutputBoard, Outputs, SensorBoard, Wakeup};
 use crate::runtime::rt_loop::{CycleStats, Tick};
-use crate::signals::{ActuatorCommands, SensorId};
 use crate::surge::Detection;
+use crate::vocab::signals::{ActuatorCommands, SensorId};
 use crate::vocab::Mode;
 use std::sync::atomic::{AtomicU64, Ordering};
 use std::sync::Arc;
@@ -116,7 +116,7 @@ fn fault_bits(
     v: &crate::control::supervisor::Validity,
     s: &crate::control::supervisor::Supervisor,
 ) -> u32 {
-    crate::faults::FaultSet::from_validity(v, s).0
+    v.fault_set(s).0
 }
 
 /// Fault lamps of the live snapshot: bit i set when sensor i is not usable (the wire's fault
@@ -373,7 +373,9 @@ impl ControlNode {
             safety_on_count: safety_on,
             surge_count: self.surges,
             trip_count: u64::from(trips),
-            valve_output: out.commands.get(crate::signals::ActuatorId::RecycleValve),
+            valve_output: out
+                .commands
+                .get(crate::vocab::signals::ActuatorId::RecycleValve),
             valve_position: m.recycle_position,
             manual_output: self.core.manual_output(),
             auto_requested: self.core.auto_requested(),
@@ -459,7 +461,8 @@ impl ControlNode {
         }
         let t_s = now.saturating_sub(self.t0_ns) as f64 * 1e-9;
         // the slow-link policy: a field link slow but alive widens the control line
-        let slow = crate::faults::field::word() & crate::faults::FaultCategory::FieldLinkSlow.bit();
+        let slow =
+            crate::faults::field::word() & crate::vocab::faults::FaultCategory::FieldLinkSlow.bit();
         self.core.set_link_slow(slow != 0);
         let out = self.core.cycle(t_s, &raw, &self.op);
         if let Some(bb) = &mut self.blackbox {
@@ -500,7 +503,7 @@ impl ControlNode {
             mode: out.mode.code(),
             law: out.law.code(),
             faults: fault_bits(&out.validity, &self.core.settings().supervisor)
-                | crate::faults::FaultSet::from_vote(self.core.vote()).0,
+                | self.core.vote().fault_set().0,
             cycle: tick.cycle,
             t_ns: now,
         });

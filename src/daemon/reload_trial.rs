@@ -23,7 +23,7 @@ use crate::control::core::ControlCore;
 use crate::control::measurements::RawSensors;
 use crate::control::model::ControlModel;
 use crate::runtime::handoff::{monotonic_ns, SensorBoard};
-use crate::signals::ActuatorId;
+use crate::vocab::signals::ActuatorId;
 use crate::vocab::Mode;
 use std::time::Duration;
 

@@ -12,7 +12,7 @@ use serde::{Deserialize, Deserializer, Serialize};
 
 pub use super::cause::{Cause, CauseKind};
 use super::timestamp::Timestamp;
-use crate::signals::SensorId;
+use crate::vocab::signals::SensorId;
 use crate::vocab::Mode;
 
 /// The control law: the controller's own identifier (one list of law names).
@@ -450,7 +450,7 @@ pub enum Event {
         /// Link or device, e.g. `modbus:127.0.0.1:5020` or `can0`.
         link: String,
         /// Category, as on the wire (the DBC's Faults bits).
-        fault: crate::faults::FaultCategory,
+        fault: crate::vocab::faults::FaultCategory,
         /// Raised (true) or cleared (false).
         active: bool,
         /// The cause in words, e.g. the Modbus exception code or the actuator and the

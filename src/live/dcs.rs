@@ -173,7 +173,7 @@ mod tests {
     use super::*;
     use crate::events::cause::{Cause, CauseKind};
     use crate::events::FallbackReason;
-    use crate::signals::SensorId;
+    use crate::vocab::signals::SensorId;
     use crate::vocab::Mode;
 
     #[test]

@@ -14,7 +14,7 @@ use prometheus_client::registry::Registry;
 
 use super::snapshot::LiveBoard;
 use crate::runtime::rt_loop::CycleStats;
-use crate::signals::SensorId;
+use crate::vocab::signals::SensorId;
 use crate::vocab::Mode;
 
 /// Default endpoint.
@@ -88,8 +88,8 @@ impl Collector for LiveCollector {
                 None,
                 g.metric_type(),
             )?;
-            let word = crate::faults::FaultSet(crate::faults::field::word());
-            for c in crate::faults::FaultCategory::ALL {
+            let word = crate::vocab::faults::FaultSet(crate::faults::field::word());
+            for c in crate::vocab::faults::FaultCategory::ALL {
                 let g = ConstGauge::new(i64::from(word.has(c)));
                 g.encode(fam.encode_family(&[("fault", c.name())])?)?;
             }

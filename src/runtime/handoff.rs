@@ -13,7 +13,7 @@
 //! - [`Wakeup`]: an eventfd the control thread signals after publishing, so a sending task
 //!   wakes without polling.
 
-use crate::signals::{ActuatorCommands, ActuatorId, SensorId, SensorSnapshot};
+use crate::vocab::signals::{ActuatorCommands, ActuatorId, SensorId, SensorSnapshot};
 use crate::vocab::Mode;
 use std::sync::atomic::{fence, AtomicU64, Ordering};
 

@@ -2,6 +2,8 @@
 //! actuators, the fault categories). This module imports nothing of the crate; every other
 //! part may import it.
 
+pub mod faults;
 pub mod mode;
+pub mod signals;
 
 pub use mode::Mode;

@@ -65,7 +65,7 @@ use super::model::ControlModel;
 use super::surge_control_line::{ControlLineForm, SurgeControlLine};
 use crate::physics::compressor_map::CompressorMap;
 use crate::physics::valve::Characteristic;
-use crate::signals::{ActuatorCommands, ActuatorId};
+use crate::vocab::signals::{ActuatorCommands, ActuatorId};
 use serde::{Deserialize, Serialize};
 
 /// Settings (`[controller.recycle_pi]` and its part sections).

@@ -12,7 +12,7 @@ use crate::control::law::{Law, LawError, LawId};
 use crate::io::can::bus::{BusCodec, CanBusConfig, CanBusError};
 use crate::io::can::{BindingError, SignalTarget};
 use crate::io::signal_map::Binding;
-use crate::signals::ActuatorId;
+use crate::vocab::signals::ActuatorId;
 
 /// An error about a key of the signal map file, located in that file.
 pub(crate) fn map_error(l: &Loaded, key: &str, message: String) -> FileError {

@@ -7,7 +7,7 @@ use crate::io::can::codec::{skid_bindings, MessageIndex};
 use crate::io::can::e2e::frame_crc;
 use crate::runtime::handoff::{HeartbeatSeen, Outputs, SensorBoard};
 use crate::runtime::trigger::CycleTrigger;
-use crate::signals::{ActuatorCommands, ActuatorId, SensorId, SensorSnapshot};
+use crate::vocab::signals::{ActuatorCommands, ActuatorId, SensorId, SensorSnapshot};
 use crate::vocab::Mode;
 use socketcan::errors::{ControllerProblems, ErrorCause};
 use socketcan::{

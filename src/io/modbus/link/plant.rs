@@ -35,7 +35,7 @@ use crate::io::signal_map::SignalMap;
 use crate::runtime::handoff::{
     monotonic_ns, CommandBoard, HeartbeatBoard, HeartbeatSeen, SnapshotBoard,
 };
-use crate::signals::{ActuatorId, SensorId};
+use crate::vocab::signals::{ActuatorId, SensorId};
 use crate::vocab::Mode;
 
 /// Mode reported for a heartbeat inferred from a plain client write (no heartbeat block), or
