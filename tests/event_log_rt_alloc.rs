@@ -122,7 +122,7 @@ fn all_rt_events(i: u64) -> [RtEvent; 9] {
         RecycleTrip {
             reason: TripReason::SurgeDetected,
             cause: None,
-            criterion: Some(antisurge::control::law::TripCause::ThrottleClosure),
+            criterion: Some(antisurge::control::law::api::TripCause::ThrottleClosure),
         }
         .into(),
     ]

@@ -4,7 +4,8 @@
 
 mod common;
 
-use antisurge::control::law::{Law, LawEvent, LawInputs, SurgeLaw};
+use antisurge::control::law::api::{LawEvent, LawInputs, SurgeLaw};
+use antisurge::control::law::Law;
 use antisurge::control::measurements::{Measurements, OperatorInputs};
 use antisurge::control::model::ControlModel;
 use antisurge::control::recycle_pi::{ControlVariable, RecyclePi, RecyclePiConfig};
@@ -565,7 +566,7 @@ fn start_at_20pct<'a>(
         m,
         op,
         model,
-        history: &antisurge::control::law::LoopHistory::EMPTY,
+        history: &antisurge::control::law::api::LoopHistory::EMPTY,
     };
     let mut cur = antisurge::signals::ActuatorCommands::default();
     cur.set(ActuatorId::RecycleValve, 0.2);
@@ -771,7 +772,7 @@ fn law_cycle_does_not_allocate() {
                 m: &ms[0],
                 op: &op,
                 model: &model,
-                history: &antisurge::control::law::LoopHistory::EMPTY,
+                history: &antisurge::control::law::api::LoopHistory::EMPTY,
             },
             &cur,
         );
@@ -789,7 +790,7 @@ fn law_cycle_does_not_allocate() {
                     m,
                     op: &op,
                     model: &model,
-                    history: &antisurge::control::law::LoopHistory::EMPTY,
+                    history: &antisurge::control::law::api::LoopHistory::EMPTY,
                 },
                 1e-3,
             ));
@@ -1025,7 +1026,7 @@ fn first_trip_step(
             m: &m,
             op: &op,
             model,
-            history: &antisurge::control::law::LoopHistory::EMPTY,
+            history: &antisurge::control::law::api::LoopHistory::EMPTY,
         };
         let out = law.update(&inputs, 1e-3);
         if let Some(LawEvent::RecycleTrip { opening, .. }) = out.event {
@@ -1094,7 +1095,7 @@ fn started_closed(model: &ControlModel, q: impl Fn(f64) -> f64, ratio: f64) -> (
         m: &m,
         op: &op,
         model,
-        history: &antisurge::control::law::LoopHistory::EMPTY,
+        history: &antisurge::control::law::api::LoopHistory::EMPTY,
     };
     let mut cur = antisurge::signals::ActuatorCommands::default();
     cur.set(ActuatorId::RecycleValve, 0.0);

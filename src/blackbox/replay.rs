@@ -86,7 +86,7 @@ fn same(a: f64, b: f64) -> bool {
 pub fn replay(
     rec: &Recording,
     setup: ReplaySetup,
-) -> Result<Replay, crate::control::law::LawError> {
+) -> Result<Replay, crate::control::law::api::LawError> {
     let h = &rec.header;
     let mut core = ControlCore::new(
         setup.model,

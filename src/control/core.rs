@@ -5,7 +5,8 @@
 use super::config::{ControllerConfig, FlowSource};
 use super::cross_check::FrozenDpCheck;
 use super::drift_check::DriftCheck;
-use super::law::{Law, LawError, LawEvent, LawId, LawInputs, LoopHistory};
+use super::law::api::{LawError, LawEvent, LawId, LawInputs, LoopHistory};
+use super::law::Law;
 use super::measurements::{Measurements, OperatorInputs, RawSensors};
 use super::model::ControlModel;
 use super::observer::{LowPass, MassFlowObserver};

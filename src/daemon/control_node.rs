@@ -12,7 +12,7 @@
 //!    update the [`Health`] the watchdog task reads.
 
 use crate::control::core::{ControlCore, CoreSettings, CycleOutput, Reconfiguration};
-use crate::control::law::{LawEvent, LawId};
+use crate::control::law::api::{LawEvent, LawId};
 use crate::control::measurements::{OperatorInputs, RawSensors};
 use crate::events::cause::{Cause, CauseKind};
 use crate::events::event::{

@@ -217,7 +217,7 @@ pub struct RecycleTrip {
     /// Which of the law's criteria fired (`trip_line`, `predicted_crossing`,
     /// `throttle_closure`, `speed_decay`); absent for trips from outside the law.
     #[serde(default, skip_serializing_if = "Option::is_none")]
-    pub criterion: Option<crate::control::law::TripCause>,
+    pub criterion: Option<crate::control::law::api::TripCause>,
 }
 
 /// A redundant transmitter changed state (voted out and by which check, deviating, healthy

@@ -8,7 +8,7 @@ use super::summary::{
 use super::trace::{CsvTraceWriter, TraceRow};
 use super::trace_handoff::{TraceHandoff, WrittenTrace};
 use crate::control::core::{ControlCore, CoreSettings};
-use crate::control::law::LawEvent;
+use crate::control::law::api::LawEvent;
 use crate::control::measurements::{OperatorInputs, RawSensors};
 use crate::control::supervisor::{InputFault, InputLimits};
 use crate::control::LawId;
@@ -122,7 +122,7 @@ pub enum SimError {
     Plant(#[from] PlantError),
     /// The law cannot run on this plant.
     #[error(transparent)]
-    Law(#[from] crate::control::law::LawError),
+    Law(#[from] crate::control::law::api::LawError),
     /// A law named in the scenario does not exist.
     #[error("scenario `{scenario}`: {message}")]
     Scenario {

@@ -60,7 +60,7 @@ pub use safety_on::{SafetyOn, SafetyOnConfig};
 pub use throttle::{ThrottleConfig, ThrottlePrediction, ThrottleWatch};
 pub use trip::{RecycleTrip, TripConfig, TripKind};
 
-use super::law::{LawError, LawEvent, LawId, LawInputs, LawOutput, SurgeLaw, TripCause};
+use super::law::api::{LawError, LawEvent, LawId, LawInputs, LawOutput, SurgeLaw, TripCause};
 use super::model::ControlModel;
 use super::surge_control_line::{ControlLineForm, SurgeControlLine};
 use crate::physics::compressor_map::CompressorMap;

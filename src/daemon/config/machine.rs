@@ -10,7 +10,7 @@ use super::layers::{locate, resolve, Layer};
 use super::{Loaded, Problem, Transport};
 use crate::config::FileError;
 use crate::control::config::{ControllerConfig, FlowSource};
-use crate::control::law::LawError;
+use crate::control::law::api::LawError;
 use crate::machine::surge_line::element_dp_pa;
 use crate::machine::MachineDescription;
 use crate::sim::case::PlantCase;
