@@ -235,7 +235,12 @@ mod tests {
             line.starts_with("VAL_ 128 ActiveLaw 0 \"none\" 1 \"recycle-pi\""),
             "{line}"
         );
-        assert!(line.ends_with("7 \"tip-sliding\" ;"), "{line}");
+        let last = REGISTRY[REGISTRY.len() - 1];
+        assert!(
+            line.ends_with(&format!("{} \"{}\" ;", last.code, last.name)),
+            "{line}"
+        );
+        assert_eq!(line.matches('"').count(), 2 * REGISTRY.len(), "{line}");
     }
 
     #[test]

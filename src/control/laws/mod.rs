@@ -2,15 +2,30 @@
 //! laws exist is the one list [`crate::control::law::list`]: a new law is one file here plus
 //! one line there.
 
-pub mod baseline_pi;
-pub mod ccv;
-pub mod drive_torque;
-pub mod none;
-pub mod recycle_fl;
-pub mod robust;
+use crate::control::law::list::laws;
+
+/// One `pub mod` per law of the list that lives here (`laws::<file>::<Type>`): a new law's file
+/// needs no line of its own in this file.
+macro_rules! law_modules {
+    (@mods) => {};
+    (@mods $id:ident $code:literal $name:literal $scope:ident laws :: $file:ident :: $ty:ident,
+        $settings:tt; $($rest:tt)*) => {
+        pub mod $file;
+        law_modules!(@mods $($rest)*);
+    };
+    (@mods $id:ident $code:literal $name:literal $scope:ident $($seg:ident)::+, $settings:tt;
+        $($rest:tt)*) => {
+        law_modules!(@mods $($rest)*);
+    };
+    ($($list:tt)*) => {
+        law_modules!(@mods $($list)*);
+    };
+}
+
+laws!(law_modules);
+
+/// What the seed 003 spool laws share (not a law itself).
 pub mod spool;
-pub mod throttle_backstep;
-pub mod tip_sliding;
 
 use crate::control::law::api::{LawError, LawNeeds, LawSpec};
 use crate::control::model::ControlModel;
