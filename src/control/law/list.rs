@@ -29,7 +29,6 @@ macro_rules! laws {
             ThrottleBackstep 5   "throttle-backstep"  daemon  laws::throttle_backstep::ThrottleBackstep,  (throttle_backstep: laws::throttle_backstep::ThrottleBackstepConfig);
             Robust           6   "robust"             daemon  laws::robust::Robust,                       (robust: laws::robust::RobustConfig);
             TipSliding       7   "tip-sliding"        daemon  laws::tip_sliding::TipSliding,              (tip_sliding: laws::tip_sliding::TipSlidingConfig);
-            Demo             8   "demo"               daemon  laws::demo::Demo,                           (demo: laws::demo::DemoConfig);
             BaselinePi       255 "baseline-pi"        sim     laws::baseline_pi::BaselinePi,              (recycle_pi);
         }
     };
