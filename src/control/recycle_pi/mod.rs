@@ -60,9 +60,11 @@ pub use safety_on::{SafetyOn, SafetyOnConfig};
 pub use throttle::{ThrottleConfig, ThrottlePrediction, ThrottleWatch};
 pub use trip::{RecycleTrip, TripConfig, TripKind};
 
-use super::law::api::{LawError, LawEvent, LawId, LawInputs, LawOutput, SurgeLaw, TripCause};
-use super::model::ControlModel;
-use super::surge_control_line::{ControlLineForm, SurgeControlLine};
+use crate::control::law::api::{
+    LawError, LawEvent, LawId, LawInputs, LawOutput, SurgeLaw, TripCause,
+};
+use crate::control::model::ControlModel;
+use crate::control::surge_control_line::{ControlLineForm, SurgeControlLine};
 use crate::physics::compressor_map::CompressorMap;
 use crate::physics::valve::Characteristic;
 use crate::vocab::signals::{ActuatorCommands, ActuatorId};
