@@ -6,9 +6,9 @@ mod common;
 
 use antisurge::control::law::api::{LawEvent, LawInputs, SurgeLaw};
 use antisurge::control::law::Law;
+use antisurge::control::laws::recycle_pi::{ControlVariable, RecyclePi, RecyclePiConfig};
 use antisurge::control::measurements::{Measurements, OperatorInputs};
 use antisurge::control::model::ControlModel;
-use antisurge::control::recycle_pi::{ControlVariable, RecyclePi, RecyclePiConfig};
 use antisurge::control::surge_control_line::{ControlLineForm, SurgeControlLine};
 use antisurge::control::LawId;
 use antisurge::plant::recycle_system::{ix, RecyclePlant};

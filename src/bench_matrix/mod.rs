@@ -20,9 +20,9 @@
 //! whole matrix on one core; cases run on std threads.
 
 use crate::control::core::{ControlCore, CoreSettings};
+use crate::control::laws::recycle_pi::RecyclePiConfig;
 use crate::control::measurements::RawSensors;
 use crate::control::model::ControlModel;
-use crate::control::recycle_pi::RecyclePiConfig;
 use crate::control::supervisor::InputFault;
 use crate::control::surge_control_line::ControlLineForm;
 use crate::control::LawId;

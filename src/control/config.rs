@@ -185,7 +185,7 @@ impl ControllerConfig {
         }
         let pi = &self.recycle_pi.pi;
         let (kp, ki, key) = match pi.control_variable {
-            crate::control::recycle_pi::ControlVariable::Deviation => {
+            crate::control::laws::recycle_pi::ControlVariable::Deviation => {
                 (pi.kp, pi.ki_per_s, "recycle_pi.pi.kp")
             }
             _ => (

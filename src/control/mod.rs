@@ -14,7 +14,6 @@ pub mod laws;
 pub mod measurements;
 pub mod model;
 pub mod observer;
-pub mod recycle_pi;
 pub mod speed_loop;
 pub mod supervisor;
 pub mod surge_control_line;

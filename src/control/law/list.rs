@@ -22,7 +22,7 @@ macro_rules! laws {
     ($then:ident) => {
         $then! {
             None             0   "none"               daemon  laws::none::NoLaw,                          ();
-            RecyclePi        1   "recycle-pi"         daemon  recycle_pi::RecyclePi,                      (recycle_pi: recycle_pi::RecyclePiConfig);
+            RecyclePi        1   "recycle-pi"         daemon  laws::recycle_pi::RecyclePi,                (recycle_pi: laws::recycle_pi::RecyclePiConfig);
             RecycleFl        2   "recycle-fl"         daemon  laws::recycle_fl::RecycleFl,                (recycle_fl: laws::recycle_fl::RecycleFlConfig);
             DriveTorque      3   "drive-torque"       daemon  laws::drive_torque::DriveTorque,            (drive_torque: laws::drive_torque::DriveTorqueConfig);
             Ccv              4   "ccv"                daemon  laws::ccv::Ccv,                             (ccv: laws::ccv::CcvConfig);

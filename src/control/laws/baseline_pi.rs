@@ -17,7 +17,7 @@
 use crate::control::law::api::{LawError, LawNeeds, LawSpec};
 use crate::control::law::api::{LawInputs, LawOutput, SurgeLaw};
 use crate::control::model::ControlModel;
-use crate::control::recycle_pi::RecyclePiConfig;
+use crate::control::laws::recycle_pi::RecyclePiConfig;
 use crate::control::surge_control_line::SurgeControlLine;
 use crate::machine::MachineData;
 use crate::vocab::signals::ActuatorSet;
@@ -141,7 +141,7 @@ impl LawSpec for BaselinePi {
     };
     fn build(settings: &Self::Settings, model: &ControlModel) -> Result<Self, LawError> {
         // the same control line as recycle-pi (with its checks), textbook gains
-        let rp = crate::control::recycle_pi::RecyclePi::new(settings, model)?;
+        let rp = crate::control::laws::recycle_pi::RecyclePi::new(settings, model)?;
         Ok(BaselinePi::new(*rp.control_line(), settings.min_opening))
     }
 }

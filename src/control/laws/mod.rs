@@ -28,8 +28,10 @@ laws!(law_modules);
 pub mod spool;
 
 use crate::control::law::api::{LawError, LawNeeds, LawSpec};
+use crate::control::laws::recycle_pi::{RecyclePi, RecyclePiConfig};
 use crate::control::model::ControlModel;
-use crate::control::recycle_pi::{RecyclePi, RecyclePiConfig};
+// recycle_pi/mod.rs names `super::measurements` in a signature
+use crate::control::measurements;
 use crate::machine::MachineData;
 use crate::vocab::signals::{ActuatorId, ActuatorSet, SensorId};
 
