@@ -4,7 +4,7 @@
 //! for that benchmark machine, and the daemon's config may override any key. Every field has a
 //! default (from the seeds where they give one), so an absent table means "seed defaults".
 
-use super::drift_check::DriftCheckConfig;
+use super::checks::drift_check::DriftCheckConfig;
 use super::law::list::laws;
 use super::observer::ObserverConfig;
 use crate::surge::DetectorConfig;

@@ -2,9 +2,9 @@
 //! speed loop, decide the fail-safe state. Pure and allocation-free; the simulation and the
 //! daemon call [`ControlCore::cycle`] once per period.
 
+use super::checks::cross_check::FrozenDpCheck;
+use super::checks::drift_check::DriftCheck;
 use super::config::{ControllerConfig, FlowSource};
-use super::cross_check::FrozenDpCheck;
-use super::drift_check::DriftCheck;
 use super::law::api::{LawError, LawEvent, LawId, LawInputs, LoopHistory};
 use super::law::Law;
 use super::measurements::{Measurements, OperatorInputs, RawSensors};

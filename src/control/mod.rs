@@ -5,10 +5,9 @@
 //! I/O, no clock and no allocation inside a cycle. The simulation, the HIL plant and the daemon
 //! drive the same [`core::ControlCore`].
 
+pub mod checks;
 pub mod config;
 pub mod core;
-pub mod cross_check;
-pub mod drift_check;
 pub mod law;
 pub mod laws;
 pub mod measurements;

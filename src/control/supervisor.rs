@@ -30,11 +30,11 @@ pub enum InputFault {
     /// Older than the timeout.
     Stale,
     /// Fresh and in range but repeating itself while related signals move (the control
-    /// core's cross-check, [`crate::control::cross_check`]).
+    /// core's cross-check, [`crate::control::checks::cross_check`]).
     Frozen,
     /// Fresh, in range and moving, but disagreeing persistently with the observer and the
     /// speed-line flow (drifting or biased; the control core's cross-check,
-    /// [`crate::control::drift_check`]).
+    /// [`crate::control::checks::drift_check`]).
     Drift,
 }
 

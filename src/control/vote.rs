@@ -46,7 +46,7 @@
 //!
 //! Pure and allocation-free: fixed arrays, one call per cycle.
 
-use super::cross_check::FrozenDpCheck;
+use super::checks::cross_check::FrozenDpCheck;
 use super::measurements::RawSensors;
 use super::supervisor::{InputFault, Supervisor};
 use crate::vocab::faults::{FaultCategory, FaultSet};
