@@ -443,46 +443,6 @@ impl ControlCore {
         &self.detector
     }
 
-    /// Select another law; it starts bumplessly from the current outputs at the next cycle.
-    /// Fails (and keeps the running law) if the law does not apply to this machine.
-    pub fn select_law(&mut self, law: LawId) -> Result<(), LawError> {
-        if law == self.law.id() {
-            return Ok(());
-        }
-        self.law = Law::new(law, &self.config, &self.model)?;
-        self.requested_law = law;
-        self.law_started = false;
-        self.reload_restart = false;
-        Ok(())
-    }
-
-    /// Apply new controller settings (hot reload) at this cycle boundary. The active law is
-    /// rebuilt with the new settings and takes over the running law's state where it can
-    /// (recycle-pi: integrator re-based, trip and safety-on kept); otherwise it starts
-    /// bumplessly from the current outputs. The observer keeps its estimate (a running
-    /// flow-transmitter fallback goes on), and the surge detector and derivative filters
-    /// keep their history unless their own settings changed.
-    pub fn apply_config(&mut self, config: ControllerConfig) -> Result<(), LawError> {
-        let mut law = Law::new(self.law.id(), &config, &self.model)?;
-        let carried = self.law_started && law.take_over_from(&self.law);
-        self.observer = self.model.observer_plant().map(|p| match &self.observer {
-            Some(running) => running.retuned(&config.observer, p),
-            None => MassFlowObserver::new(&config.observer, p),
-        });
-        if config.detector != self.config.detector {
-            self.detector = SurgeDetector::new(config.detector);
-        }
-        if config.derivative_filter_hz != self.config.derivative_filter_hz {
-            self.d_suction = Differentiator::new(config.derivative_filter_hz);
-            self.d_discharge = Differentiator::new(config.derivative_filter_hz);
-        }
-        self.reload_restart = self.law_started && !carried;
-        self.law = law;
-        self.config = config;
-        self.law_started = carried;
-        Ok(())
-    }
-
     /// Build a reconfiguration off the real-time thread (this allocates): the law `law` with
     /// `config` for `model` (the model the core was built with), a fresh surge detector and
     /// derivative filters in case their settings changed. Fails, and nothing reaches the

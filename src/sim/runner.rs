@@ -1122,7 +1122,11 @@ fn drive(
         let t = k as f64 * dt;
         let (st, raw) = pr.sense(t);
         if let Some(i) = st.law_request {
-            core.select_law(law_ids[i])?;
+            // the daemon's transactional path: build off the cycle, swap in at its boundary
+            if law_ids[i] != core.law() {
+                let r = ControlCore::prepare(core.model(), core.config().clone(), law_ids[i])?;
+                let _replaced = core.commit(r);
+            }
         }
         if let Some(auto) = st.mode_request {
             core.request_auto(auto);
