@@ -131,17 +131,11 @@ const IO_TO_CONTROL: &[(&str, &str)] = &[("src/io/signal_map.rs", "crate::contro
 
 /// Known pairs of folders that reach each other (2026-11-29), with the arrow that closes the
 /// circle:
-/// - `control` ⇄ `control/laws/recycle_pi`: `control/config.rs` checks recycle-pi's gains
-///   (`ControlVariable`); to fix: the law's own plausibility check behind its `LawSpec`;
-/// - `control` ⇄ `control/law`, `control/law` ⇄ `control/laws/recycle_pi`: the same circle;
 /// - `daemon/config` ⇄ `live` (and `live` ⇄ `sparkplug` through it): `live/` reads its
 ///   settings from `daemon/config/` while the config check calls back into `live/`;
 /// - `daemon/config` ⇄ `sparkplug`: `sparkplug/fleet.rs` builds a daemon config;
 /// - `plot` ⇄ `sim`: `plot/` draws `sim::trace` rows while `sim/stream.rs` calls `plot`.
 const KNOWN_CIRCLES: &[(&str, &str)] = &[
-    ("control", "control/law"),
-    ("control", "control/laws/recycle_pi"),
-    ("control/law", "control/laws/recycle_pi"),
     ("daemon/config", "live"),
     ("daemon/config", "sparkplug"),
     ("live", "sparkplug"),

@@ -5,6 +5,7 @@
 //! default (from the seeds where they give one), so an absent table means "seed defaults".
 
 use super::checks::drift_check::DriftCheckConfig;
+use super::law::api::LawSpec;
 use super::law::list::laws;
 use super::observer::ObserverConfig;
 use crate::surge::DetectorConfig;
@@ -70,6 +71,33 @@ macro_rules! controller_config {
 }
 
 laws!(controller_config);
+
+/// One law's own plausibility check of its section (laws that share another's section are
+/// checked by that law).
+macro_rules! law_problems {
+    ($cfg:ident, $ty:path, ($section:ident : $($t:ident)::+)) => {
+        <$ty as LawSpec>::settings_problems(&$cfg.$section)
+    };
+    ($cfg:ident, $ty:path, $settings:tt) => {
+        Vec::<(String, String)>::new()
+    };
+}
+
+macro_rules! law_settings_problems {
+    ($($id:ident $code:literal $name:literal $scope:ident $($seg:ident)::+, $settings:tt;)*) => {
+        impl ControllerConfig {
+            /// Every law's [`LawSpec::settings_problems`] of its own section.
+            fn law_settings_problems(&self) -> Vec<(String, String)> {
+                let cfg = self;
+                let mut out = Vec::new();
+                $(out.extend(law_problems!(cfg, crate::control::$($seg)::+, $settings));)*
+                out
+            }
+        }
+    };
+}
+
+laws!(law_settings_problems);
 
 fn default_derivative_hz() -> f64 {
     50.0
@@ -183,23 +211,8 @@ impl ControllerConfig {
                 out.push(p);
             }
         }
-        let pi = &self.recycle_pi.pi;
-        let (kp, ki, key) = match pi.control_variable {
-            crate::control::laws::recycle_pi::ControlVariable::Deviation => {
-                (pi.kp, pi.ki_per_s, "recycle_pi.pi.kp")
-            }
-            _ => (
-                pi.kp_per_map_flow,
-                pi.ki_per_map_flow_s,
-                "recycle_pi.pi.kp_per_map_flow",
-            ),
-        };
-        if kp == 0.0 && ki == 0.0 {
-            out.push((
-                key.into(),
-                "kp and ki are both 0: recycle-pi would never move the valve".into(),
-            ));
-        }
+        // each law's own checks (recycle-pi: not both gains 0)
+        out.extend(self.law_settings_problems());
         out
     }
 }

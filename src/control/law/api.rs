@@ -365,4 +365,10 @@ pub trait LawSpec: SurgeLaw + Sized {
     fn carry_over(&mut self, _running: &Self) -> bool {
         false
     }
+    /// Plausibility of the settings beyond their types, as `(key, message)` with the key
+    /// relative to `[controller]`: check-config, the start and a reload refuse them. Default:
+    /// none.
+    fn settings_problems(_settings: &Self::Settings) -> Vec<(String, String)> {
+        Vec::new()
+    }
 }

@@ -28,7 +28,7 @@ laws!(law_modules);
 pub mod spool;
 
 use crate::control::law::api::{LawError, LawNeeds, LawSpec};
-use crate::control::laws::recycle_pi::{RecyclePi, RecyclePiConfig};
+use crate::control::laws::recycle_pi::{ControlVariable, RecyclePi, RecyclePiConfig};
 use crate::control::model::ControlModel;
 // recycle_pi/mod.rs names `super::measurements` in a signature
 use crate::control::measurements;
@@ -54,5 +54,25 @@ impl LawSpec for RecyclePi {
 
     fn carry_over(&mut self, running: &Self) -> bool {
         self.take_over_from(running)
+    }
+
+    fn settings_problems(settings: &RecyclePiConfig) -> Vec<(String, String)> {
+        let pi = &settings.pi;
+        let (kp, ki, key) = match pi.control_variable {
+            ControlVariable::Deviation => (pi.kp, pi.ki_per_s, "recycle_pi.pi.kp"),
+            _ => (
+                pi.kp_per_map_flow,
+                pi.ki_per_map_flow_s,
+                "recycle_pi.pi.kp_per_map_flow",
+            ),
+        };
+        if kp == 0.0 && ki == 0.0 {
+            vec![(
+                key.into(),
+                "kp and ki are both 0: recycle-pi would never move the valve".into(),
+            )]
+        } else {
+            Vec::new()
+        }
     }
 }
