@@ -6,7 +6,9 @@
 //! - [`surge`]: surge detection (flow reversal, limit cycles), shared by simulation and daemon.
 //! - [`scenario`], [`sim`], [`plot`]: scenario timelines, the in-process simulation that backs
 //!   `antisurge sim`, its trace, summary and pictures.
-//! - [`signals`]: the vocabulary of sensors and actuators every layer shares.
+//! - [`vocab`]: the ground floor, the words every layer shares: the sensors and actuators
+//!   ([`vocab::signals`]), the fault categories ([`vocab::faults`]), the controller's
+//!   [`vocab::Mode`]. It imports nothing of the crate.
 //! - [`io`]: CAN (DBC) and Modbus adapters; [`events`]: the append-only event log.
 #![forbid(unsafe_op_in_unsafe_fn)]
 
@@ -26,8 +28,12 @@ pub mod plant;
 pub mod plot;
 pub mod runtime;
 pub mod scenario;
-pub mod signals;
 pub mod sim;
 pub mod solver;
 pub mod sparkplug;
 pub mod surge;
+pub mod vocab;
+
+/// The sensors and actuators, under their old path: only for `tests/common/`, which another
+/// engineer owns (switch it to `antisurge::vocab::signals`, then delete this line).
+pub use vocab::signals;

@@ -35,6 +35,7 @@ use antisurge::runtime::handoff::{
     Wakeup,
 };
 use antisurge::signals::{ActuatorCommands, ActuatorId, SensorId, SensorSnapshot};
+use antisurge::vocab::Mode;
 use socketcan::errors::CAN_ERR_BUSOFF;
 use socketcan::{
     CanAnyFrame, CanDataFrame, CanErrorFrame, CanFdFrame, CanFdSocket, CanRemoteFrame,
@@ -510,7 +511,11 @@ async fn scenario() {
         println!("[1] values set {k} arrived on both boards within {took:?}");
     }
     let hb = hb_board.latest().expect("heartbeat");
-    assert_eq!((hb.mode, hb.law, hb.faults), (2, 5, 0x104), "{hb:?}");
+    assert_eq!(
+        (hb.mode, hb.law, hb.faults),
+        (Mode::Auto, 5, 0x104),
+        "{hb:?}"
+    );
     let (a0, b0) = (ctl.n(), plant.n());
     let t_rate = Instant::now();
     tokio::time::sleep(Duration::from_secs(2)).await;

@@ -19,11 +19,12 @@ use std::path::{Path, PathBuf};
 use std::process::{Command, Stdio};
 
 use antisurge::io::can::{
-    skid_bindings, AliveChecker, AliveCounter, AliveStatus, CanCodec, CanDatabase, ControllerMode,
-    EncodeStatus, FrameId, Heartbeat, HeartbeatCodec, HeartbeatNames, MessageDef, SignalDef,
-    SignalRole, SignalTarget,
+    skid_bindings, AliveChecker, AliveCounter, AliveStatus, CanCodec, CanDatabase, EncodeStatus,
+    FrameId, Heartbeat, HeartbeatCodec, HeartbeatNames, MessageDef, SignalDef, SignalRole,
+    SignalTarget,
 };
 use antisurge::signals::{ActuatorCommands, ActuatorId, SensorId, SensorSnapshot};
+use antisurge::vocab::Mode as ControllerMode;
 use serde_json::{json, Value};
 
 fn root() -> PathBuf {
@@ -424,7 +425,7 @@ fn heartbeat_frames(db: &CanDatabase) -> Vec<Sent> {
                 id: hb.frame_id(),
                 data: data.to_vec(),
                 intended: vec![
-                    ("Mode".to_string(), f64::from(mode.raw()), 0.0),
+                    ("Mode".to_string(), f64::from(mode.code()), 0.0),
                     ("ActiveLaw".to_string(), f64::from(law), 0.0),
                     ("Faults".to_string(), f64::from(faults), 0.0),
                     ("AliveCounter".to_string(), f64::from(alive), 0.0),
@@ -545,7 +546,7 @@ fn rust_frames_decode_identically_in_cantools() {
 #[test]
 #[ignore = "needs Python 3 with cantools (pip install cantools); .ci/run installs it and runs these with --include-ignored"]
 fn heartbeat_faults_decode_as_the_dbc_documents() {
-    use antisurge::faults::{FaultCategory, FaultSet};
+    use antisurge::vocab::faults::{FaultCategory, FaultSet};
     require_cantools();
     let db = CanDatabase::from_file(skid_path()).expect("skid.dbc");
     let hb = HeartbeatCodec::new(&db, &HeartbeatNames::SKID).expect("heartbeat");

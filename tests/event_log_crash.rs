@@ -13,10 +13,11 @@ use std::time::Duration;
 
 use antisurge::events::{
     read_log, ConfigChange, DeadlineOverrun, Event, EventFilter, EventLog, EventLogConfig,
-    FallbackEntered, FallbackReason, FsyncPolicy, Mode, ModeChanged, ReadStats, Record,
-    Replacement, SurgeDetected,
+    FallbackEntered, FallbackReason, FsyncPolicy, ModeChanged, ReadStats, Record, Replacement,
+    SurgeDetected,
 };
 use antisurge::signals::SensorId;
+use antisurge::vocab::Mode;
 
 const CHILD_ENV: &str = "ANTISURGE_EVENT_LOG_CRASH_CHILD";
 const FSYNC_ENV: &str = "ANTISURGE_EVENT_LOG_CRASH_FSYNC";

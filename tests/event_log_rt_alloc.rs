@@ -8,11 +8,12 @@ use std::time::{Duration, Instant};
 
 use antisurge::events::{
     read_log, DeadlineOverrun, Event, EventFilter, EventLog, EventLogConfig, FallbackEntered,
-    FallbackLeft, FallbackReason, FsyncPolicy, Law, LawChanged, Mode, ModeChanged, OverrunReporter,
+    FallbackLeft, FallbackReason, FsyncPolicy, Law, LawChanged, ModeChanged, OverrunReporter,
     RecycleTrip, Replacement, RtEvent, SafetyOnShift, SurgeCounter, SurgeDetected, Timestamp,
     TripReason,
 };
 use antisurge::signals::SensorId;
+use antisurge::vocab::Mode;
 
 struct Counting;
 
@@ -121,7 +122,7 @@ fn all_rt_events(i: u64) -> [RtEvent; 9] {
         RecycleTrip {
             reason: TripReason::SurgeDetected,
             cause: None,
-            criterion: Some(antisurge::control::law::TripCause::ThrottleClosure),
+            criterion: Some(antisurge::control::law::api::TripCause::ThrottleClosure),
         }
         .into(),
     ]

@@ -3,7 +3,7 @@
 
 mod common;
 
-use antisurge::control::drive_torque::{check_eq8, eq8_bound, DriveTorque, Eq8Region};
+use antisurge::control::laws::drive_torque::{check_eq8, eq8_bound, DriveTorque, Eq8Region};
 use antisurge::control::LawId;
 use antisurge::scenario::Scenario;
 use antisurge::sim::case::PlantCase;
@@ -195,7 +195,7 @@ fn washout_equilibrium_fails_where_the_outflow_construction_holds() {
     // flow deviation asks for hundreds of rad/s of speed change and the torque saturates
     let mut plant = bohagen();
     plant.controller.drive_torque.equilibrium_flow =
-        antisurge::control::drive_torque::EquilibriumFlow::Washout;
+        antisurge::control::laws::drive_torque::EquilibriumFlow::Washout;
     plant.controller.drive_torque.equilibrium_time_constant_s = 1.0;
     let s = run(&plant, &common::scenario("throttle_closure")).summary;
     assert!(s.surge_cycles > 0, "{s:#?}");
@@ -271,7 +271,8 @@ fn observer_feedback_survives_flow_transmitter_failure() {
     // pressure-and-speed only: the core uses the observer as flow source, the law its choice
     let mut obs_only = bohagen();
     obs_only.controller.flow_source = antisurge::control::config::FlowSource::Observer;
-    obs_only.controller.drive_torque.flow = antisurge::control::drive_torque::FlowInput::Selected;
+    obs_only.controller.drive_torque.flow =
+        antisurge::control::laws::drive_torque::FlowInput::Selected;
     let s = run(&obs_only, &sc).summary;
     assert!(
         s.stable && s.surge_cycles == 0 && !s.flow_reversal,

@@ -4,10 +4,11 @@
 
 mod common;
 
-use antisurge::control::law::{Law, LawEvent, LawInputs, SurgeLaw};
+use antisurge::control::law::api::{LawEvent, LawInputs, SurgeLaw};
+use antisurge::control::law::Law;
+use antisurge::control::laws::recycle_pi::{ControlVariable, RecyclePi, RecyclePiConfig};
 use antisurge::control::measurements::{Measurements, OperatorInputs};
 use antisurge::control::model::ControlModel;
-use antisurge::control::recycle_pi::{ControlVariable, RecyclePi, RecyclePiConfig};
 use antisurge::control::surge_control_line::{ControlLineForm, SurgeControlLine};
 use antisurge::control::LawId;
 use antisurge::plant::recycle_system::{ix, RecyclePlant};
@@ -565,7 +566,7 @@ fn start_at_20pct<'a>(
         m,
         op,
         model,
-        history: &antisurge::control::law::LoopHistory::EMPTY,
+        history: &antisurge::control::law::api::LoopHistory::EMPTY,
     };
     let mut cur = antisurge::signals::ActuatorCommands::default();
     cur.set(ActuatorId::RecycleValve, 0.2);
@@ -771,7 +772,7 @@ fn law_cycle_does_not_allocate() {
                 m: &ms[0],
                 op: &op,
                 model: &model,
-                history: &antisurge::control::law::LoopHistory::EMPTY,
+                history: &antisurge::control::law::api::LoopHistory::EMPTY,
             },
             &cur,
         );
@@ -789,7 +790,7 @@ fn law_cycle_does_not_allocate() {
                     m,
                     op: &op,
                     model: &model,
-                    history: &antisurge::control::law::LoopHistory::EMPTY,
+                    history: &antisurge::control::law::api::LoopHistory::EMPTY,
                 },
                 1e-3,
             ));
@@ -870,7 +871,7 @@ fn hot_retune_while_the_valve_closes_at_its_rate_limit_is_bumpless() {
     let retune = |core: &mut antisurge::control::core::ControlCore| {
         let mut cfg = core.config().clone();
         cfg.recycle_pi.pi.kp_per_map_flow = 16.0;
-        core.apply_config(cfg).expect("apply");
+        reconfigure(core, cfg, core.law());
     };
     let r = rate_limited_closure_with_switch(t_sw, retune);
     // at the switch the valve goes on closing at its rate: no step in the switching cycle
@@ -888,8 +889,9 @@ fn hot_retune_while_the_valve_closes_at_its_rate_limit_is_bumpless() {
     // (integrator set so that its demand equals the closing valve) re-opens the valve
     let restart = |core: &mut antisurge::control::core::ControlCore| {
         retune(core);
-        core.select_law(LawId::None).expect("none");
-        core.select_law(LawId::RecyclePi).expect("recycle-pi");
+        let cfg = core.config().clone();
+        reconfigure(core, cfg.clone(), LawId::None);
+        reconfigure(core, cfg, LawId::RecyclePi);
     };
     let fresh = rate_limited_closure_with_switch(t_sw, restart);
     let (fresh_worst, _) = max_step_over(&fresh, 5, t_sw, t_sw + 1.0);
@@ -917,10 +919,10 @@ fn hot_reload_during_observer_fallback_stays_in_auto() {
         let mut cfg = core.config().clone();
         if (t - 6.0).abs() < 1e-9 {
             cfg.recycle_pi.pi.ki_per_map_flow_s *= 1.01;
-            core.apply_config(cfg).expect("apply");
+            reconfigure(core, cfg, core.law());
         } else if (t - 7.0).abs() < 1e-9 {
             cfg.observer.c2_pa_s_kg = 1.5 * c2;
-            core.apply_config(cfg).expect("apply");
+            reconfigure(core, cfg, core.law());
         }
     });
     for row in r.trace.iter().filter(|row| row.t_s >= 4.1) {
@@ -1025,7 +1027,7 @@ fn first_trip_step(
             m: &m,
             op: &op,
             model,
-            history: &antisurge::control::law::LoopHistory::EMPTY,
+            history: &antisurge::control::law::api::LoopHistory::EMPTY,
         };
         let out = law.update(&inputs, 1e-3);
         if let Some(LawEvent::RecycleTrip { opening, .. }) = out.event {
@@ -1094,7 +1096,7 @@ fn started_closed(model: &ControlModel, q: impl Fn(f64) -> f64, ratio: f64) -> (
         m: &m,
         op: &op,
         model,
-        history: &antisurge::control::law::LoopHistory::EMPTY,
+        history: &antisurge::control::law::api::LoopHistory::EMPTY,
     };
     let mut cur = antisurge::signals::ActuatorCommands::default();
     cur.set(ActuatorId::RecycleValve, 0.0);
@@ -1353,4 +1355,15 @@ fn with_every_extra_off_recycle_pi_is_the_textbook_pi() {
             (l.min(*u), h.max(*u))
         });
     assert!(hi - lo < 0.005, "still moving {lo:.4}..{hi:.4}");
+}
+
+/// Reconfigure as the daemon does: prepare off the cycle, commit at its boundary.
+fn reconfigure(
+    core: &mut antisurge::control::core::ControlCore,
+    cfg: antisurge::control::ControllerConfig,
+    law: LawId,
+) {
+    let r =
+        antisurge::control::core::ControlCore::prepare(core.model(), cfg, law).expect("prepare");
+    let _replaced = core.commit(r);
 }

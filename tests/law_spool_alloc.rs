@@ -8,7 +8,8 @@ use std::alloc::{GlobalAlloc, Layout, System};
 use std::cell::Cell;
 use std::hint::black_box;
 
-use antisurge::control::law::{Law, LawInputs};
+use antisurge::control::law::api::LawInputs;
+use antisurge::control::law::Law;
 use antisurge::control::measurements::{Measurements, OperatorInputs};
 use antisurge::control::LawId;
 use antisurge::signals::{ActuatorCommands, ActuatorId};
@@ -101,7 +102,7 @@ fn spool_laws_do_not_allocate_per_cycle() {
                 m: &m,
                 op: &op,
                 model: &model,
-                history: &antisurge::control::law::LoopHistory::EMPTY,
+                history: &antisurge::control::law::api::LoopHistory::EMPTY,
             };
             if k % 1000 == 0 {
                 law.start(&inputs, &current);

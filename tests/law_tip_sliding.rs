@@ -5,7 +5,8 @@
 
 mod common;
 
-use antisurge::control::law::{Law, LawError, LawInputs};
+use antisurge::control::law::api::{LawError, LawInputs};
+use antisurge::control::law::Law;
 use antisurge::control::measurements::{Measurements, OperatorInputs};
 use antisurge::control::model::ControlModel;
 use antisurge::control::LawId;
@@ -476,7 +477,7 @@ fn settings_are_checked_against_the_machine() {
         Err(LawError::NotApplicable { .. })
     ));
     // unknown keys are rejected
-    let bad: Result<antisurge::control::tip_sliding::TipSlidingConfig, _> =
+    let bad: Result<antisurge::control::laws::tip_sliding::TipSlidingConfig, _> =
         toml::from_str("tilt = 2.0");
     assert!(bad.is_err());
 }
@@ -522,7 +523,7 @@ fn the_cycle_is_allocation_free_and_deterministic() {
         m: &m0,
         op: &op,
         model: &model,
-        history: &antisurge::control::law::LoopHistory::EMPTY,
+        history: &antisurge::control::law::api::LoopHistory::EMPTY,
     };
     a.start(&inputs, &ActuatorCommands::default());
     b.start(&inputs, &ActuatorCommands::default());
@@ -534,7 +535,7 @@ fn the_cycle_is_allocation_free_and_deterministic() {
             m: &m,
             op: &op,
             model: &model,
-            history: &antisurge::control::law::LoopHistory::EMPTY,
+            history: &antisurge::control::law::api::LoopHistory::EMPTY,
         };
         let ua = a
             .update(&inputs, 1e-3)

@@ -22,6 +22,7 @@ use antisurge::runtime::handoff::{
     Wakeup,
 };
 use antisurge::signals::{ActuatorCommands, ActuatorId, SensorId, SensorSnapshot};
+use antisurge::vocab::Mode;
 use tokio::sync::oneshot;
 use tokio::task::JoinHandle;
 
@@ -412,7 +413,10 @@ async fn sensors_setpoints_and_heartbeat_round_trip_at_50_hz() {
         assert!(t_rv >= o.t_ns);
         setpoint_lat.push(t_rv - o.t_ns);
         let hb = plant.heartbeat.latest().expect("heartbeat");
-        assert_eq!((hb.mode, hb.law, hb.faults), (3, 4, 0x8001_0002));
+        assert_eq!(
+            (hb.mode, hb.law, hb.faults),
+            (Mode::FailSafe, 4, 0x8001_0002)
+        );
         assert_eq!(hb.t_ns, t_rv, "heartbeat block written with the setpoints");
         alive.push(hb.alive);
         tokio::time::sleep(Duration::from_millis(3 + 7 * (k % 4))).await;
@@ -781,7 +785,7 @@ async fn without_heartbeat_block_every_write_is_a_heartbeat() {
     let a = plant.heartbeat.latest().expect("heartbeat");
     tokio::time::sleep(Duration::from_millis(100)).await;
     let b = plant.heartbeat.latest().expect("heartbeat");
-    assert_eq!((b.mode, b.law, b.faults), (2, 0, 0));
+    assert_eq!((b.mode, b.law, b.faults), (Mode::Auto, 0, 0));
     assert!(b.t_ns > a.t_ns && b.alive != a.alive);
     outs.stop().await;
     tokio::time::sleep(Duration::from_millis(30)).await;

@@ -3,9 +3,10 @@
 
 mod common;
 
-use antisurge::control::law::{Law, LawId, LawInputs, LoopHistory};
+use antisurge::control::law::api::{LawId, LawInputs, LoopHistory};
+use antisurge::control::law::Law;
+use antisurge::control::laws::recycle_pi::RecyclePiConfig;
 use antisurge::control::measurements::{Measurements, OperatorInputs};
-use antisurge::control::recycle_pi::RecyclePiConfig;
 use antisurge::control::surge_control_line::{ControlLineForm, SurgeControlLine};
 use antisurge::signals::{ActuatorCommands, ActuatorId};
 use antisurge::sim::case::PlantCase;

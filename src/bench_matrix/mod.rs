@@ -19,17 +19,18 @@
 //! Deterministic (fixed noise seeds), allocation outside the cycle only, a few seconds for the
 //! whole matrix on one core; cases run on std threads.
 
-use crate::control::core::{ControlCore, CoreSettings, Mode};
+use crate::control::core::{ControlCore, CoreSettings};
+use crate::control::laws::recycle_pi::RecyclePiConfig;
 use crate::control::measurements::RawSensors;
 use crate::control::model::ControlModel;
-use crate::control::recycle_pi::RecyclePiConfig;
 use crate::control::supervisor::InputFault;
 use crate::control::surge_control_line::ControlLineForm;
 use crate::control::LawId;
 use crate::scenario::Scenario;
-use crate::signals::{ActuatorCommands, ActuatorId, SensorId};
 use crate::sim::case::PlantCase;
 use crate::sim::{ControllerView, PlantRun, SimError};
+use crate::vocab::signals::{ActuatorCommands, ActuatorId, SensorId};
+use crate::vocab::Mode;
 use std::fmt::Write as _;
 use std::path::Path;
 

@@ -21,7 +21,7 @@ use crate::control::measurements::{OperatorInputs, RawSensors};
 use crate::io::can::bus::{BusCodec, CanCounters, CanCountersSnapshot, RxHandler};
 use crate::io::can::dbc::FrameId;
 use crate::runtime::handoff::{CommandBoard, HeartbeatBoard, SensorBoard};
-use crate::signals::{ActuatorCommands, ActuatorId};
+use crate::vocab::signals::{ActuatorCommands, ActuatorId};
 use std::path::{Path, PathBuf};
 use std::sync::atomic::Ordering::Relaxed;
 use std::sync::Arc;
@@ -331,7 +331,7 @@ pub fn import(
             },
             op,
             commands: cmd,
-            mode: hb.map_or(0, |h| h.mode),
+            mode: hb.map_or(crate::vocab::Mode::Init, |h| h.mode),
             law: hb.map_or(0, |h| h.law),
             law_diagnostic: f64::NAN,
             law_torque_nm: f64::NAN,

@@ -25,7 +25,8 @@ pub mod replay;
 
 use crate::control::measurements::{OperatorInputs, RawSensors};
 use crate::control::ControllerConfig;
-use crate::signals::{ActuatorCommands, ActuatorId, SensorId, SensorSnapshot};
+use crate::vocab::signals::{ActuatorCommands, ActuatorId, SensorId, SensorSnapshot};
+use crate::vocab::Mode;
 use serde::{Deserialize, Serialize};
 use std::io::{BufRead, Write};
 use std::path::{Path, PathBuf};
@@ -93,8 +94,8 @@ pub struct CycleRecord {
     pub op: OperatorInputs,
     /// Commands the core produced.
     pub commands: ActuatorCommands,
-    /// Mode code after the cycle.
-    pub mode: u8,
+    /// Mode after the cycle.
+    pub mode: Mode,
     /// Law code.
     pub law: u8,
     /// Law diagnostic.
@@ -232,7 +233,7 @@ struct Kept {
     age_s: [f64; SensorId::COUNT],
     op: OperatorInputs,
     commands: ActuatorCommands,
-    mode: u8,
+    mode: Mode,
     law: u8,
     flow_fallback: bool,
     surge_started: bool,
@@ -423,7 +424,7 @@ fn recorder_loop(
     let mut trigger_dumps = 0usize;
     let mut pending: Option<(u64, &'static str)> = None;
     let mut last_dump_cycle: Option<u64> = None;
-    let mut prev_mode = 0u8;
+    let mut prev_mode = Mode::Init;
     let dump = |ring: &Ring, reason: &str, header: &mut Header, written: &mut Vec<PathBuf>| {
         let Some(last) = ring.last_cycle() else {
             return;
@@ -442,7 +443,7 @@ fn recorder_loop(
     loop {
         let stopping = stop.load(Ordering::Acquire);
         while let Ok(r) = rx.pop() {
-            let failsafe = r.mode == crate::control::core::Mode::FailSafe.code();
+            let failsafe = r.mode == Mode::FailSafe;
             let entered_failsafe = failsafe && prev_mode != r.mode;
             prev_mode = r.mode;
             let quiet = last_dump_cycle.is_none_or(|c| r.cycle >= c + capacity as u64);
@@ -548,7 +549,7 @@ fn write_row(w: &mut impl Write, r: &CycleRecord) -> std::io::Result<()> {
     writeln!(
         w,
         ",{},{},{},{},{},{},{},{},{}",
-        r.mode,
+        r.mode.code(),
         r.law,
         r.law_diagnostic,
         r.law_torque_nm,
@@ -701,7 +702,10 @@ fn parse_row(line: &str, n_cols: usize) -> Result<CycleRecord, String> {
         },
         op,
         commands,
-        mode: small(next())?,
+        mode: {
+            let code = small(next())?;
+            Mode::from_code(code).ok_or_else(|| format!("`{code}`: no such mode"))?
+        },
         law: small(next())?,
         law_diagnostic: x(next())?,
         law_torque_nm: x(next())?,
@@ -738,7 +742,7 @@ mod tests {
                 recycle_manual: 0.0,
             },
             commands,
-            mode: 2,
+            mode: Mode::Auto,
             law: 1,
             law_diagnostic: f64::NAN,
             law_torque_nm: -3.5e-310, // subnormal
@@ -906,7 +910,7 @@ mod tests {
             Recorder::start(dir.path().to_path_buf(), header(), 100).expect("start");
         for k in 0..3000 {
             let mut r = record(k);
-            r.mode = if k >= 500 { 3 } else { 2 };
+            r.mode = if k >= 500 { Mode::FailSafe } else { Mode::Auto };
             tx.push(r);
             if k % 1000 == 999 {
                 std::thread::sleep(std::time::Duration::from_millis(60));

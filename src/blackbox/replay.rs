@@ -16,8 +16,8 @@ use crate::control::core::{ControlCore, CoreSettings};
 use crate::control::measurements::Measurements;
 use crate::control::model::ControlModel;
 use crate::control::{ControllerConfig, LawId};
-use crate::signals::{ActuatorId, SensorId};
 use crate::sim::trace::TraceRow;
+use crate::vocab::signals::{ActuatorId, SensorId};
 use serde::Serialize;
 
 /// Per-actuator comparison of recorded and replayed commands.
@@ -56,7 +56,7 @@ pub struct ReplayReport {
 #[derive(Debug, Clone)]
 pub struct Replay {
     /// Commands per record, with mode code.
-    pub commands: Vec<(crate::signals::ActuatorCommands, u8)>,
+    pub commands: Vec<(crate::vocab::signals::ActuatorCommands, u8)>,
     /// What the laws saw in each record's cycle (flow, pressure ratio, valve positions): the
     /// operating point of the pictures.
     pub measurements: Vec<Measurements>,
@@ -86,7 +86,7 @@ fn same(a: f64, b: f64) -> bool {
 pub fn replay(
     rec: &Recording,
     setup: ReplaySetup,
-) -> Result<Replay, crate::control::law::LawError> {
+) -> Result<Replay, crate::control::law::api::LawError> {
     let h = &rec.header;
     let mut core = ControlCore::new(
         setup.model,
@@ -178,7 +178,7 @@ pub fn write_comparison(
     }
     writeln!(w)?;
     for (r, (c, m)) in records.iter().zip(&replayed.commands) {
-        write!(w, "{},{},{}", r.t_s, r.mode, m)?;
+        write!(w, "{},{},{}", r.t_s, r.mode.code(), m)?;
         for id in ActuatorId::ALL {
             write!(w, ",{},{}", r.commands.get(id), c.get(id))?;
         }
@@ -254,7 +254,7 @@ pub fn with_recorded_commands(rows: &[TraceRow], records: &[CycleRecord]) -> Vec
                 cmd_ccv: c.get(ActuatorId::CloseCoupledValve),
                 cmd_throttle: c.get(ActuatorId::Throttle),
                 cmd_tip_clearance_m: c.get(ActuatorId::TipClearance),
-                mode: f64::from(r.mode),
+                mode: f64::from(r.mode.code()),
                 law_diagnostic: r.law_diagnostic,
                 ..*row
             }

@@ -22,7 +22,7 @@ pub mod runner;
 pub mod skid;
 
 use crate::config::FileError;
-use crate::control::law::LawError;
+use crate::control::law::api::LawError;
 use crate::control::LawId;
 use crate::sim::case::PlantCase;
 use crate::sim::SimError;

@@ -19,15 +19,16 @@
 
 use super::skid::{Disturbance, DpFault, Rng, Skid, DURATION_S, EVENT_AT_S, PLANT_STEP_S};
 use super::CampaignError;
-use crate::control::core::{ControlCore, CoreSettings, Mode};
+use crate::control::core::{ControlCore, CoreSettings};
 use crate::control::measurements::RawSensors;
 use crate::control::model::ControlModel;
 use crate::control::speed_loop::SpeedLoop;
 use crate::control::surge_control_line::ControlLineForm;
 use crate::control::{ControllerConfig, LawId};
 use crate::scenario::{Event, Ramp, Scenario, ScenarioFile, ScenarioInitial, Signal, Step};
-use crate::signals::{ActuatorCommands, ActuatorId, SensorId};
 use crate::sim::{ControllerView, PlantRun};
+use crate::vocab::signals::{ActuatorCommands, ActuatorId, SensorId};
+use crate::vocab::Mode;
 use serde::Serialize;
 use std::collections::VecDeque;
 use std::path::Path;

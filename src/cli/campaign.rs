@@ -91,8 +91,8 @@ pub fn run(args: &CampaignArgs) -> Result<()> {
                 campaign::runner::run(&skid, campaign::runner::Controller::Law(l), args.margin_pct)
             };
             let laws = [
-                law(antisurge::control::law::LawId::RecyclePi)?,
-                law(antisurge::control::law::LawId::BaselinePi)?,
+                law(antisurge::control::law::api::LawId::RecyclePi)?,
+                law(antisurge::control::law::api::LawId::BaselinePi)?,
             ];
             for c in campaign::runner::CONTROLLERS {
                 let on = campaign::skid_for(c, &skid, [&laws[0], &laws[1]]);

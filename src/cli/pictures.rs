@@ -1,6 +1,6 @@
 //! Pictures of a run (map and time series).
 
-use antisurge::control::recycle_pi;
+use antisurge::control::laws::recycle_pi;
 use antisurge::control::surge_control_line::{ControlLineForm, SurgeControlLine};
 use antisurge::physics::compressor_map::{CompressorMap, SurgeLine};
 use antisurge::plot;

@@ -78,7 +78,7 @@ pub fn run(args: &SimArgs) -> Result<()> {
             .any(|n| n.parse::<LawId>().ok() == Some(LawId::DriveTorque));
     if uses_drive_torque {
         // the same gain checks as check-config (sampled speed loop K1·h/J < 1, eq. 8)
-        antisurge::control::drive_torque::check_gains(
+        antisurge::control::laws::drive_torque::check_gains(
             &desc.controller.drive_torque,
             &model,
             scenario.file.control_period_s,

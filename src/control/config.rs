@@ -4,13 +4,10 @@
 //! for that benchmark machine, and the daemon's config may override any key. Every field has a
 //! default (from the seeds where they give one), so an absent table means "seed defaults".
 
-use super::drift_check::DriftCheckConfig;
-use super::drive_torque::DriveTorqueConfig;
+use super::checks::drift_check::DriftCheckConfig;
+use super::law::api::LawSpec;
+use super::law::list::laws;
 use super::observer::ObserverConfig;
-use super::recycle_fl::RecycleFlConfig;
-use super::recycle_pi::RecyclePiConfig;
-use super::spool_laws::{CcvConfig, RobustConfig, ThrottleBackstepConfig};
-use super::tip_sliding::TipSlidingConfig;
 use crate::surge::DetectorConfig;
 use serde::{Deserialize, Serialize};
 
@@ -28,37 +25,79 @@ pub enum FlowSource {
     OrificeWithObserverFallback,
 }
 
-/// Controller settings (`[controller]`).
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize, Default)]
-#[serde(deny_unknown_fields, default)]
-pub struct ControllerConfig {
-    /// Flow source.
-    pub flow_source: FlowSource,
-    /// Mass-flow observer (seed 000 eq. 14–17).
-    pub observer: ObserverConfig,
-    /// Surge detection.
-    pub detector: DetectorConfig,
-    /// Cross-check of the flow transmitter against the observer and the speed-line flow
-    /// (drifting or biased Δp).
-    pub drift_check: DriftCheckConfig,
-    /// Cut-off of the filtered pressure derivatives some laws use, Hz.
-    #[serde(default = "default_derivative_hz")]
-    pub derivative_filter_hz: f64,
-    /// recycle-pi.
-    pub recycle_pi: RecyclePiConfig,
-    /// recycle-fl.
-    pub recycle_fl: RecycleFlConfig,
-    /// drive-torque.
-    pub drive_torque: DriveTorqueConfig,
-    /// ccv.
-    pub ccv: CcvConfig,
-    /// throttle-backstep.
-    pub throttle_backstep: ThrottleBackstepConfig,
-    /// robust.
-    pub robust: RobustConfig,
-    /// tip-sliding.
-    pub tip_sliding: TipSlidingConfig,
+/// The controller settings: the fixed part, then one `[controller.<section>]` per law of the
+/// list that has its own section, in list order.
+macro_rules! controller_config {
+    (@fields [$($fields:tt)*]) => {
+        /// Controller settings (`[controller]`).
+        #[derive(Debug, Clone, PartialEq, Serialize, Deserialize, Default)]
+        #[serde(deny_unknown_fields, default)]
+        pub struct ControllerConfig {
+            /// Flow source.
+            pub flow_source: FlowSource,
+            /// Mass-flow observer (seed 000 eq. 14–17).
+            pub observer: ObserverConfig,
+            /// Surge detection.
+            pub detector: DetectorConfig,
+            /// Cross-check of the flow transmitter against the observer and the speed-line flow
+            /// (drifting or biased Δp).
+            pub drift_check: DriftCheckConfig,
+            /// Cut-off of the filtered pressure derivatives some laws use, Hz.
+            #[serde(default = "default_derivative_hz")]
+            pub derivative_filter_hz: f64,
+            $($fields)*
+        }
+    };
+    (@fields [$($fields:tt)*]
+        $id:ident $code:literal $name:literal $scope:ident $($seg:ident)::+,
+        ($section:ident : $($t:ident)::+);
+        $($rest:tt)*
+    ) => {
+        controller_config!(@fields [
+            $($fields)*
+            #[doc = concat!("`", $name, "`.")]
+            pub $section: crate::control::$($t)::+,
+        ] $($rest)*);
+    };
+    (@fields [$($fields:tt)*]
+        $id:ident $code:literal $name:literal $scope:ident $($seg:ident)::+, $settings:tt;
+        $($rest:tt)*
+    ) => {
+        controller_config!(@fields [$($fields)*] $($rest)*);
+    };
+    ($($list:tt)*) => {
+        controller_config!(@fields [] $($list)*);
+    };
 }
+
+laws!(controller_config);
+
+/// One law's own plausibility check of its section (laws that share another's section are
+/// checked by that law).
+macro_rules! law_problems {
+    ($cfg:ident, $ty:path, ($section:ident : $($t:ident)::+)) => {
+        <$ty as LawSpec>::settings_problems(&$cfg.$section)
+    };
+    ($cfg:ident, $ty:path, $settings:tt) => {
+        Vec::<(String, String)>::new()
+    };
+}
+
+macro_rules! law_settings_problems {
+    ($($id:ident $code:literal $name:literal $scope:ident $($seg:ident)::+, $settings:tt;)*) => {
+        impl ControllerConfig {
+            /// Every law's [`LawSpec::settings_problems`] of its own section.
+            fn law_settings_problems(&self) -> Vec<(String, String)> {
+                let cfg = self;
+                let mut out = Vec::new();
+                $(out.extend(law_problems!(cfg, crate::control::$($seg)::+, $settings));)*
+                out
+            }
+        }
+    };
+}
+
+laws!(law_settings_problems);
 
 fn default_derivative_hz() -> f64 {
     50.0
@@ -172,23 +211,8 @@ impl ControllerConfig {
                 out.push(p);
             }
         }
-        let pi = &self.recycle_pi.pi;
-        let (kp, ki, key) = match pi.control_variable {
-            crate::control::recycle_pi::ControlVariable::Deviation => {
-                (pi.kp, pi.ki_per_s, "recycle_pi.pi.kp")
-            }
-            _ => (
-                pi.kp_per_map_flow,
-                pi.ki_per_map_flow_s,
-                "recycle_pi.pi.kp_per_map_flow",
-            ),
-        };
-        if kp == 0.0 && ki == 0.0 {
-            out.push((
-                key.into(),
-                "kp and ki are both 0: recycle-pi would never move the valve".into(),
-            ));
-        }
+        // each law's own checks (recycle-pi: not both gains 0)
+        out.extend(self.law_settings_problems());
         out
     }
 }

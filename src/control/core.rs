@@ -2,10 +2,11 @@
 //! speed loop, decide the fail-safe state. Pure and allocation-free; the simulation and the
 //! daemon call [`ControlCore::cycle`] once per period.
 
+use super::checks::cross_check::FrozenDpCheck;
+use super::checks::drift_check::DriftCheck;
 use super::config::{ControllerConfig, FlowSource};
-use super::cross_check::FrozenDpCheck;
-use super::drift_check::DriftCheck;
-use super::law::{Law, LawError, LawEvent, LawId, LawInputs, LoopHistory};
+use super::law::api::{LawError, LawEvent, LawId, LawInputs, LoopHistory};
+use super::law::Law;
 use super::measurements::{Measurements, OperatorInputs, RawSensors};
 use super::model::ControlModel;
 use super::observer::{LowPass, MassFlowObserver};
@@ -13,46 +14,12 @@ use super::speed_loop::SpeedLoop;
 use super::supervisor::{InputFault, InputLimits, Supervisor, Validity};
 use super::surge_control_line::SurgeControlLine;
 use super::vote::{Vote, VoteSettings};
-use crate::signals::{ActuatorCommands, ActuatorId, SensorId};
 use crate::surge::{Detection, SurgeDetector};
+use crate::vocab::signals::{ActuatorCommands, ActuatorId, SensorId};
+use crate::vocab::Mode;
 
 /// Arrival times closer than this are the same sample (clock rounding), s.
 const SAME_SAMPLE_S: f64 = 1e-6;
-
-/// Controller mode.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
-pub enum Mode {
-    /// Starting: no valid inputs yet. Nothing is commanded (the field devices hold), for at
-    /// most the start-up grace; then fail-safe.
-    Init,
-    /// Manual: recycle valve from the manual station, speed loop only.
-    Manual,
-    /// Automatic: the selected law runs.
-    Auto,
-    /// Inputs lost: safe state.
-    FailSafe,
-}
-
-impl Mode {
-    /// Name for traces and the event log.
-    pub const fn name(self) -> &'static str {
-        match self {
-            Mode::Init => "init",
-            Mode::Manual => "manual",
-            Mode::Auto => "auto",
-            Mode::FailSafe => "fail_safe",
-        }
-    }
-    /// Numeric code (trace column, heartbeat frame).
-    pub const fn code(self) -> u8 {
-        match self {
-            Mode::Init => 0,
-            Mode::Manual => 1,
-            Mode::Auto => 2,
-            Mode::FailSafe => 3,
-        }
-    }
-}
 
 /// Settings of the control core that are not law gains.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -474,46 +441,6 @@ impl ControlCore {
     /// The online surge detector.
     pub fn detector(&self) -> &SurgeDetector {
         &self.detector
-    }
-
-    /// Select another law; it starts bumplessly from the current outputs at the next cycle.
-    /// Fails (and keeps the running law) if the law does not apply to this machine.
-    pub fn select_law(&mut self, law: LawId) -> Result<(), LawError> {
-        if law == self.law.id() {
-            return Ok(());
-        }
-        self.law = Law::new(law, &self.config, &self.model)?;
-        self.requested_law = law;
-        self.law_started = false;
-        self.reload_restart = false;
-        Ok(())
-    }
-
-    /// Apply new controller settings (hot reload) at this cycle boundary. The active law is
-    /// rebuilt with the new settings and takes over the running law's state where it can
-    /// (recycle-pi: integrator re-based, trip and safety-on kept); otherwise it starts
-    /// bumplessly from the current outputs. The observer keeps its estimate (a running
-    /// flow-transmitter fallback goes on), and the surge detector and derivative filters
-    /// keep their history unless their own settings changed.
-    pub fn apply_config(&mut self, config: ControllerConfig) -> Result<(), LawError> {
-        let mut law = Law::new(self.law.id(), &config, &self.model)?;
-        let carried = self.law_started && law.take_over_from(&self.law);
-        self.observer = self.model.observer_plant().map(|p| match &self.observer {
-            Some(running) => running.retuned(&config.observer, p),
-            None => MassFlowObserver::new(&config.observer, p),
-        });
-        if config.detector != self.config.detector {
-            self.detector = SurgeDetector::new(config.detector);
-        }
-        if config.derivative_filter_hz != self.config.derivative_filter_hz {
-            self.d_suction = Differentiator::new(config.derivative_filter_hz);
-            self.d_discharge = Differentiator::new(config.derivative_filter_hz);
-        }
-        self.reload_restart = self.law_started && !carried;
-        self.law = law;
-        self.config = config;
-        self.law_started = carried;
-        Ok(())
     }
 
     /// Build a reconfiguration off the real-time thread (this allocates): the law `law` with
@@ -1182,7 +1109,7 @@ impl ControlCore {
                     cmd.set(ActuatorId::RecycleValve, u);
                 }
             }
-            Mode::Init | Mode::FailSafe => {}
+            Mode::Init | Mode::FailSafe | Mode::Shutdown => {}
         }
         self.last_manual_input = op.recycle_manual;
         // the drive's speed loop runs here only when the controller owns the drive; otherwise

@@ -1,7 +1,7 @@
 //! Inputs of one control cycle: raw sensor readings with their age, operator inputs, and the
 //! validated, derived measurements the laws see.
 
-use crate::signals::{SensorId, SensorSnapshot};
+use crate::vocab::signals::{SensorId, SensorSnapshot};
 
 /// Sensor readings as they arrived, with the age of each (time since it was last updated).
 #[derive(Debug, Clone, Copy, PartialEq)]

@@ -5,24 +5,18 @@
 //! I/O, no clock and no allocation inside a cycle. The simulation, the HIL plant and the daemon
 //! drive the same [`core::ControlCore`].
 
-pub mod baseline_pi;
+pub mod checks;
 pub mod config;
 pub mod core;
-pub mod cross_check;
-pub mod drift_check;
-pub mod drive_torque;
 pub mod law;
+pub mod laws;
 pub mod measurements;
 pub mod model;
 pub mod observer;
-pub mod recycle_fl;
-pub mod recycle_pi;
 pub mod speed_loop;
-pub mod spool_laws;
 pub mod supervisor;
 pub mod surge_control_line;
-pub mod tip_sliding;
 pub mod vote;
 
 pub use config::ControllerConfig;
-pub use law::LawId;
+pub use law::api::LawId;

@@ -2,7 +2,8 @@
 //! whether an input is usable; the control core derives fallbacks and fail-safe from it.
 
 use super::measurements::RawSensors;
-use crate::signals::SensorId;
+use crate::vocab::faults::{FaultCategory, FaultSet};
+use crate::vocab::signals::SensorId;
 use serde::{Deserialize, Serialize};
 
 /// Limits of one input.
@@ -29,11 +30,11 @@ pub enum InputFault {
     /// Older than the timeout.
     Stale,
     /// Fresh and in range but repeating itself while related signals move (the control
-    /// core's cross-check, [`crate::control::cross_check`]).
+    /// core's cross-check, [`crate::control::checks::cross_check`]).
     Frozen,
     /// Fresh, in range and moving, but disagreeing persistently with the observer and the
     /// speed-line flow (drifting or biased; the control core's cross-check,
-    /// [`crate::control::drift_check`]).
+    /// [`crate::control::checks::drift_check`]).
     Drift,
 }
 
@@ -49,6 +50,26 @@ impl Validity {
     #[inline]
     pub fn ok(&self, id: SensorId) -> bool {
         self.fault[id.index()] == InputFault::None
+    }
+
+    /// Input faults in categories. Sensors the supervisor does not use (no limits) are not
+    /// faults: a healthy controller that reads only some sensors sends 0. Allocation-free.
+    pub fn fault_set(&self, supervisor: &Supervisor) -> FaultSet {
+        let mut f = FaultSet::NONE;
+        for id in SensorId::ALL {
+            if supervisor.limits[id.index()].is_none() {
+                continue;
+            }
+            match self.fault[id.index()] {
+                InputFault::None => {}
+                InputFault::Stale => f.set(FaultCategory::SensorTimeout),
+                InputFault::Nan
+                | InputFault::OutOfRange
+                | InputFault::Frozen
+                | InputFault::Drift => f.set(FaultCategory::SensorImplausible),
+            }
+        }
+        f
     }
 }
 
@@ -118,7 +139,31 @@ impl Supervisor {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::signals::SensorSnapshot;
+    use crate::vocab::signals::SensorSnapshot;
+
+    #[test]
+    fn unused_sensors_are_not_faults_and_kinds_map_to_categories() {
+        let lim = InputLimits {
+            min: 0.0,
+            max: 1.0,
+            timeout_s: 0.1,
+        };
+        let mut limits = [None; SensorId::COUNT];
+        limits[SensorId::PSuction.index()] = Some(lim);
+        limits[SensorId::OrificeDp.index()] = Some(lim);
+        let sup = Supervisor { limits };
+        // thrust position (index 7) unused and "NaN": healthy, not 128 (config_error)
+        let mut fault = [InputFault::None; SensorId::COUNT];
+        fault[SensorId::ThrustPosition.index()] = InputFault::Nan;
+        let v = Validity { fault };
+        assert_eq!(v.fault_set(&sup), FaultSet::NONE);
+        fault[SensorId::PSuction.index()] = InputFault::Stale;
+        fault[SensorId::OrificeDp.index()] = InputFault::OutOfRange;
+        let f = Validity { fault }.fault_set(&sup);
+        assert_eq!(f.0, 1 | 8);
+        let names: Vec<&str> = f.categories().map(|c| c.name()).collect();
+        assert_eq!(names, ["sensor_timeout", "sensor_implausible"]);
+    }
 
     #[test]
     fn classifies_faults() {

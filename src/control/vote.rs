@@ -46,10 +46,11 @@
 //!
 //! Pure and allocation-free: fixed arrays, one call per cycle.
 
-use super::cross_check::FrozenDpCheck;
+use super::checks::cross_check::FrozenDpCheck;
 use super::measurements::RawSensors;
 use super::supervisor::{InputFault, Supervisor};
-use crate::signals::SensorId;
+use crate::vocab::faults::{FaultCategory, FaultSet};
+use crate::vocab::signals::SensorId;
 
 /// Most transmitters per measurement.
 pub const MAX_TRANSMITTERS: usize = 3;
@@ -383,7 +384,28 @@ impl Default for Vote {
     }
 }
 
+/// Faults of the votes of redundant transmitters as published (the live snapshot's):
+/// `transmitter_deviation` while one is deviating, `vote_degraded` while a vote is degraded.
+/// Allocation-free.
+pub fn fault_set(votes: &[VoteStatus]) -> FaultSet {
+    let mut f = FaultSet::NONE;
+    for s in votes.iter().filter(|s| s.bound > 0) {
+        if s.deviating() {
+            f.set(FaultCategory::TransmitterDeviation);
+        }
+        if s.degraded {
+            f.set(FaultCategory::VoteDegraded);
+        }
+    }
+    f
+}
+
 impl Vote {
+    /// [`fault_set`] of these votes. Allocation-free.
+    pub fn fault_set(&self) -> FaultSet {
+        fault_set(&self.status())
+    }
+
     /// No history.
     pub const fn new() -> Vote {
         Vote {
@@ -611,7 +633,7 @@ impl Vote {
 mod tests {
     use super::*;
     use crate::control::supervisor::InputLimits;
-    use crate::signals::SensorSnapshot;
+    use crate::vocab::signals::SensorSnapshot;
 
     fn sup() -> Supervisor {
         let lim = |min, max| {

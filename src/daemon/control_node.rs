@@ -11,25 +11,23 @@
 //! 5. queue what changed (mode, fallback, surge, recycle trip, overruns) on the event ring and
 //!    update the [`Health`] the watchdog task reads.
 
-use crate::control::core::{ControlCore, CoreSettings, CycleOutput, Mode, Reconfiguration};
-use crate::control::law::{LawEvent, LawId};
+use crate::control::core::{ControlCore, CoreSettings, CycleOutput, Reconfiguration};
+use crate::control::law::api::{LawEvent, LawId};
 use crate::control::measurements::{OperatorInputs, RawSensors};
 use crate::events::cause::{Cause, CauseKind};
 use crate::events::event::{
-    FallbackEntered, FallbackLeft, FallbackReason, LawChanged, Mode as EvMode, ModeChanged,
-    RecycleTrip, Replacement, SafetyOnShift, SurgeCounter, SurgeDetected, TripReason,
+    FallbackEntered, FallbackLeft, FallbackReason, LawChanged, ModeChanged, RecycleTrip,
+    Replacement, SafetyOnShift, SurgeCounter, SurgeDetected, TripReason,
 };
 use crate::events::{OverrunReporter, RtSender};
 use crate::runtime::handoff::{OutputBoard, Outputs, SensorBoard, Wakeup};
 use crate::runtime::rt_loop::{CycleStats, Tick};
-use crate::signals::{ActuatorCommands, SensorId};
 use crate::surge::Detection;
+use crate::vocab::signals::{ActuatorCommands, SensorId};
+use crate::vocab::Mode;
 use std::sync::atomic::{AtomicU64, Ordering};
 use std::sync::Arc;
 use std::time::{Duration, Instant};
-
-/// Heartbeat mode code sent after shutdown (the DBC's `Mode` value 4).
-pub const MODE_SHUTDOWN: u8 = 4;
 
 /// A change the configuration task hands to the control thread, fully built off it:
 /// moving it through the ring and committing it allocate nothing.
@@ -67,12 +65,10 @@ pub struct Health {
 impl Health {
     /// Mode of the last cycle.
     pub fn mode(&self) -> Mode {
-        match self.mode.load(Ordering::Relaxed) {
-            1 => Mode::Manual,
-            2 => Mode::Auto,
-            3 => Mode::FailSafe,
-            _ => Mode::Init,
-        }
+        u8::try_from(self.mode.load(Ordering::Relaxed))
+            .ok()
+            .and_then(Mode::from_code)
+            .unwrap_or(Mode::Init)
     }
 }
 
@@ -114,22 +110,13 @@ pub struct ControlNode {
         crate::control::vote::VOTABLE.len()],
 }
 
-fn ev_mode(m: Mode) -> EvMode {
-    match m {
-        Mode::Init => EvMode::Init,
-        Mode::Manual => EvMode::Manual,
-        Mode::Auto => EvMode::Auto,
-        Mode::FailSafe => EvMode::FailSafe,
-    }
-}
-
 /// Fault bits of the heartbeat: bit i set when sensor i is not usable.
 /// The fault word on the wire: the shared categories of [`crate::faults`].
 fn fault_bits(
     v: &crate::control::supervisor::Validity,
     s: &crate::control::supervisor::Supervisor,
 ) -> u32 {
-    crate::faults::FaultSet::from_validity(v, s).0
+    v.fault_set(s).0
 }
 
 /// Fault lamps of the live snapshot: bit i set when sensor i is not usable (the wire's fault
@@ -275,6 +262,8 @@ impl ControlNode {
                 Cause::of(CauseKind::InputsHealthy)
             }
             Mode::Auto | Mode::Manual => Cause::of(CauseKind::Operator),
+            // the core never reports shutdown (the daemon's stop does, see `shutdown`)
+            Mode::Shutdown => Cause::of(CauseKind::Shutdown),
         }
     }
 
@@ -384,7 +373,9 @@ impl ControlNode {
             safety_on_count: safety_on,
             surge_count: self.surges,
             trip_count: u64::from(trips),
-            valve_output: out.commands.get(crate::signals::ActuatorId::RecycleValve),
+            valve_output: out
+                .commands
+                .get(crate::vocab::signals::ActuatorId::RecycleValve),
             valve_position: m.recycle_position,
             manual_output: self.core.manual_output(),
             auto_requested: self.core.auto_requested(),
@@ -470,7 +461,8 @@ impl ControlNode {
         }
         let t_s = now.saturating_sub(self.t0_ns) as f64 * 1e-9;
         // the slow-link policy: a field link slow but alive widens the control line
-        let slow = crate::faults::field::word() & crate::faults::FaultCategory::FieldLinkSlow.bit();
+        let slow =
+            crate::faults::field::word() & crate::vocab::faults::FaultCategory::FieldLinkSlow.bit();
         self.core.set_link_slow(slow != 0);
         let out = self.core.cycle(t_s, &raw, &self.op);
         if let Some(bb) = &mut self.blackbox {
@@ -483,7 +475,7 @@ impl ControlNode {
                 raw,
                 op: self.op,
                 commands: out.commands,
-                mode: out.mode.code(),
+                mode: out.mode,
                 law: out.law.code(),
                 law_diagnostic: out.law_diagnostic,
                 law_torque_nm: out.law_torque_nm,
@@ -511,7 +503,7 @@ impl ControlNode {
             mode: out.mode.code(),
             law: out.law.code(),
             faults: fault_bits(&out.validity, &self.core.settings().supervisor)
-                | crate::faults::FaultSet::from_vote(self.core.vote()).0,
+                | self.core.vote().fault_set().0,
             cycle: tick.cycle,
             t_ns: now,
         });
@@ -529,8 +521,8 @@ impl ControlNode {
             let cause = self.cause_now(&out, &raw, self.prev_mode);
             self.cause = Some(cause);
             self.push(ModeChanged {
-                from: ev_mode(self.prev_mode),
-                to: ev_mode(out.mode),
+                from: self.prev_mode,
+                to: out.mode,
                 cause: Some(cause),
             });
             self.prev_mode = out.mode;
@@ -678,7 +670,7 @@ impl ControlNode {
         let cmd = self.core.safe_state();
         self.outputs.publish(&Outputs {
             commands: cmd,
-            mode: MODE_SHUTDOWN,
+            mode: Mode::Shutdown.code(),
             law: self.core.law().code(),
             faults: 0,
             cycle,
@@ -686,8 +678,8 @@ impl ControlNode {
         });
         self.wake.signal();
         self.push(ModeChanged {
-            from: ev_mode(self.prev_mode),
-            to: EvMode::Shutdown,
+            from: self.prev_mode,
+            to: Mode::Shutdown,
             cause: Some(Cause::of(CauseKind::Shutdown)),
         });
         cmd

@@ -7,7 +7,6 @@ use super::config::Loaded;
 use crate::events::event::BusState;
 use crate::events::event::Event;
 use crate::events::EventSender;
-use crate::faults::FaultCategory;
 use crate::io::can::bus::{
     run_controller as can_controller, run_plant as can_plant, BusCodec, BusHandles,
     ControllerBoards, PlantBoards,
@@ -21,7 +20,8 @@ use crate::io::modbus::{
 use crate::runtime::handoff::{
     CommandBoard, HeartbeatBoard, OutputBoard, SensorBoard, SnapshotBoard, Wakeup,
 };
-use crate::signals::ActuatorId;
+use crate::vocab::faults::FaultCategory;
+use crate::vocab::signals::ActuatorId;
 use anyhow::{anyhow, Context, Result};
 use std::sync::Arc;
 use tokio::sync::watch;
@@ -100,7 +100,7 @@ pub async fn supervise_feedback(
     mut sup: FeedbackSupervisor,
     sensors: Arc<SensorBoard>,
     outputs: Arc<OutputBoard>,
-    timeouts_s: [f64; crate::signals::SensorId::COUNT],
+    timeouts_s: [f64; crate::vocab::signals::SensorId::COUNT],
     events: EventSender,
     shutdown: watch::Receiver<bool>,
     health: Arc<super::control_node::Health>,
@@ -175,7 +175,7 @@ fn can_link_name(interface: &str) -> String {
 /// need a restart to change), off the control thread.
 pub fn input_links(l: &Loaded) -> Vec<crate::io::signal_map::InputLink> {
     if l.config.bus.transport != super::config::Transport::Field {
-        return crate::signals::SensorId::ALL
+        return crate::vocab::signals::SensorId::ALL
             .into_iter()
             .filter(|id| l.core.supervisor.limits[id.index()].is_some())
             .map(|input| crate::io::signal_map::InputLink {
@@ -205,12 +205,12 @@ pub fn input_links(l: &Loaded) -> Vec<crate::io::signal_map::InputLink> {
 /// control thread roots a stale input's cause in. Built once at start.
 pub fn input_link_kinds(
     table: &[crate::io::signal_map::InputLink],
-) -> [u8; crate::signals::SensorId::COUNT] {
-    let mut kinds = [0u8; crate::signals::SensorId::COUNT];
+) -> [u8; crate::vocab::signals::SensorId::COUNT] {
+    let mut kinds = [0u8; crate::vocab::signals::SensorId::COUNT];
     for row in table {
         if let Some(link) = &row.link {
             kinds[row.input.index()] |=
-                1 << crate::faults::FieldLinkKind::of_link_name(link).code();
+                1 << crate::vocab::faults::FieldLinkKind::of_link_name(link).code();
         }
     }
     kinds
@@ -501,7 +501,7 @@ pub fn spawn_controller_links(
     let mut sup = FeedbackSupervisor::new(&map.feedback);
     if let Some(v) = l.model.recycle_valve {
         // the feedback follows the valve's own positioner model (crate::io::feedback)
-        sup = sup.with_valve(crate::signals::ActuatorId::RecycleValve, v.spec);
+        sup = sup.with_valve(crate::vocab::signals::ActuatorId::RecycleValve, v.spec);
     }
     counters.feedback = map
         .feedback
@@ -511,7 +511,7 @@ pub fn spawn_controller_links(
         .collect();
     if !sup.is_empty() {
         // feedback counts as fresh for its input timeout (else: no judgement)
-        let mut timeouts_s = [0.2; crate::signals::SensorId::COUNT];
+        let mut timeouts_s = [0.2; crate::vocab::signals::SensorId::COUNT];
         for (id, t) in timeouts_s.iter_mut().enumerate() {
             if let Some(lim) = l.core.supervisor.limits[id] {
                 *t = lim.timeout_s;
@@ -711,9 +711,9 @@ mod tests {
 
     #[test]
     fn each_sensor_knows_the_kinds_of_link_that_carry_it() {
-        use crate::faults::FieldLinkKind;
         use crate::io::signal_map::InputLink;
-        use crate::signals::SensorId;
+        use crate::vocab::faults::FieldLinkKind;
+        use crate::vocab::signals::SensorId;
         let row = |input, t: &str, link: Option<&str>| InputLink {
             input,
             transmitter: t.into(),

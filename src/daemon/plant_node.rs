@@ -14,10 +14,10 @@ use crate::plant::file::PlantDescription;
 use crate::runtime::handoff::{
     CommandBoard, HeartbeatBoard, OutputBoard, SensorBoard, SnapshotBoard, Wakeup,
 };
-use crate::signals::{ActuatorCommands, ActuatorId, SensorId};
 use crate::sim::summary::DeviceWatchdogTrip;
 use crate::sim::trace_handoff::{TraceHandoff, TraceWriter};
 use crate::sim::{ControllerView, PlantRun, SimResult};
+use crate::vocab::signals::{ActuatorCommands, ActuatorId, SensorId};
 use std::path::Path;
 use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
 use std::sync::Arc;

@@ -19,11 +19,12 @@
 //! others a reload restarts them from the applied outputs, which is what the shadows do.
 
 use super::config::{self, Loaded, Problem};
-use crate::control::core::{ControlCore, Mode};
+use crate::control::core::ControlCore;
 use crate::control::measurements::RawSensors;
 use crate::control::model::ControlModel;
 use crate::runtime::handoff::{monotonic_ns, SensorBoard};
-use crate::signals::ActuatorId;
+use crate::vocab::signals::ActuatorId;
+use crate::vocab::Mode;
 use std::time::Duration;
 
 /// The largest recycle valve command step a reload may cause, fraction of stroke (0.02 = 2 %).

@@ -82,7 +82,7 @@ pub fn operator_inputs(l: &Loaded) -> OperatorInputs {
 pub fn update_of(
     model: &crate::control::model::ControlModel,
     l: &Loaded,
-) -> Result<ControlUpdate, crate::control::law::LawError> {
+) -> Result<ControlUpdate, crate::control::law::api::LawError> {
     Ok(ControlUpdate {
         reconf: ControlCore::prepare(model, l.controller.clone(), l.law)?,
         settings: l.core,

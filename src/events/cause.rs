@@ -11,8 +11,8 @@ use serde::{Deserialize, Serialize};
 
 use super::event::FallbackReason;
 use crate::control::supervisor::{InputFault, Supervisor, Validity};
-use crate::faults::FieldLinkKind;
-use crate::signals::SensorId;
+use crate::vocab::faults::FieldLinkKind;
+use crate::vocab::signals::SensorId;
 
 /// What kind of cause.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, Serialize, Deserialize)]
@@ -296,7 +296,7 @@ mod tests {
     use super::*;
     use crate::control::measurements::RawSensors;
     use crate::control::supervisor::InputLimits;
-    use crate::signals::SensorSnapshot;
+    use crate::vocab::signals::SensorSnapshot;
 
     #[test]
     fn a_frozen_dp_is_named_with_its_check() {

@@ -12,23 +12,8 @@ use serde::{Deserialize, Deserializer, Serialize};
 
 pub use super::cause::{Cause, CauseKind};
 use super::timestamp::Timestamp;
-use crate::signals::SensorId;
-
-/// Operating mode of the controller.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, Serialize, Deserialize)]
-#[serde(rename_all = "snake_case")]
-pub enum Mode {
-    /// Starting up: inputs not yet validated, outputs held.
-    Init,
-    /// Operator drives the outputs.
-    Manual,
-    /// The control law drives the outputs.
-    Auto,
-    /// Inputs lost: outputs at their safe positions (recycle open).
-    FailSafe,
-    /// Controlled stop.
-    Shutdown,
-}
+use crate::vocab::signals::SensorId;
+use crate::vocab::Mode;
 
 /// The control law: the controller's own identifier (one list of law names).
 pub use crate::control::LawId as Law;
@@ -232,7 +217,7 @@ pub struct RecycleTrip {
     /// Which of the law's criteria fired (`trip_line`, `predicted_crossing`,
     /// `throttle_closure`, `speed_decay`); absent for trips from outside the law.
     #[serde(default, skip_serializing_if = "Option::is_none")]
-    pub criterion: Option<crate::control::law::TripCause>,
+    pub criterion: Option<crate::control::law::api::TripCause>,
 }
 
 /// A redundant transmitter changed state (voted out and by which check, deviating, healthy
@@ -465,7 +450,7 @@ pub enum Event {
         /// Link or device, e.g. `modbus:127.0.0.1:5020` or `can0`.
         link: String,
         /// Category, as on the wire (the DBC's Faults bits).
-        fault: crate::faults::FaultCategory,
+        fault: crate::vocab::faults::FaultCategory,
         /// Raised (true) or cleared (false).
         active: bool,
         /// The cause in words, e.g. the Modbus exception code or the actuator and the

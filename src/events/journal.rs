@@ -5,17 +5,8 @@
 //! writer thread, never by the control thread.
 
 use super::cause::Cause;
-use super::event::{Event, Mode};
-
-fn mode_name(m: Mode) -> &'static str {
-    match m {
-        Mode::Init => "init",
-        Mode::Manual => "manual",
-        Mode::Auto => "auto",
-        Mode::FailSafe => "fail_safe",
-        Mode::Shutdown => "shutdown",
-    }
-}
+use super::event::Event;
+use crate::vocab::Mode;
 
 fn fault_name(c: &Option<Cause>) -> Option<&'static str> {
     c.and_then(|c| c.fault).map(|f| match f {
@@ -38,7 +29,7 @@ pub fn record(event: &Event) {
             let kind = c.map(|c| kind_name(&c));
             let input = c.and_then(|c| c.input).map(|i| i.name());
             let fault = fault_name(&c);
-            let (from, to) = (mode_name(m.from), mode_name(m.to));
+            let (from, to) = (m.from.name(), m.to.name());
             macro_rules! line {
                 ($lvl:ident) => {
                     tracing::$lvl!(target: "event", event = "mode_changed", from, to,

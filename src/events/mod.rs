@@ -30,7 +30,7 @@ pub use config::{EventLogConfig, FsyncPolicy};
 pub use error::EventLogError;
 pub use event::{
     BusState, ConfigChange, DeadlineOverrun, DropCause, Event, FallbackEntered, FallbackLeft,
-    FallbackReason, Law, LawChanged, Mode, ModeChanged, RecycleTrip, Replacement, SafetyOnShift,
+    FallbackReason, Law, LawChanged, ModeChanged, RecycleTrip, Replacement, SafetyOnShift,
     SurgeCounter, SurgeDetected, Transmitter, TripReason,
 };
 pub use print::{format_pretty, print_events, PrintFormat};

@@ -244,7 +244,8 @@ impl OverrunReporter {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::events::event::{Mode, TripReason};
+    use crate::events::event::TripReason;
+    use crate::vocab::Mode;
 
     #[test]
     fn rt_event_is_small_and_copy() {

@@ -717,9 +717,10 @@ impl Writer {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::events::event::{ConfigChange, Law, Mode, ModeChanged, TripReason};
+    use crate::events::event::{ConfigChange, Law, ModeChanged, TripReason};
     use crate::events::reader::{read_log, EventFilter, Record};
     use crate::events::rt_channel::RtEvent;
+    use crate::vocab::Mode;
 
     fn cfg(dir: &Path) -> EventLogConfig {
         EventLogConfig {

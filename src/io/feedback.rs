@@ -6,7 +6,7 @@
 //! valve position, throttle ↔ throttle position, tip clearance ↔ thrust position, drive
 //! torque ↔ delivered torque). A difference beyond `tolerance` (SI units of the actuator)
 //! that lasts `time_ms` is the industry's valve feedback fault
-//! ([`FaultCategory::ActuatorFeedbackMismatch`](crate::faults::FaultCategory)).
+//! ([`FaultCategory::ActuatorFeedbackMismatch`](crate::vocab::faults::FaultCategory)).
 //! An actuator that is still travelling towards its command follows it: each time the
 //! difference has shrunk by another `tolerance` the time starts again, so a slow-stroking
 //! valve after a large step is no fault, while a stuck one (or one moving the wrong way) is
@@ -38,7 +38,7 @@
 use serde::{Deserialize, Serialize};
 
 use crate::physics::valve::ValveSpec;
-use crate::signals::{ActuatorId, SensorId};
+use crate::vocab::signals::{ActuatorId, SensorId};
 
 /// Tolerance and time of one supervised actuator.
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]

@@ -11,7 +11,7 @@ use std::sync::atomic::{AtomicU32, Ordering};
 use std::sync::Arc;
 
 use crate::events::event::{BusState, Event};
-use crate::faults::{FaultCategory, FaultSet, FieldLinkKind};
+use crate::vocab::faults::{FaultCategory, FaultSet, FieldLinkKind};
 
 /// Where a reporter's events go (the daemon's event sender, or a test's vector).
 pub type EventSink = Arc<dyn Fn(Event) + Send + Sync>;

@@ -1,6 +1,6 @@
 //! Field-bus adapters: CAN signals defined in a DBC file, and Modbus registers.
 //!
-//! Adapters translate between bytes on a bus and [`crate::signals`] values in SI units.
+//! Adapters translate between bytes on a bus and [`crate::vocab::signals`] values in SI units.
 //! They know nothing of the control laws.
 
 pub mod can;

@@ -21,7 +21,7 @@
 use super::can::SignalBinding;
 use super::modbus::{find_overlaps, ModbusWatchdog, RegisterBinding};
 use super::units::{resolve, Quantity};
-use crate::signals::{ActuatorId, SensorId};
+use crate::vocab::signals::{ActuatorId, SensorId};
 use serde::{Deserialize, Serialize};
 use std::collections::BTreeMap;
 

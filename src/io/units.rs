@@ -9,7 +9,7 @@
 //! SI = device_value × factor + offset      (e.g. % → fraction: × 0.01; °C → K: + 273.15)
 //! ```
 
-use crate::signals::{ActuatorId, SensorId};
+use crate::vocab::signals::{ActuatorId, SensorId};
 use std::f64::consts::PI;
 
 /// The physical quantity of a signal.

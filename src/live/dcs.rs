@@ -171,10 +171,10 @@ pub async fn serve(
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::control::core::Mode;
     use crate::events::cause::{Cause, CauseKind};
     use crate::events::FallbackReason;
-    use crate::signals::SensorId;
+    use crate::vocab::signals::SensorId;
+    use crate::vocab::Mode;
 
     #[test]
     fn encodes_the_snapshot() {

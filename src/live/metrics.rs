@@ -13,9 +13,9 @@ use prometheus_client::metrics::gauge::ConstGauge;
 use prometheus_client::registry::Registry;
 
 use super::snapshot::LiveBoard;
-use crate::control::core::Mode;
 use crate::runtime::rt_loop::CycleStats;
-use crate::signals::SensorId;
+use crate::vocab::signals::SensorId;
+use crate::vocab::Mode;
 
 /// Default endpoint.
 pub const DEFAULT_LISTEN: &str = "127.0.0.1:9650";
@@ -88,8 +88,8 @@ impl Collector for LiveCollector {
                 None,
                 g.metric_type(),
             )?;
-            let word = crate::faults::FaultSet(crate::faults::field::word());
-            for c in crate::faults::FaultCategory::ALL {
+            let word = crate::vocab::faults::FaultSet(crate::faults::field::word());
+            for c in crate::vocab::faults::FaultCategory::ALL {
                 let g = ConstGauge::new(i64::from(word.has(c)));
                 g.encode(fam.encode_family(&[("fault", c.name())])?)?;
             }

@@ -7,7 +7,7 @@ use serde::{Deserialize, Serialize};
 use super::snapshot::{FlowSourceNow, LiveSnapshot};
 use crate::events::cause::Cause;
 use crate::io::signal_map::InputLink;
-use crate::signals::SensorId;
+use crate::vocab::signals::SensorId;
 
 /// One fault lamp: an input that is not usable now.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
@@ -275,7 +275,7 @@ impl StatusReport {
                 .filter(|id| s.fault_bits & (1 << id.index()) != 0)
                 .map(|input| FaultLamp { input })
                 .collect(),
-            field_faults: crate::faults::FaultSet(crate::faults::field::word())
+            field_faults: crate::vocab::faults::FaultSet(crate::faults::field::word())
                 .categories()
                 .map(|c| c.name().to_string())
                 .collect(),
@@ -364,7 +364,7 @@ impl StatusReport {
 
     fn with_votes(mut self, s: &LiveSnapshot) -> StatusReport {
         (self.transmitters, self.votes, self.degraded_policy) = vote_reports(s);
-        self.vote_faults = crate::faults::FaultSet::from_votes(&s.votes.votes)
+        self.vote_faults = crate::control::vote::fault_set(&s.votes.votes)
             .categories()
             .map(|c| c.name().to_string())
             .collect();
@@ -581,9 +581,9 @@ pub fn human(r: &StatusReport) -> String {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::control::core::Mode;
     use crate::events::cause::CauseKind;
     use crate::events::FallbackReason;
+    use crate::vocab::Mode;
 
     #[test]
     fn fail_safe_line_and_text_name_the_input_and_fault() {

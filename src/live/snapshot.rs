@@ -5,13 +5,14 @@
 
 use serde::{Deserialize, Serialize};
 
-use crate::control::core::{MarginShift, Mode};
+use crate::control::core::MarginShift;
 use crate::control::vote::{TransmitterState, VoteRule, VoteStatus, MAX_TRANSMITTERS, VOTABLE};
 use crate::control::LawId;
 use crate::events::cause::{Cause, CauseKind};
 use crate::events::FallbackReason;
 use crate::runtime::handoff::SeqLock;
-use crate::signals::SensorId;
+use crate::vocab::signals::SensorId;
+use crate::vocab::Mode;
 
 /// Where the flow the law uses comes from.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
@@ -359,7 +360,7 @@ impl LiveBoard {
             max: unopt(w[21]),
             age_ms: unopt(w[22]),
             timeout_ms: unopt(w[23]),
-            link: crate::faults::FieldLinkKind::from_code(byte(56)),
+            link: crate::vocab::faults::FieldLinkKind::from_code(byte(56)),
         });
         Some(LiveSnapshot {
             cycle: w[0],
@@ -448,7 +449,7 @@ mod tests {
                 max: Some(1.2e7),
                 age_ms: Some(1.0),
                 timeout_ms: Some(50.0),
-                link: Some(crate::faults::FieldLinkKind::Modbus),
+                link: Some(crate::vocab::faults::FieldLinkKind::Modbus),
             }),
             flow_map: 1.5,
             pressure_ratio: 2.5,

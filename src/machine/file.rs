@@ -15,7 +15,7 @@ use crate::physics::compressor_map::FlowCoordinate;
 use crate::physics::gas::Gas;
 use crate::physics::orifice::Orifice;
 use crate::physics::valve::{Characteristic, ValveSpec};
-use crate::signals::SensorId;
+use crate::vocab::signals::SensorId;
 use serde::{Deserialize, Serialize};
 use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};

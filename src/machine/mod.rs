@@ -21,7 +21,7 @@ use crate::physics::gas::Gas;
 use crate::physics::orifice::Orifice;
 use crate::physics::shaft::Shaft;
 use crate::physics::valve::ValveSpec;
-use crate::signals::SensorId;
+use crate::vocab::signals::SensorId;
 use params::{
     DriveSpec, ModelKind, PlenumDuctParams, RecycleParams, SpoolParams, ThrustRating,
     TipClearanceParams,

@@ -2,7 +2,7 @@
 //!
 //! A plant is stepped with inputs held over the step (zero-order hold, as a sampled controller
 //! sees it), reports its true state ([`PlantTruth`]) and what its field instruments would read
-//! ([`crate::signals::SensorSnapshot`]). The same plant code runs inside `antisurge sim` and as
+//! ([`crate::vocab::signals::SensorSnapshot`]). The same plant code runs inside `antisurge sim` and as
 //! the HIL plant node on a bus.
 
 pub mod analysis;
@@ -13,7 +13,7 @@ pub mod spool;
 pub mod tip_clearance;
 
 use crate::physics::compressor_map::CompressorMap;
-use crate::signals::{ActuatorCommands, ActuatorId, SensorSnapshot};
+use crate::vocab::signals::{ActuatorCommands, ActuatorId, SensorSnapshot};
 use file::{ModelKind, PlantDescription};
 
 /// Inputs held constant over one plant step.
@@ -256,7 +256,7 @@ impl SimPlant {
 
 /// Sensor snapshot helper shared by the models.
 pub(crate) fn sensor_snapshot(truth: &PlantTruth, orifice_dp_pa: f64) -> SensorSnapshot {
-    use crate::signals::SensorId as S;
+    use crate::vocab::signals::SensorId as S;
     let mut s = SensorSnapshot::default();
     s.set(S::PSuction, truth.p_suction_pa);
     s.set(S::PDischarge, truth.p_discharge_pa);

@@ -7,8 +7,8 @@ use super::{sensor_snapshot, PlantError, PlantInputs, PlantTruth};
 pub use crate::machine::plenum_duct::{PlenumDuctModel, N};
 use crate::physics::compressor_map::FlowCoordinate;
 use crate::physics::gas::Gas;
-use crate::signals::SensorSnapshot;
 use crate::solver::{self, StepSettings};
+use crate::vocab::signals::SensorSnapshot;
 use nalgebra::SVector;
 
 /// Throttle flow to ambient: see [`PlenumDuctParams::throttle_flow_kg_s`], kg/s.

@@ -34,8 +34,8 @@ use crate::physics::gas::Gas;
 use crate::physics::orifice::Orifice;
 use crate::physics::shaft::Shaft;
 use crate::physics::valve;
-use crate::signals::SensorSnapshot;
 use crate::solver::{self, OdeSystem, StepSettings};
+use crate::vocab::signals::SensorSnapshot;
 use nalgebra::SVector;
 
 /// State dimension.

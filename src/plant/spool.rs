@@ -25,8 +25,8 @@ use crate::physics::compressor_map::CompressorMap;
 use crate::physics::gas::Gas;
 use crate::physics::orifice::Orifice;
 use crate::physics::spool_throttle::throttle_function;
-use crate::signals::{ActuatorId, SensorSnapshot};
 use crate::solver::{self, OdeSystem, StepSettings};
+use crate::vocab::signals::{ActuatorId, SensorSnapshot};
 use nalgebra::SVector;
 
 /// State dimension.

@@ -14,8 +14,8 @@ use crate::physics::compressor_map::{CompressorMap, FlowCoordinate};
 use crate::physics::gas::Gas;
 use crate::physics::orifice::Orifice;
 use crate::physics::shaft::Shaft;
-use crate::signals::{ActuatorId, SensorSnapshot};
 use crate::solver::{self, OdeSystem, StepSettings};
+use crate::vocab::signals::{ActuatorId, SensorSnapshot};
 use nalgebra::SVector;
 
 /// State dimension.

@@ -13,7 +13,8 @@
 //! - [`Wakeup`]: an eventfd the control thread signals after publishing, so a sending task
 //!   wakes without polling.
 
-use crate::signals::{ActuatorCommands, ActuatorId, SensorId, SensorSnapshot};
+use crate::vocab::signals::{ActuatorCommands, ActuatorId, SensorId, SensorSnapshot};
+use crate::vocab::Mode;
 use std::sync::atomic::{fence, AtomicU64, Ordering};
 
 /// Single-writer, multi-reader sequence lock over `N` 64-bit words, double-buffered.
@@ -207,7 +208,7 @@ impl SensorBoard {
 pub struct Outputs {
     /// Setpoints.
     pub commands: ActuatorCommands,
-    /// Controller mode code.
+    /// Controller mode, by its code ([`Mode::code`]).
     pub mode: u8,
     /// Active law code.
     pub law: u8,
@@ -300,8 +301,8 @@ pub struct HeartbeatBoard {
 /// One received heartbeat.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub struct HeartbeatSeen {
-    /// Controller mode code.
-    pub mode: u8,
+    /// Controller mode.
+    pub mode: Mode,
     /// Active law code.
     pub law: u8,
     /// Alive counter.
@@ -316,7 +317,7 @@ impl HeartbeatBoard {
     /// Publish a received heartbeat (one writer).
     #[inline]
     pub fn publish(&self, hb: &HeartbeatSeen) {
-        let w0 = u64::from(hb.mode) | (u64::from(hb.law) << 8) | (u64::from(hb.alive) << 16);
+        let w0 = u64::from(hb.mode.code()) | (u64::from(hb.law) << 8) | (u64::from(hb.alive) << 16);
         self.lock.write(&[w0, u64::from(hb.faults), hb.t_ns]);
     }
 
@@ -328,7 +329,7 @@ impl HeartbeatBoard {
             return None;
         }
         Some(HeartbeatSeen {
-            mode: (w0 & 0xff) as u8,
+            mode: Mode::from_code((w0 & 0xff) as u8).unwrap_or(Mode::FailSafe),
             law: ((w0 >> 8) & 0xff) as u8,
             alive: ((w0 >> 16) & 0xff) as u8,
             faults: f as u32,
@@ -508,7 +509,7 @@ mod tests {
         c.set(ActuatorId::RecycleValve, 0.42);
         let o = Outputs {
             commands: c,
-            mode: 2,
+            mode: Mode::Auto.code(),
             law: 1,
             faults: 0xdead_beef,
             cycle: 7,
@@ -520,7 +521,7 @@ mod tests {
         assert!(r.commands.get(ActuatorId::DriveTorque).is_nan());
         assert_eq!(
             (r.mode, r.law, r.faults, r.cycle, r.t_ns),
-            (2, 1, 0xdead_beef, 7, 99)
+            (Mode::Auto.code(), 1, 0xdead_beef, 7, 99)
         );
     }
 

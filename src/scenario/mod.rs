@@ -5,7 +5,7 @@
 //! Evaluation is allocation-free: [`Timeline::state_at`] walks pre-sorted events.
 
 use crate::config::FileError;
-use crate::signals::SensorId;
+use crate::vocab::signals::SensorId;
 use serde::Deserialize;
 use std::path::{Path, PathBuf};
 

@@ -7,8 +7,8 @@ use super::summary::{
 };
 use super::trace::{CsvTraceWriter, TraceRow};
 use super::trace_handoff::{TraceHandoff, WrittenTrace};
-use crate::control::core::{ControlCore, CoreSettings, Mode};
-use crate::control::law::LawEvent;
+use crate::control::core::{ControlCore, CoreSettings};
+use crate::control::law::api::LawEvent;
 use crate::control::measurements::{OperatorInputs, RawSensors};
 use crate::control::supervisor::{InputFault, InputLimits};
 use crate::control::LawId;
@@ -16,10 +16,11 @@ use crate::plant::file::PlantDescription;
 use crate::plant::{PlantError, PlantInputs, SimPlant};
 use crate::scenario::ScenarioState;
 use crate::scenario::{NoiseSource, Scenario, SensorState, Timeline};
-use crate::signals::ActuatorCommands;
-use crate::signals::{ActuatorId, SensorId, SensorSnapshot};
 use crate::sim::case::PlantCase;
 use crate::surge::{DetectorConfig, SurgeDetector};
+use crate::vocab::signals::ActuatorCommands;
+use crate::vocab::signals::{ActuatorId, SensorId, SensorSnapshot};
+use crate::vocab::Mode;
 use std::path::{Path, PathBuf};
 use std::time::Instant;
 
@@ -121,7 +122,7 @@ pub enum SimError {
     Plant(#[from] PlantError),
     /// The law cannot run on this plant.
     #[error(transparent)]
-    Law(#[from] crate::control::law::LawError),
+    Law(#[from] crate::control::law::api::LawError),
     /// A law named in the scenario does not exist.
     #[error("scenario `{scenario}`: {message}")]
     Scenario {
@@ -1121,7 +1122,11 @@ fn drive(
         let t = k as f64 * dt;
         let (st, raw) = pr.sense(t);
         if let Some(i) = st.law_request {
-            core.select_law(law_ids[i])?;
+            // the daemon's transactional path: build off the cycle, swap in at its boundary
+            if law_ids[i] != core.law() {
+                let r = ControlCore::prepare(core.model(), core.config().clone(), law_ids[i])?;
+                let _replaced = core.commit(r);
+            }
         }
         if let Some(auto) = st.mode_request {
             core.request_auto(auto);

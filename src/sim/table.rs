@@ -7,6 +7,7 @@ use super::{run, SimError, SimOptions, Summary};
 use crate::control::LawId;
 use crate::scenario::{Action, Scenario};
 use crate::sim::case::PlantCase;
+use crate::vocab::signals::ActuatorId;
 use std::fmt::Write as _;
 
 /// One row of the table.
@@ -38,34 +39,37 @@ impl TableRow {
     /// The law's main actuator effort over the closure, as text.
     pub fn effort(&self) -> String {
         let p = &self.closure.actuator_peaks;
-        match self.law {
-            LawId::None => format!(
-                "torque {:.0} N·m ({:.1}× nominal, rating {:.0})",
-                p.drive_torque_cmd_nm,
-                p.drive_torque_cmd_nm / p.nominal_load_torque_nm,
-                p.drive_torque_rating_nm
-            ),
-            // the law's own torque, not the total (which carries the load torque at t = 0)
-            LawId::DriveTorque => format!(
-                "law torque ±{:.0} N·m on {:.0} nominal (rating {:.0})",
-                p.law_drive_torque_nm, p.nominal_load_torque_nm, p.drive_torque_rating_nm
-            ),
-            LawId::RecyclePi | LawId::RecycleFl | LawId::BaselinePi => {
-                format!(
-                    "recycle valve {:.0} % open",
-                    100.0 * p.recycle_valve_opening
-                )
-            }
-            LawId::Ccv | LawId::Robust => {
-                format!("CCV {:.3} (limit {:.2})", p.ccv, p.ccv_rating)
-            }
-            LawId::ThrottleBackstep => "throttle trim".to_string(),
-            LawId::TipSliding => format!(
+        // by the actuators the law drives (its registry entry), so a new law needs no line here
+        let drives = |a: ActuatorId| self.law.actuators().contains(a);
+        if drives(ActuatorId::CloseCoupledValve) {
+            format!("CCV {:.3} (limit {:.2})", p.ccv, p.ccv_rating)
+        } else if drives(ActuatorId::RecycleValve) {
+            format!(
+                "recycle valve {:.0} % open",
+                100.0 * p.recycle_valve_opening
+            )
+        } else if drives(ActuatorId::Throttle) {
+            "throttle trim".to_string()
+        } else if drives(ActuatorId::TipClearance) {
+            format!(
                 "clearance {:.0} µm ({:.0} % of nominal), {:.0} N",
                 1e6 * p.tip_clearance_m,
                 100.0 * p.tip_clearance_m / p.tip_clearance_nominal_m,
                 p.thrust_force_n
-            ),
+            )
+        } else if drives(ActuatorId::DriveTorque) {
+            // the law's own torque, not the total (which carries the load torque at t = 0)
+            format!(
+                "law torque ±{:.0} N·m on {:.0} nominal (rating {:.0})",
+                p.law_drive_torque_nm, p.nominal_load_torque_nm, p.drive_torque_rating_nm
+            )
+        } else {
+            format!(
+                "torque {:.0} N·m ({:.1}× nominal, rating {:.0})",
+                p.drive_torque_cmd_nm,
+                p.drive_torque_cmd_nm / p.nominal_load_torque_nm,
+                p.drive_torque_rating_nm
+            )
         }
     }
 }

@@ -10,7 +10,7 @@ use super::forward::HostEvent;
 use crate::live::hmi::MapLines;
 use crate::live::snapshot::LiveSnapshot;
 use crate::runtime::rt_loop::CycleReport;
-use crate::signals::SensorId;
+use crate::vocab::signals::SensorId;
 
 /// The compressor device's name.
 pub const COMPRESSOR: &str = "compressor";

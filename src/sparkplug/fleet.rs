@@ -161,7 +161,7 @@ async fn run_async(o: &FleetOptions) -> Result<FleetReport, String> {
                 board.publish(&LiveSnapshot {
                     cycle,
                     t_ns: (t * 1e9) as u64,
-                    mode: crate::control::core::Mode::Auto,
+                    mode: crate::vocab::Mode::Auto,
                     law: crate::control::LawId::RecyclePi,
                     flow_source: FlowSourceNow::Orifice,
                     flow_map: 1.0 + dev * 0.01,

@@ -59,7 +59,7 @@ impl BusSection {
         core: &mut crate::control::core::CoreSettings,
     ) {
         if let (Transport::Field, Some(m)) = (&self.transport, &self.modbus) {
-            let polled: Vec<crate::signals::SensorId> =
+            let polled: Vec<crate::vocab::signals::SensorId> =
                 map.modbus_sensors().iter().map(|s| s.0).collect();
             core.follow_poll_period_of(&polled, 1.0 / m.poll_rate_hz);
         }

@@ -7,12 +7,13 @@ use super::layers::{locate, resolve};
 use super::problem::{KeyProblem, Problem};
 use super::{Loaded, Transport};
 use crate::config::FileError;
-use crate::control::drive_torque::check_gains;
-use crate::control::law::{Law, LawError, LawId};
+use crate::control::law::api::{LawError, LawId};
+use crate::control::law::Law;
+use crate::control::laws::drive_torque::check_gains;
 use crate::io::can::bus::{BusCodec, CanBusConfig, CanBusError};
 use crate::io::can::{BindingError, SignalTarget};
 use crate::io::signal_map::Binding;
-use crate::signals::ActuatorId;
+use crate::vocab::signals::ActuatorId;
 
 /// An error about a key of the signal map file, located in that file.
 pub(crate) fn map_error(l: &Loaded, key: &str, message: String) -> FileError {

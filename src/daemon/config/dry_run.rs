@@ -10,7 +10,7 @@
 //! sensor board, which any thread may read.
 
 use super::{locate, Loaded, Problem};
-use crate::signals::SensorId;
+use crate::vocab::signals::SensorId;
 
 /// Problems of applying `new` over `running` given the live `reading` of each sensor (NaN:
 /// none yet, not judged).

@@ -2,7 +2,7 @@
 //! defaults derived from the machine (and its transmitter ranges).
 
 use super::problem::KeyProblem;
-use crate::signals::SensorId;
+use crate::vocab::signals::SensorId;
 use serde::{Deserialize, Serialize};
 use std::collections::BTreeMap;
 

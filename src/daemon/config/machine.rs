@@ -10,11 +10,11 @@ use super::layers::{locate, resolve, Layer};
 use super::{Loaded, Problem, Transport};
 use crate::config::FileError;
 use crate::control::config::{ControllerConfig, FlowSource};
-use crate::control::law::LawError;
+use crate::control::law::api::LawError;
 use crate::machine::surge_line::element_dp_pa;
 use crate::machine::MachineDescription;
-use crate::signals::{ActuatorId, SensorId};
 use crate::sim::case::PlantCase;
+use crate::vocab::signals::{ActuatorId, SensorId};
 use serde::{Deserialize, Serialize};
 use std::path::{Path, PathBuf};
 

@@ -69,14 +69,14 @@ pub use status::StatusSection;
 use crate::config::FileError;
 use crate::control::config::ControllerConfig;
 use crate::control::core::CoreSettings;
-use crate::control::law::LawId;
+use crate::control::law::api::LawId;
 use crate::control::model::ControlModel;
 use crate::control::supervisor::InputLimits;
 use crate::events::EventLogConfig;
 use crate::io::signal_map::SignalMap;
 use crate::runtime::rt_loop::RtSettings;
-use crate::signals::SensorId;
 use crate::sim::case::PlantCase;
+use crate::vocab::signals::SensorId;
 use layers::{layers_set, table_get, with_file_line_key};
 use serde::{Deserialize, Serialize};
 use std::collections::BTreeMap;
@@ -198,13 +198,14 @@ fn load_layers(main: &Path, layers: Vec<Layer>) -> Result<Loaded, Vec<Problem>> 
     let controller =
         controller::controller_settings(&layers, &model.controller, &config.controller)
             .map_err(err)?;
-    let law: LawId = config
-        .control
-        .law
-        .parse()
-        .map_err(|e: crate::control::law::UnknownLaw| {
-            err(at("control.law", e.to_string()).with_hint("e.g. law = \"recycle-pi\""))
-        })?;
+    let law: LawId =
+        config
+            .control
+            .law
+            .parse()
+            .map_err(|e: crate::control::law::api::UnknownLaw| {
+                err(at("control.law", e.to_string()).with_hint("e.g. law = \"recycle-pi\""))
+            })?;
 
     let signal_map = match (&config.bus.transport, &config.bus.signal_map) {
         (Transport::InProcess, None) => SignalMap::default(),

@@ -18,7 +18,7 @@ use super::{locate, Loaded, Problem};
 use crate::io::modbus::{DataType, RegisterBinding};
 use crate::io::signal_map::Binding;
 use crate::io::units::Quantity;
-use crate::signals::SensorId;
+use crate::vocab::signals::SensorId;
 
 /// Units a pressure range may have been typed in, with their size in Pa.
 pub const PRESSURE_UNITS: [(&str, f64); 4] =

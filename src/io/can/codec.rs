@@ -40,7 +40,7 @@ use serde::{Deserialize, Serialize};
 use super::bits::{pack_value, unpack_value, EncodeStatus, SignalLayout, MAX_PAYLOAD};
 use super::dbc::{CanDatabase, FrameId, SignalRole};
 use super::e2e::{AliveChecker, AliveCounter, AliveStatus, FrameError, FrameGuard};
-use crate::signals::{ActuatorCommands, ActuatorId, SensorId, SensorSnapshot};
+use crate::vocab::signals::{ActuatorCommands, ActuatorId, SensorId, SensorSnapshot};
 
 /// The quantity a CAN signal carries.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, PartialOrd, Ord, Serialize, Deserialize)]

@@ -1,72 +1,18 @@
 //! The controller heartbeat frame: mode, active law, fault bits, alive counter, CRC.
 
-use std::fmt;
-
 use serde::{Deserialize, Serialize};
 
 use super::bits::{SignalLayout, MAX_PAYLOAD};
 use super::codec::BindingError;
 use super::dbc::{CanDatabase, FrameId, SignalDef, SignalRole};
 use super::e2e::{FrameError, FrameGuard};
-
-/// Controller mode, as in the DBC value table of the heartbeat's mode signal.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, PartialOrd, Ord)]
-pub enum ControllerMode {
-    /// 0: starting up, no commands yet.
-    Init = 0,
-    /// 1: operator sets the actuators.
-    Manual = 1,
-    /// 2: a control law is in charge.
-    Auto = 2,
-    /// 3: a fault forced the safe actuator positions.
-    FailSafe = 3,
-    /// 4: orderly shutdown.
-    Shutdown = 4,
-}
-
-impl ControllerMode {
-    /// Every mode, by raw value.
-    pub const ALL: [ControllerMode; 5] = [
-        ControllerMode::Init,
-        ControllerMode::Manual,
-        ControllerMode::Auto,
-        ControllerMode::FailSafe,
-        ControllerMode::Shutdown,
-    ];
-
-    /// Raw value on the bus.
-    pub const fn raw(self) -> u8 {
-        self as u8
-    }
-
-    /// Mode of a raw value.
-    pub fn from_raw(raw: u8) -> Option<ControllerMode> {
-        Self::ALL.get(usize::from(raw)).copied()
-    }
-
-    /// Name used in the DBC value table.
-    pub const fn name(self) -> &'static str {
-        match self {
-            ControllerMode::Init => "init",
-            ControllerMode::Manual => "manual",
-            ControllerMode::Auto => "auto",
-            ControllerMode::FailSafe => "fail_safe",
-            ControllerMode::Shutdown => "shutdown",
-        }
-    }
-}
-
-impl fmt::Display for ControllerMode {
-    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
-        f.write_str(self.name())
-    }
-}
+use crate::vocab::Mode;
 
 /// Content of a heartbeat frame.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
 pub struct Heartbeat {
     /// Controller mode.
-    pub mode: ControllerMode,
+    pub mode: Mode,
     /// Id of the active control law (DBC value table; 0 = none).
     pub active_law: u8,
     /// Fault bits (meaning in the DBC comment of the faults signal).
@@ -83,7 +29,7 @@ pub struct HeartbeatNames<'a> {
     /// wrapping at 2^length − 1 → 0. May be the message's `AntisurgeRole AliveCounter`
     /// signal (the end-to-end counter) or a plain signal.
     pub counter: Option<&'a str>,
-    /// Mode signal (value table must match [`ControllerMode`]).
+    /// Mode signal (value table must match [`Mode`]).
     pub mode: Option<&'a str>,
     /// Active-law signal.
     pub active_law: Option<&'a str>,
@@ -195,7 +141,7 @@ fn plain_unsigned(
 
 impl HeartbeatCodec {
     /// Find the heartbeat in `db` and check the named signals: counter (≤ 32 bits), mode
-    /// (≥ 3 bits, value table naming every [`ControllerMode`]), active law (≤ 8 bits), faults
+    /// (≥ 3 bits, value table naming every [`Mode`]), active law (≤ 8 bits), faults
     /// (≤ 32 bits), all unsigned raw.
     pub fn new(db: &CanDatabase, names: &HeartbeatNames<'_>) -> Result<Self, BindingError> {
         let msg = names.message;
@@ -210,15 +156,15 @@ impl HeartbeatCodec {
                 if l.size() < 3 {
                     return Err(unfit(msg, name, "needs at least 3 bits for 5 modes"));
                 }
-                for mo in ControllerMode::ALL {
-                    let found = s.and_then(|s| s.value_name(i64::from(mo.raw())));
+                for mo in Mode::ALL {
+                    let found = s.and_then(|s| s.value_name(i64::from(mo.code())));
                     if found != Some(mo.name()) {
                         return Err(unfit(
                             msg,
                             name,
                             format!(
                                 "value table must map {} to \"{}\" (found {:?})",
-                                mo.raw(),
+                                mo.code(),
                                 mo.name(),
                                 found
                             ),
@@ -292,7 +238,7 @@ impl HeartbeatCodec {
     pub fn encode(&self, hb: &Heartbeat, alive: u32) -> [u8; MAX_PAYLOAD] {
         let mut data = [0u8; MAX_PAYLOAD];
         if let Some(l) = self.mode {
-            l.pack(&mut data, i128::from(hb.mode.raw()));
+            l.pack(&mut data, i128::from(hb.mode.code()));
         }
         if let Some(l) = self.active_law {
             l.pack(&mut data, i128::from(hb.active_law));
@@ -319,12 +265,12 @@ impl HeartbeatCodec {
     pub fn decode(&self, data: &[u8]) -> Result<(Heartbeat, Option<u8>), FrameError> {
         let frame = self.guard.check(data)?;
         let mode = match self.mode {
-            None => ControllerMode::Auto,
+            None => Mode::Auto,
             Some(l) => {
                 let raw_mode = l.unpack(&frame);
                 u8::try_from(raw_mode)
                     .ok()
-                    .and_then(ControllerMode::from_raw)
+                    .and_then(Mode::from_code)
                     .ok_or(FrameError::InvalidValue {
                         id: self.guard.id(),
                         raw: raw_mode as i64,
@@ -361,7 +307,7 @@ mod tests {
         assert_eq!(hb.frame_id(), FrameId::Standard(0x80));
         assert_eq!(hb.alive_bits(), Some(8));
         let v = Heartbeat {
-            mode: ControllerMode::FailSafe,
+            mode: Mode::FailSafe,
             active_law: 7,
             faults: 0x0000_0105,
         };
@@ -421,7 +367,7 @@ mod tests {
             e.to_string().contains("value table must map 0 to \"init\""),
             "{e}"
         );
-        assert_eq!(ControllerMode::from_raw(4), Some(ControllerMode::Shutdown));
-        assert_eq!(ControllerMode::from_raw(5), None);
+        assert_eq!(Mode::from_code(4), Some(Mode::Shutdown));
+        assert_eq!(Mode::from_code(5), None);
     }
 }

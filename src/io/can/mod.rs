@@ -4,7 +4,7 @@
 //!   byte order, two's-complement sign extension, `physical = raw × factor + offset`).
 //! - [`dbc`]: loading a DBC file into a validated [`CanDatabase`].
 //! - [`e2e`]: end-to-end protection: DLC check, alive counters, CRC-8/SAE-J1850.
-//! - [`codec`]: bindings of [`crate::signals::SensorId`] / [`crate::signals::ActuatorId`] to
+//! - [`codec`]: bindings of [`crate::vocab::signals::SensorId`] / [`crate::vocab::signals::ActuatorId`] to
 //!   signals, and the allocation-free hot-path [`CanCodec::decode`] / [`CanCodec::encode`].
 //! - [`heartbeat`]: the controller heartbeat frame.
 //! - [`bus`]: the SocketCAN tasks of the controller and plant nodes (RX, TX, reconnect).
@@ -35,4 +35,4 @@ pub use e2e::{
     crc8_sae_j1850, frame_crc, AliveChecker, AliveCounter, AliveStatus, Crc8, FrameError,
     FrameGuard,
 };
-pub use heartbeat::{ControllerMode, Heartbeat, HeartbeatCodec, HeartbeatConfig, HeartbeatNames};
+pub use heartbeat::{Heartbeat, HeartbeatCodec, HeartbeatConfig, HeartbeatNames};

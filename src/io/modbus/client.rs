@@ -32,7 +32,7 @@ use tokio_serial::SerialPort as _;
 
 use super::plan::{PlannedRequest, ReadPlan, WritePlan};
 use super::register::{EncodeError, EncodeOutcome, RegisterTable};
-use crate::signals::{SensorId, SensorSnapshot};
+use crate::vocab::signals::{SensorId, SensorSnapshot};
 
 /// Serial parity.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize)]

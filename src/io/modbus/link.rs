@@ -71,7 +71,7 @@ use super::plan::{PlanError, ReadPlan, WritePlan};
 use super::register::{find_overlaps, DataType, RegisterBinding, RegisterTable};
 use crate::io::signal_map::SignalMap;
 use crate::runtime::handoff::{monotonic_ns, OutputBoard, SensorBoard, Wakeup};
-use crate::signals::{ActuatorId, SensorId};
+use crate::vocab::signals::{ActuatorId, SensorId};
 
 /// Highest accepted `poll_rate_hz` (the tokio timer has 1 ms resolution).
 pub const MAX_POLL_RATE_HZ: f64 = 1000.0;

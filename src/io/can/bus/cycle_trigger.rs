@@ -13,7 +13,7 @@ use serde::{Deserialize, Serialize};
 
 use super::{BusCodec, CanBusError};
 use crate::io::can::codec::SignalTarget;
-use crate::signals::SensorId;
+use crate::vocab::signals::SensorId;
 
 /// Most trigger messages (one bit each in [`crate::runtime::trigger::CycleTrigger`]).
 pub const MAX_TRIGGER_MESSAGES: usize = 32;

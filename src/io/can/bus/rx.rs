@@ -297,7 +297,7 @@ impl RxHandler {
                             return r;
                         }
                         heartbeat.publish(&HeartbeatSeen {
-                            mode: hb.mode.raw(),
+                            mode: hb.mode,
                             law: hb.active_law,
                             alive: alive.unwrap_or(0),
                             faults: hb.faults,

@@ -5,10 +5,10 @@
 use super::*;
 use crate::io::can::codec::{skid_bindings, MessageIndex};
 use crate::io::can::e2e::frame_crc;
-use crate::io::can::heartbeat::ControllerMode;
 use crate::runtime::handoff::{HeartbeatSeen, Outputs, SensorBoard};
 use crate::runtime::trigger::CycleTrigger;
-use crate::signals::{ActuatorCommands, ActuatorId, SensorId, SensorSnapshot};
+use crate::vocab::signals::{ActuatorCommands, ActuatorId, SensorId, SensorSnapshot};
+use crate::vocab::Mode;
 use socketcan::errors::{ControllerProblems, ErrorCause};
 use socketcan::{
     CanAnyFrame, CanDataFrame, CanErrorFrame, CanFdFrame, CanRemoteFrame, EmbeddedFrame, StandardId,
@@ -70,7 +70,7 @@ fn commands() -> ActuatorCommands {
 fn outputs(cycle: u64) -> Outputs {
     Outputs {
         commands: commands(),
-        mode: 2,
+        mode: Mode::Auto.code(),
         law: 3,
         faults: 0x0000_0112,
         cycle,
@@ -420,7 +420,7 @@ fn tx_from_output_board_round_trips_to_plant_command_board() {
     assert_eq!(
         p.heartbeat.latest(),
         Some(HeartbeatSeen {
-            mode: 2,
+            mode: Mode::Auto,
             law: 3,
             alive: 0,
             faults: 0x112,
@@ -608,7 +608,7 @@ fn heartbeat_withheld_without_fresh_outputs() {
     let mut o = outputs(3);
     o.mode = 9;
     let f = hb.next_frame(Some(&o)).expect("frame");
-    assert_eq!(decode(&f).0.mode, ControllerMode::FailSafe);
+    assert_eq!(decode(&f).0.mode, Mode::FailSafe);
 }
 
 #[test]

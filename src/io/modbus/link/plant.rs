@@ -35,11 +35,12 @@ use crate::io::signal_map::SignalMap;
 use crate::runtime::handoff::{
     monotonic_ns, CommandBoard, HeartbeatBoard, HeartbeatSeen, SnapshotBoard,
 };
-use crate::signals::{ActuatorId, SensorId};
+use crate::vocab::signals::{ActuatorId, SensorId};
+use crate::vocab::Mode;
 
-/// Mode reported for a heartbeat inferred from a plain client write (no heartbeat block):
-/// 2 = auto, as in the CAN heartbeat's mode table.
-const INFERRED_MODE: u8 = 2;
+/// Mode reported for a heartbeat inferred from a plain client write (no heartbeat block), or
+/// read as an unknown code: auto.
+const INFERRED_MODE: Mode = Mode::Auto;
 
 counters! {
     /// Plant server counters (atomics, updated by the connection tasks).
@@ -296,7 +297,7 @@ impl Shared {
                 }
                 let w = HeartbeatWords::decode(&words);
                 HeartbeatSeen {
-                    mode: w.mode,
+                    mode: Mode::from_code(w.mode).unwrap_or(INFERRED_MODE),
                     law: w.law,
                     alive: w.alive,
                     faults: w.faults,
@@ -353,7 +354,8 @@ impl Shared {
                 .unwrap_or(default)
         };
         Some(HeartbeatSeen {
-            mode: read(wd.mode, f64::from(INFERRED_MODE)) as u8,
+            mode: Mode::from_code(read(wd.mode, f64::from(INFERRED_MODE.code())) as u8)
+                .unwrap_or(INFERRED_MODE),
             law: read(wd.law, 0.0) as u8,
             alive: v as u64 as u8,
             faults: read(wd.faults, 0.0) as u32,

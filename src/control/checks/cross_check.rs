@@ -2,7 +2,7 @@
 //! it move is frozen (a transmitter or gateway repeating its last value with a fresh
 //! timestamp), even though every sample arrives on time and in range. Freshness and range
 //! supervision cannot see it; this check can, and the control core then treats the Δp as
-//! unusable ([`InputFault::Frozen`](super::supervisor::InputFault::Frozen)): the flow falls
+//! unusable ([`InputFault::Frozen`](crate::control::supervisor::InputFault::Frozen)): the flow falls
 //! back to the conservative estimate (the lower of the observer's flow and the frozen
 //! reading's), or to fail-safe when there is no observer.
 //!

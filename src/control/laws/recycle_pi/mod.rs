@@ -60,12 +60,14 @@ pub use safety_on::{SafetyOn, SafetyOnConfig};
 pub use throttle::{ThrottleConfig, ThrottlePrediction, ThrottleWatch};
 pub use trip::{RecycleTrip, TripConfig, TripKind};
 
-use super::law::{LawError, LawEvent, LawId, LawInputs, LawOutput, SurgeLaw, TripCause};
-use super::model::ControlModel;
-use super::surge_control_line::{ControlLineForm, SurgeControlLine};
+use crate::control::law::api::{
+    LawError, LawEvent, LawId, LawInputs, LawOutput, SurgeLaw, TripCause,
+};
+use crate::control::model::ControlModel;
+use crate::control::surge_control_line::{ControlLineForm, SurgeControlLine};
 use crate::physics::compressor_map::CompressorMap;
 use crate::physics::valve::Characteristic;
-use crate::signals::{ActuatorCommands, ActuatorId};
+use crate::vocab::signals::{ActuatorCommands, ActuatorId};
 use serde::{Deserialize, Serialize};
 
 /// Settings (`[controller.recycle_pi]` and its part sections).

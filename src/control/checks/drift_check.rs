@@ -3,7 +3,7 @@
 //! up). The frozen check ([`super::cross_check`]) cannot see it; this one compares the flow
 //! the transmitter gives with two estimates that do not use it:
 //!
-//! - the observer's flow (seed 000 eq. 14–15, [`super::observer`]), which integrates the duct
+//! - the observer's flow (seed 000 eq. 14–15, [`crate::control::observer`]), which integrates the duct
 //!   and outlet-volume dynamics from the pressures, the speed and the valve positions;
 //! - the *speed-line flow*: the flow at which the compressor map's speed line at the measured
 //!   speed gives the measured pressure ratio, Ψc(q, ω) = p_d/p_s (the steady state of the duct

@@ -86,13 +86,18 @@
 //! `transfer_time_constant_s`: the first output equals the applied one.
 
 #[cfg(doc)]
-use super::law::LoopHistory;
-use super::law::{LawError, LawId, LawInputs, LawOutput, SurgeLaw};
-use super::measurements::Measurements;
-use super::model::ControlModel;
+use crate::control::law::api::LoopHistory;
+use crate::control::law::api::{
+    LawError, LawId, LawInputs, LawNeeds, LawOutput, LawSpec, SurgeLaw,
+};
+use crate::control::measurements::Measurements;
+use crate::control::model::ControlModel;
+use crate::machine::params::ModelKind;
 use crate::machine::plenum_duct::{PlenumDuctModel, N as PLENUM_N};
+use crate::machine::MachineData;
 use crate::physics::compressor_map::FlowCoordinate;
-use crate::signals::{ActuatorCommands, ActuatorId};
+use crate::vocab::signals::{ActuatorCommands, ActuatorId};
+use crate::vocab::signals::{ActuatorSet, SensorId};
 use nalgebra::SVector;
 use serde::{Deserialize, Serialize};
 
@@ -671,6 +676,25 @@ impl SurgeLaw for DriveTorque {
     }
 }
 
+impl LawSpec for DriveTorque {
+    type Settings = DriveTorqueConfig;
+    const NEEDS: LawNeeds = LawNeeds {
+        summary: "active surge control with the drive torque (seed 000 eq. 7, 22)",
+        actuators: ActuatorSet::of(&[ActuatorId::DriveTorque]),
+        sensors: &[SensorId::ShaftSpeed],
+        needs_flow: true,
+        machine_data: &[
+            MachineData::SpeedLineMap,
+            MachineData::OwnedDrive,
+            MachineData::Model(ModelKind::PlenumDuct),
+        ],
+        model_family: Some(ModelKind::PlenumDuct),
+    };
+    fn build(settings: &Self::Settings, model: &ControlModel) -> Result<Self, LawError> {
+        DriveTorque::new(settings, model)
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -733,7 +757,7 @@ mod tests {
             m: &m,
             op: &o,
             model: &model,
-            history: &crate::control::law::LoopHistory::EMPTY,
+            history: &crate::control::law::api::LoopHistory::EMPTY,
         };
         let mut cur = ActuatorCommands::default();
         cur.set(ActuatorId::DriveTorque, 25.0);
@@ -750,7 +774,7 @@ mod tests {
             m: &m,
             op: &o,
             model: &model,
-            history: &crate::control::law::LoopHistory::EMPTY,
+            history: &crate::control::law::api::LoopHistory::EMPTY,
         };
         let mut t = f64::NAN;
         for _ in 0..10_000 {
@@ -773,7 +797,7 @@ mod tests {
             m: &m,
             op: &o,
             model: &model,
-            history: &crate::control::law::LoopHistory::EMPTY,
+            history: &crate::control::law::api::LoopHistory::EMPTY,
         };
         law.start(&inputs, &ActuatorCommands::default());
         let before = law.update(&inputs, 1e-3);
@@ -782,7 +806,7 @@ mod tests {
             m: &m,
             op: &o,
             model: &model,
-            history: &crate::control::law::LoopHistory::EMPTY,
+            history: &crate::control::law::api::LoopHistory::EMPTY,
         };
         let after = law.update(&inputs, 1e-3);
         assert!(before.diagnostic.abs() < 1e-12);

@@ -90,12 +90,16 @@
 //! nominal clearance) times `modulation_limit_fraction`. There is no integrator that could wind
 //! up: the washout and the filters act on bounded measurements.
 
-use super::law::{LawError, LawId, LawInputs, LawOutput, SurgeLaw};
-use super::model::ControlModel;
+use crate::control::law::api::{LawError, LawId, LawInputs, LawOutput, SurgeLaw};
+use crate::control::law::api::{LawNeeds, LawSpec};
+use crate::control::model::ControlModel;
+use crate::machine::params::ModelKind;
+use crate::machine::MachineData;
 use crate::physics::compressor_map::FlowCoordinate;
 use crate::physics::thrust_bearing::ThrustBearingServo;
 use crate::physics::tip_clearance::TipClearanceEffect;
-use crate::signals::{ActuatorCommands, ActuatorId};
+use crate::vocab::signals::{ActuatorCommands, ActuatorId};
+use crate::vocab::signals::{ActuatorSet, SensorId};
 use serde::{Deserialize, Serialize};
 
 /// Where the law takes the plenum pressure rate ṗ from.
@@ -556,6 +560,24 @@ impl SurgeLaw for TipSliding {
     }
 }
 
+impl LawSpec for TipSliding {
+    type Settings = TipSlidingConfig;
+    const NEEDS: LawNeeds = LawNeeds {
+        summary: "sliding mode on the tip clearance via the magnetic thrust bearing (seed 004)",
+        actuators: ActuatorSet::of(&[ActuatorId::TipClearance]),
+        sensors: &[SensorId::ShaftSpeed, SensorId::ThrustPosition],
+        needs_flow: true,
+        machine_data: &[
+            MachineData::SpeedLineMap,
+            MachineData::Model(ModelKind::TipClearance),
+        ],
+        model_family: Some(ModelKind::TipClearance),
+    };
+    fn build(settings: &Self::Settings, model: &ControlModel) -> Result<Self, LawError> {
+        TipSliding::new(settings, model)
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -714,7 +736,7 @@ mod tests {
                     m: &at_start,
                     op: &OP,
                     model: &model,
-                    history: &crate::control::law::LoopHistory::EMPTY,
+                    history: &crate::control::law::api::LoopHistory::EMPTY,
                 };
                 law.start(&inputs, &ActuatorCommands::default());
                 law.update(&inputs, 1e-3);
@@ -726,7 +748,7 @@ mod tests {
                         m: &x,
                         op: &OP,
                         model: &model,
-                        history: &crate::control::law::LoopHistory::EMPTY,
+                        history: &crate::control::law::api::LoopHistory::EMPTY,
                     },
                     1e-3,
                 );
@@ -758,7 +780,7 @@ mod tests {
             m: &rest,
             op: &OP,
             model: &model,
-            history: &crate::control::law::LoopHistory::EMPTY,
+            history: &crate::control::law::api::LoopHistory::EMPTY,
         };
         let mut law = TipSliding::new(&model.controller.tip_sliding, &model).unwrap();
         let mut cur = ActuatorCommands::default();

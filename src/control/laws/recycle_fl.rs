@@ -95,13 +95,17 @@
 //! the positioner lag limits how far the law can hold the machine (0.18 kg/s, 10 % left of the
 //! surge point, is held on hemchi2016).
 
-use super::law::{LawError, LawId, LawInputs, LawOutput, SurgeLaw};
-use super::model::ControlModel;
+use crate::control::law::api::{LawError, LawId, LawInputs, LawOutput, SurgeLaw};
+use crate::control::law::api::{LawNeeds, LawSpec};
+use crate::control::model::ControlModel;
 use crate::machine::params::FeedSpec;
+use crate::machine::params::ModelKind;
+use crate::machine::MachineData;
 use crate::physics::compressor_map::FlowCoordinate;
 use crate::physics::gas::Gas;
 use crate::physics::valve::ValveSpec;
-use crate::signals::{ActuatorCommands, ActuatorId};
+use crate::vocab::signals::{ActuatorCommands, ActuatorId};
+use crate::vocab::signals::{ActuatorSet, SensorId};
 use serde::{Deserialize, Serialize};
 use std::f64::consts::PI;
 
@@ -635,6 +639,29 @@ impl SurgeLaw for RecycleFl {
     }
 }
 
+impl LawSpec for RecycleFl {
+    type Settings = RecycleFlConfig;
+    const NEEDS: LawNeeds = LawNeeds {
+        summary: "feedback linearization on the recycle valve (seed 001 ch. 4)",
+        actuators: ActuatorSet::of(&[ActuatorId::RecycleValve]),
+        sensors: &[
+            SensorId::ShaftSpeed,
+            SensorId::RecycleValvePosition,
+            SensorId::ThrottlePosition,
+        ],
+        needs_flow: true,
+        machine_data: &[
+            MachineData::SpeedLineMap,
+            MachineData::RecycleValve,
+            MachineData::Model(ModelKind::RecycleSystem),
+        ],
+        model_family: Some(ModelKind::RecycleSystem),
+    };
+    fn build(settings: &Self::Settings, model: &ControlModel) -> Result<Self, LawError> {
+        RecycleFl::new(settings, model)
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -789,7 +816,7 @@ mod tests {
             m: &m,
             op: &o,
             model: &model,
-            history: &crate::control::law::LoopHistory::EMPTY,
+            history: &crate::control::law::api::LoopHistory::EMPTY,
         };
         let mt = law.map_terms(&inputs, 0.0).unwrap();
         let lin = law.linearize(&inputs, &mt, mt.dw_dt, u).unwrap();
@@ -849,7 +876,7 @@ mod tests {
                 m: &m,
                 op: &o,
                 model: &model,
-                history: &crate::control::law::LoopHistory::EMPTY,
+                history: &crate::control::law::api::LoopHistory::EMPTY,
             };
             let mt = law.map_terms(&inputs, 0.0).unwrap();
             let lin = law.linearize(&inputs, &mt, mt.dw_dt, u).unwrap();
@@ -875,7 +902,7 @@ mod tests {
                 m: &m,
                 op: &o,
                 model: &model,
-                history: &crate::control::law::LoopHistory::EMPTY,
+                history: &crate::control::law::api::LoopHistory::EMPTY,
             };
             let mt = law.map_terms(&inputs, 0.0).unwrap();
             let lin = law.linearize(&inputs, &mt, mt.dw_dt, 0.3).unwrap();
@@ -904,7 +931,7 @@ mod tests {
             m: &m,
             op: &o,
             model: &model,
-            history: &crate::control::law::LoopHistory::EMPTY,
+            history: &crate::control::law::api::LoopHistory::EMPTY,
         };
         let mut current = ActuatorCommands::default();
         current.set(ActuatorId::RecycleValve, 0.42);
@@ -920,7 +947,7 @@ mod tests {
             m: &lost,
             op: &o,
             model: &model,
-            history: &crate::control::law::LoopHistory::EMPTY,
+            history: &crate::control::law::api::LoopHistory::EMPTY,
         };
         let held = law
             .update(&inputs, 1e-3)
@@ -934,7 +961,7 @@ mod tests {
             m: &m,
             op: &o,
             model: &model,
-            history: &crate::control::law::LoopHistory::EMPTY,
+            history: &crate::control::law::api::LoopHistory::EMPTY,
         };
         law.start(&inputs, &current);
         assert_eq!(law.update(&inputs, 1e-3).diagnostic, 0.31);

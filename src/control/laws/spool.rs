@@ -1,5 +1,7 @@
-//! Seed 003 (Liaw, Song & Huang) laws on the nondimensional spool model: `ccv`,
-//! `throttle-backstep`, `robust`.
+//! What the seed 003 (Liaw, Song & Huang) laws on the nondimensional spool model share: the
+//! nondimensional machine, the equilibrium, the torque schedule and the bumpless offsets of
+//! `ccv` ([`super::ccv`]), `throttle-backstep` ([`super::throttle_backstep`]) and `robust`
+//! ([`super::robust`]).
 //!
 //! The model (seed 003 eq. 4–6, `src/plant/spool.rs`), with Γ = σ φ ω̃ and F = γ √ψ:
 //!
@@ -56,12 +58,11 @@
 //! `_psi` are in units of ψ (pressure_scale_pa), `_phi` of φ (flow_scale_kg_s), `_omega` of ω̃
 //! (speed_scale_rad_s), `_tau` of the model torque (torque_scale_nm); `_nd` is a pure number.
 
-use super::law::{LawError, LawId, LawInputs, LawOutput, SurgeLaw};
-use super::model::ControlModel;
+use crate::control::law::api::{LawError, LawId, LawInputs};
+use crate::control::model::ControlModel;
 use crate::physics::compressor_map::CompressorMap;
 use crate::physics::spool_throttle::throttle_function;
-use crate::signals::{ActuatorCommands, ActuatorId};
-use serde::{Deserialize, Serialize};
+use crate::vocab::signals::{ActuatorCommands, ActuatorId};
 
 // ---------------------------------------------------------------------------------------------
 // Settings
@@ -70,146 +71,35 @@ use serde::{Deserialize, Serialize};
 // Defaults: the seed's values where it gives them (k = 1 of eq. 48/52, k_ξ = 1 of eq. 37,
 // δ₁ = δ₂ = 0.1 for eq. 53, u₁ = 0 i.e. no speed trim); chosen otherwise (boundary layers,
 // bumpless decay, the √ψ guard).
-fn default_true() -> bool {
+pub(super) fn default_true() -> bool {
     true
 }
-fn default_one() -> f64 {
+pub(super) fn default_one() -> f64 {
     1.0
 }
-fn default_bumpless_s() -> f64 {
+pub(super) fn default_bumpless_s() -> f64 {
     0.1
 }
-fn default_trim_kp() -> f64 {
+pub(super) fn default_trim_kp() -> f64 {
     0.0
 }
-fn default_trim_ki() -> f64 {
+pub(super) fn default_trim_ki() -> f64 {
     0.0
 }
-fn default_min_psi() -> f64 {
+pub(super) fn default_min_psi() -> f64 {
     0.02
 }
-fn default_delta() -> f64 {
+pub(super) fn default_delta() -> f64 {
     0.1
 }
-fn default_layer_x1() -> f64 {
+pub(super) fn default_layer_x1() -> f64 {
     0.01
 }
-fn default_layer_x2() -> f64 {
+pub(super) fn default_layer_x2() -> f64 {
     0.01
 }
 
-/// Settings of `ccv` (`[controller.ccv]`): seed 003 Theorem 1, eq. 25 with the instance eq. 48.
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
-#[serde(deny_unknown_fields, default)]
-pub struct CcvConfig {
-    /// k of the damping term u(x₂) = k·x₂ in eq. 25 (any u with x₂ u(x₂) > 0 is allowed);
-    /// eq. 48 uses k = 1.
-    pub x2_gain_nd: f64,
-    /// Schedule the drive torque with the equilibrium, τ_t = Γ(φ⁰, ω̃⁰) (eq. 7), so that x⁰ is an
-    /// equilibrium at the speed setpoint when the throttle demand moves.
-    pub torque_schedule: bool,
-    /// Proportional part of the speed trim added to the drive torque, N·m per rad/s of speed
-    /// error (ω_set − ω); not in the seed (u₁ = 0 there), 0 disables it.
-    pub speed_trim_kp_nm_s_per_rad: f64,
-    /// Integral part of the speed trim, N·m per rad (d torque/dt = k·(ω_set − ω)); not in the
-    /// seed, 0 disables it.
-    pub speed_trim_ki_nm_per_rad: f64,
-    /// Decay time of the bumpless-transfer offset, s.
-    pub bumpless_time_constant_s: f64,
-}
-
-impl Default for CcvConfig {
-    fn default() -> Self {
-        CcvConfig {
-            x2_gain_nd: default_one(),
-            torque_schedule: default_true(),
-            speed_trim_kp_nm_s_per_rad: default_trim_kp(),
-            speed_trim_ki_nm_per_rad: default_trim_ki(),
-            bumpless_time_constant_s: default_bumpless_s(),
-        }
-    }
-}
-
-/// Settings of `throttle-backstep` (`[controller.throttle_backstep]`): seed 003 Theorem 2,
-/// eq. 30–37 with the instance eq. 52.
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
-#[serde(deny_unknown_fields, default)]
-pub struct ThrottleBackstepConfig {
-    /// k of the virtual control x₃d = x₁ f̃ + Css + k·x₂ (eq. 30, 52 use k = 1).
-    pub x2_gain_nd: f64,
-    /// k_ξ of the error feedback: V₃ = −k_ξ ξ² (eq. 37 uses k_ξ = 1, giving ξ̇ = c̄ (x₂ − ξ),
-    /// eq. 51).
-    pub xi_gain_nd: f64,
-    /// Smallest pressure rise used in the division by √ψ of eq. 37 (units of ψ).
-    pub min_pressure_rise_psi: f64,
-    /// Schedule the drive torque with the equilibrium (eq. 7), see [`CcvConfig`].
-    pub torque_schedule: bool,
-    /// Proportional speed trim, N·m per rad/s (not in the seed; 0 disables it).
-    pub speed_trim_kp_nm_s_per_rad: f64,
-    /// Integral speed trim, N·m per rad (not in the seed; 0 disables it).
-    pub speed_trim_ki_nm_per_rad: f64,
-    /// Decay time of the bumpless-transfer offset, s.
-    pub bumpless_time_constant_s: f64,
-}
-
-impl Default for ThrottleBackstepConfig {
-    fn default() -> Self {
-        ThrottleBackstepConfig {
-            x2_gain_nd: default_one(),
-            xi_gain_nd: default_one(),
-            min_pressure_rise_psi: default_min_psi(),
-            torque_schedule: default_true(),
-            speed_trim_kp_nm_s_per_rad: default_trim_kp(),
-            speed_trim_ki_nm_per_rad: default_trim_ki(),
-            bumpless_time_constant_s: default_bumpless_s(),
-        }
-    }
-}
-
-/// Settings of `robust` (`[controller.robust]`): seed 003 Theorem 3, eq. 44, 46, 47 with the
-/// boundary layer of Remark 2.
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
-#[serde(deny_unknown_fields, default)]
-pub struct RobustConfig {
-    /// k of the inner loop's damping term (eq. 44 uses k = 1).
-    pub x2_gain_nd: f64,
-    /// δ₁: bound on the torque uncertainty |Δf| (eq. 39), units of the model torque; seed 003
-    /// §IV: 0.1 for eq. 53.
-    pub delta1_tau: f64,
-    /// δ₂: bound on the characteristic uncertainty |ΔCss| (eq. 40), units of ψ; seed 003 §IV:
-    /// 0.1 for eq. 53.
-    pub delta2_psi: f64,
-    /// Boundary layer of Δu₁ = −δ₁ sat(x₁/ε₁) replacing sign() (Remark 2), units of ω̃.
-    pub boundary_layer_x1_omega: f64,
-    /// Boundary layer of Δu₂ = −δ₂ sat(x₂/ε₂) (Remark 2), units of φ.
-    pub boundary_layer_x2_phi: f64,
-    /// Schedule the drive torque with the equilibrium (eq. 7), see [`CcvConfig`].
-    pub torque_schedule: bool,
-    /// Proportional speed trim, N·m per rad/s (not in the seed; 0 disables it).
-    pub speed_trim_kp_nm_s_per_rad: f64,
-    /// Integral speed trim, N·m per rad (not in the seed; 0 disables it).
-    pub speed_trim_ki_nm_per_rad: f64,
-    /// Decay time of the bumpless-transfer offset, s.
-    pub bumpless_time_constant_s: f64,
-}
-
-impl Default for RobustConfig {
-    fn default() -> Self {
-        RobustConfig {
-            x2_gain_nd: default_one(),
-            delta1_tau: default_delta(),
-            delta2_psi: default_delta(),
-            boundary_layer_x1_omega: default_layer_x1(),
-            boundary_layer_x2_phi: default_layer_x2(),
-            torque_schedule: default_true(),
-            speed_trim_kp_nm_s_per_rad: default_trim_kp(),
-            speed_trim_ki_nm_per_rad: default_trim_ki(),
-            bumpless_time_constant_s: default_bumpless_s(),
-        }
-    }
-}
-
-fn check(law: LawId, key: &str, ok: bool, message: &str) -> Result<(), LawError> {
+pub(super) fn check(law: LawId, key: &str, ok: bool, message: &str) -> Result<(), LawError> {
     if ok {
         Ok(())
     } else {
@@ -221,7 +111,7 @@ fn check(law: LawId, key: &str, ok: bool, message: &str) -> Result<(), LawError>
     }
 }
 
-fn check_common(
+pub(super) fn check_common(
     law: LawId,
     section: &str,
     x2_gain: f64,
@@ -260,34 +150,34 @@ fn check_common(
 
 /// ψc and its partial derivatives in nondimensional units.
 #[derive(Debug, Clone, Copy, PartialEq)]
-struct PsiC {
-    value: f64,
-    d_dphi: f64,
-    d_domega: f64,
+pub(super) struct PsiC {
+    pub(super) value: f64,
+    pub(super) d_dphi: f64,
+    pub(super) d_domega: f64,
 }
 
 /// The controller's nondimensional view of the machine (seed 003 eq. 4–6), from the plant file.
 #[derive(Debug, Clone, Copy, PartialEq)]
-struct Spool {
-    a_bar: f64,
-    b_bar: f64,
-    c_bar: f64,
-    sigma: f64,
-    gamma_max: f64,
-    time_scale_s: f64,
-    pressure_scale_pa: f64,
-    flow_scale_kg_s: f64,
-    speed_scale_rad_s: f64,
-    torque_scale_nm: f64,
+pub(super) struct Spool {
+    pub(super) a_bar: f64,
+    pub(super) b_bar: f64,
+    pub(super) c_bar: f64,
+    pub(super) sigma: f64,
+    pub(super) gamma_max: f64,
+    pub(super) time_scale_s: f64,
+    pub(super) pressure_scale_pa: f64,
+    pub(super) flow_scale_kg_s: f64,
+    pub(super) speed_scale_rad_s: f64,
+    pub(super) torque_scale_nm: f64,
     /// p01 / pressure_scale: converts pressure-ratio rise to ψ.
-    ratio_to_psi: f64,
-    ccv_max: f64,
-    torque_min_nm: f64,
-    torque_max_nm: f64,
+    pub(super) ratio_to_psi: f64,
+    pub(super) ccv_max: f64,
+    pub(super) torque_min_nm: f64,
+    pub(super) torque_max_nm: f64,
 }
 
 impl Spool {
-    fn from_model(law: LawId, model: &ControlModel) -> Result<Spool, LawError> {
+    pub(super) fn from_model(law: LawId, model: &ControlModel) -> Result<Spool, LawError> {
         let s = model.spool.ok_or_else(|| LawError::NotApplicable {
             law,
             plant: model.name.clone(),
@@ -313,7 +203,7 @@ impl Spool {
 
     /// ψc(φ, ω̃) from the SI map (its exact image, see the module doc).
     #[inline]
-    fn psi_c(&self, map: &CompressorMap, phi: f64, omega: f64) -> PsiC {
+    pub(super) fn psi_c(&self, map: &CompressorMap, phi: f64, omega: f64) -> PsiC {
         let p = map.eval(phi * self.flow_scale_kg_s, omega * self.speed_scale_rad_s);
         PsiC {
             value: (p.value - 1.0) * self.ratio_to_psi,
@@ -325,7 +215,7 @@ impl Spool {
     /// Steady state (φ⁰, ψ⁰) of eq. 8–9 at throttle gain γ⁰ and speed ω̃⁰: the rightmost root of
     /// F(γ⁰, ψc(φ, ω̃⁰)) − φ (scan down from four times the peak flow in 200 steps, then 50
     /// bisections; fixed work, no allocation).
-    fn equilibrium(&self, map: &CompressorMap, gamma0: f64, omega0: f64) -> (f64, f64) {
+    pub(super) fn equilibrium(&self, map: &CompressorMap, gamma0: f64, omega0: f64) -> (f64, f64) {
         let r = |phi: f64| throttle_function(gamma0, self.psi_c(map, phi, omega0).value) - phi;
         let peak = map
             .peak(omega0 * self.speed_scale_rad_s)
@@ -356,7 +246,7 @@ impl Spool {
     /// The same root as [`Spool::equilibrium`] by at most 8 Newton steps from `guess` (the
     /// previous φ⁰). Accepted only if it converges to a root where the residual is falling,
     /// i.e. the rightmost branch it started on; `None` otherwise (the caller scans).
-    fn equilibrium_newton(
+    pub(super) fn equilibrium_newton(
         &self,
         map: &CompressorMap,
         gamma0: f64,
@@ -387,71 +277,76 @@ impl Spool {
 
     /// Γ(φ, ω̃) = σ φ ω̃ (seed 003 eq. 48, after its ref. [3]).
     #[inline]
-    fn gamma_torque(&self, phi: f64, omega: f64) -> f64 {
+    pub(super) fn gamma_torque(&self, phi: f64, omega: f64) -> f64 {
         self.sigma * phi * omega
     }
 }
 
 /// One cycle's state in the seed's coordinates.
 #[derive(Debug, Clone, Copy, PartialEq)]
-struct Frame {
-    omega0: f64,
-    phi0: f64,
-    psi0: f64,
-    gamma0: f64,
+pub(super) struct Frame {
+    pub(super) omega0: f64,
+    pub(super) phi0: f64,
+    pub(super) psi0: f64,
+    pub(super) gamma0: f64,
     /// τ⁰ = Γ(φ⁰, ω̃⁰) (eq. 7).
-    tau0: f64,
-    x1: f64,
-    x2: f64,
-    x3: f64,
+    pub(super) tau0: f64,
+    pub(super) x1: f64,
+    pub(super) x2: f64,
+    pub(super) x3: f64,
     /// ψc and its slopes at the measured (φ, ω̃).
-    pc: PsiC,
+    pub(super) pc: PsiC,
     /// Css(x₁, x₂) (eq. 13).
-    css: f64,
+    pub(super) css: f64,
 }
 
 impl Frame {
     /// f̃(x₁, x₂) of the decomposition eq. 21 for Γ = σ φ ω̃: f̃ = −σ (x₁ + ω̃⁰).
     #[inline]
-    fn f_tilde(&self, sp: &Spool) -> f64 {
+    pub(super) fn f_tilde(&self, sp: &Spool) -> f64 {
         -sp.sigma * (self.x1 + self.omega0)
     }
 
     /// V of eq. 22 (with the bars ERRATA restores): ½ (x₁²/ā + x₂²/b̄ + x₃²/c̄).
     #[inline]
-    fn lyapunov(&self, sp: &Spool, x3: f64) -> f64 {
+    pub(super) fn lyapunov(&self, sp: &Spool, x3: f64) -> f64 {
         0.5 * (self.x1 * self.x1 / sp.a_bar + self.x2 * self.x2 / sp.b_bar + x3 * x3 / sp.c_bar)
     }
 }
 
 /// The equilibrium and the torque schedule shared by the laws.
 #[derive(Debug, Clone, Copy, PartialEq)]
-struct Common {
-    sp: Spool,
-    torque_schedule: bool,
+pub(super) struct Common {
+    pub(super) sp: Spool,
+    pub(super) torque_schedule: bool,
     /// γ⁰ from the throttle position feedback (laws that do not drive the throttle) rather than
     /// the demand.
-    gamma_from_position: bool,
-    trim_kp_nm_s_per_rad: f64,
-    trim_ki_nm_per_rad: f64,
-    bumpless_tau_s: f64,
+    pub(super) gamma_from_position: bool,
+    pub(super) trim_kp_nm_s_per_rad: f64,
+    pub(super) trim_ki_nm_per_rad: f64,
+    pub(super) bumpless_tau_s: f64,
     /// Cache key of the equilibrium: (γ⁰, ω̃⁰).
-    key: (f64, f64),
+    pub(super) key: (f64, f64),
     /// (φ⁰, ψ⁰) for `key`.
-    eq: (f64, f64),
+    pub(super) eq: (f64, f64),
     /// τ⁰ the speed loop is taken to hold (set at start), model torque units.
-    tau_ref: f64,
+    pub(super) tau_ref: f64,
     /// Integral speed trim, N·m.
-    trim_nm: f64,
+    pub(super) trim_nm: f64,
     /// Bumpless offsets: drive torque (N·m), the law's valve (CCV ψ units or throttle opening).
-    offset_torque_nm: f64,
-    offset_valve: f64,
+    pub(super) offset_torque_nm: f64,
+    pub(super) offset_valve: f64,
     /// τ_ref and the trim were taken over from the running law (a reload): `start` keeps them.
-    taken_over: bool,
+    pub(super) taken_over: bool,
 }
 
 impl Common {
-    fn new(sp: Spool, torque_schedule: bool, (kp, ki): (f64, f64), bumpless_s: f64) -> Common {
+    pub(super) fn new(
+        sp: Spool,
+        torque_schedule: bool,
+        (kp, ki): (f64, f64),
+        bumpless_s: f64,
+    ) -> Common {
         Common {
             sp,
             torque_schedule,
@@ -470,7 +365,7 @@ impl Common {
     }
 
     /// The cycle's frame, or None without a usable measurement or throttle demand.
-    fn frame(&mut self, inputs: &LawInputs<'_>) -> Option<Frame> {
+    pub(super) fn frame(&mut self, inputs: &LawInputs<'_>) -> Option<Frame> {
         let sp = self.sp;
         let m = inputs.m;
         // γ⁰: a law that does not drive the throttle sees γ = γ⁰ (u₃ = 0 in eq. 12), i.e. the
@@ -531,7 +426,7 @@ impl Common {
     /// Drive-torque command (N·m, added to the speed loop) for the extra torque u₁ (model
     /// units) before the bumpless offset and the limits: the eq. 7 schedule τ⁰ − τ_ref, the
     /// PI speed trim and u₁.
-    fn raw_torque_nm(&self, fr: &Frame, u1: f64) -> f64 {
+    pub(super) fn raw_torque_nm(&self, fr: &Frame, u1: f64) -> f64 {
         let schedule = if self.torque_schedule {
             fr.tau0 - self.tau_ref
         } else {
@@ -545,7 +440,7 @@ impl Common {
     /// extra, clamped to [min, rated] by the speed loop and the drive; the held torque is not a
     /// law input, so the extra is limited to the largest correction that can matter for any
     /// held torque in the rating, ±(rated − min).
-    fn torque_limits_nm(&self) -> (f64, f64) {
+    pub(super) fn torque_limits_nm(&self) -> (f64, f64) {
         let span = self.sp.torque_max_nm - self.sp.torque_min_nm;
         (-span, span)
     }
@@ -558,7 +453,7 @@ impl Common {
     /// `current_torque_nm` (N·m; 0 from another law) and valve. A fresh law takes τ_ref from
     /// the operating point and starts the trim at 0; one that took over a running law's state
     /// ([`take_over`](Self::take_over)) keeps both.
-    fn start(
+    pub(super) fn start(
         &mut self,
         fr: &Frame,
         u1: f64,
@@ -584,7 +479,7 @@ impl Common {
     /// schedule would otherwise restart from the operating point of the reload and its torque
     /// decay away with the offset), the integral trim and the equilibrium cache; `start` then
     /// re-bases the offsets, so the gain change moves no output in its first cycle.
-    fn take_over(&mut self, running: &Common) {
+    pub(super) fn take_over(&mut self, running: &Common) {
         if running.tau_ref.is_finite() {
             self.tau_ref = running.tau_ref;
             let (lo, hi) = self.torque_limits_nm();
@@ -597,7 +492,7 @@ impl Common {
 
     /// Final torque command: raw + offset, limited; then advance the trim (anti-windup) and the
     /// offset decay.
-    fn torque_out(&mut self, fr: &Frame, u1: f64, dt_s: f64) -> f64 {
+    pub(super) fn torque_out(&mut self, fr: &Frame, u1: f64, dt_s: f64) -> f64 {
         let (lo, hi) = self.torque_limits_nm();
         let want = self.raw_torque_nm(fr, u1) + self.offset_torque_nm;
         let out = want.clamp(lo, hi);
@@ -612,7 +507,7 @@ impl Common {
     }
 
     /// Decay the bumpless offsets by one cycle.
-    fn decay(&mut self, dt_s: f64) {
+    pub(super) fn decay(&mut self, dt_s: f64) {
         let k = (-dt_s / self.bumpless_tau_s).exp();
         self.offset_torque_nm *= k;
         self.offset_valve *= k;
@@ -621,7 +516,7 @@ impl Common {
 
 /// Boundary-layer saturation sat(x/ε) ∈ [−1, 1] replacing sign(x) (seed 003 Remark 2).
 #[inline]
-fn sat(x: f64, eps: f64) -> f64 {
+pub(super) fn sat(x: f64, eps: f64) -> f64 {
     (x / eps).clamp(-1.0, 1.0)
 }
 
@@ -629,14 +524,14 @@ fn sat(x: f64, eps: f64) -> f64 {
 /// u₂ = −x₁ f̃(x₁, x₂) − Css(x₁, x₂) − k x₂, i.e. for Γ = σ φ ω̃ (eq. 48):
 /// u₂ = σ x₁ (x₁ + ω̃⁰) − Css − k x₂.
 #[inline]
-fn ccv_nominal(sp: &Spool, fr: &Frame, k: f64) -> f64 {
+pub(super) fn ccv_nominal(sp: &Spool, fr: &Frame, k: f64) -> f64 {
     -fr.x1 * fr.f_tilde(sp) - fr.css - k * fr.x2
 }
 
 /// CCV current output: NaN (not driven) means the valve sits at its neutral 0.
 #[inline]
 /// The extra drive torque applied now (N·m, on top of the speed loop), 0 if none.
-fn current_torque(current: &ActuatorCommands) -> f64 {
+pub(super) fn current_torque(current: &ActuatorCommands) -> f64 {
     let t = current.get(ActuatorId::DriveTorque);
     if t.is_finite() {
         t
@@ -645,7 +540,7 @@ fn current_torque(current: &ActuatorCommands) -> f64 {
     }
 }
 
-fn current_ccv(current: &ActuatorCommands) -> f64 {
+pub(super) fn current_ccv(current: &ActuatorCommands) -> f64 {
     let c = current.get(ActuatorId::CloseCoupledValve);
     if c.is_finite() {
         c
@@ -654,327 +549,13 @@ fn current_ccv(current: &ActuatorCommands) -> f64 {
     }
 }
 
-// ---------------------------------------------------------------------------------------------
-// ccv
-// ---------------------------------------------------------------------------------------------
-
-/// `ccv`: close-coupled valve only (seed 003 Theorem 1, eq. 25/48), with the eq. 7 torque
-/// schedule.
-#[derive(Debug, Clone)]
-pub struct Ccv {
-    cfg_k: f64,
-    c: Common,
-}
-
-impl Ccv {
-    /// A reload of the running law: take over its torque reference, trim and equilibrium
-    /// cache (see `Common::take_over`); the core still starts it bumplessly.
-    pub(crate) fn take_over_from(&mut self, running: &Ccv) {
-        self.c.take_over(&running.c);
-    }
-
-    /// Build for a machine.
-    pub fn new(cfg: &CcvConfig, model: &ControlModel) -> Result<Self, LawError> {
-        let sp = Spool::from_model(LawId::Ccv, model)?;
-        check_common(
-            LawId::Ccv,
-            "ccv",
-            cfg.x2_gain_nd,
-            (cfg.speed_trim_kp_nm_s_per_rad, cfg.speed_trim_ki_nm_per_rad),
-            cfg.bumpless_time_constant_s,
-        )?;
-        Ok(Ccv {
-            cfg_k: cfg.x2_gain_nd,
-            c: Common::new(
-                sp,
-                cfg.torque_schedule,
-                (cfg.speed_trim_kp_nm_s_per_rad, cfg.speed_trim_ki_nm_per_rad),
-                cfg.bumpless_time_constant_s,
-            ),
-        })
-    }
-
-    fn raw_ccv(&self, fr: &Frame) -> f64 {
-        ccv_nominal(&self.c.sp, fr, self.cfg_k)
-    }
-}
-
-impl SurgeLaw for Ccv {
-    fn start(&mut self, inputs: &LawInputs<'_>, current: &ActuatorCommands) {
-        if let Some(fr) = self.c.frame(inputs) {
-            let raw = self.raw_ccv(&fr);
-            self.c
-                .start(&fr, 0.0, raw, current_ccv(current), current_torque(current));
-        }
-    }
-
-    fn update(&mut self, inputs: &LawInputs<'_>, dt_s: f64) -> LawOutput {
-        let Some(fr) = self.c.frame(inputs) else {
-            return LawOutput::idle();
-        };
-        if !self.c.tau_ref.is_finite() {
-            // started without measurements: start now
-            let raw = self.raw_ccv(&fr);
-            self.c.start(&fr, 0.0, raw, 0.0, 0.0);
-        }
-        let sp = self.c.sp;
-        let u2 = (self.raw_ccv(&fr) + self.c.offset_valve).clamp(-sp.ccv_max, sp.ccv_max);
-        let torque = self.c.torque_out(&fr, 0.0, dt_s); // u₁ = 0 (Theorem 1)
-        self.c.decay(dt_s);
-        let mut commands = ActuatorCommands::default();
-        commands.set(ActuatorId::DriveTorque, torque);
-        commands.set(ActuatorId::CloseCoupledValve, u2);
-        LawOutput {
-            commands,
-            diagnostic: fr.lyapunov(&sp, fr.x3),
-            event: None,
-        }
-    }
-}
-
-// ---------------------------------------------------------------------------------------------
-// throttle-backstep
-// ---------------------------------------------------------------------------------------------
-
-/// `throttle-backstep`: throttle only (seed 003 Theorem 2, eq. 30–37 with eq. 52), with the
-/// eq. 7 torque schedule.
-#[derive(Debug, Clone)]
-pub struct ThrottleBackstep {
-    k2: f64,
-    k_xi: f64,
-    min_psi: f64,
-    c: Common,
-}
-
-/// What the backstepping law computes in one cycle.
-#[derive(Debug, Clone, Copy)]
-struct Backstep {
-    /// Throttle opening command (before offset and limits).
-    opening: f64,
-    /// ξ = x₃ − x₃d.
-    xi: f64,
-}
-
-impl ThrottleBackstep {
-    /// A reload of the running law: take over its torque reference, trim and equilibrium
-    /// cache (see `Common::take_over`); the core still starts it bumplessly.
-    pub(crate) fn take_over_from(&mut self, running: &ThrottleBackstep) {
-        self.c.take_over(&running.c);
-    }
-
-    /// Build for a machine.
-    pub fn new(cfg: &ThrottleBackstepConfig, model: &ControlModel) -> Result<Self, LawError> {
-        let law = LawId::ThrottleBackstep;
-        let sp = Spool::from_model(law, model)?;
-        check_common(
-            law,
-            "throttle_backstep",
-            cfg.x2_gain_nd,
-            (cfg.speed_trim_kp_nm_s_per_rad, cfg.speed_trim_ki_nm_per_rad),
-            cfg.bumpless_time_constant_s,
-        )?;
-        check(
-            law,
-            "throttle_backstep.xi_gain_nd",
-            cfg.xi_gain_nd.is_finite() && cfg.xi_gain_nd > 0.0,
-            "must be > 0 (V₃ must be negative definite, seed 003 eq. 36)",
-        )?;
-        check(
-            law,
-            "throttle_backstep.min_pressure_rise_psi",
-            cfg.min_pressure_rise_psi.is_finite() && cfg.min_pressure_rise_psi > 0.0,
-            "must be > 0",
-        )?;
-        let mut c = Common::new(
-            sp,
-            cfg.torque_schedule,
-            (cfg.speed_trim_kp_nm_s_per_rad, cfg.speed_trim_ki_nm_per_rad),
-            cfg.bumpless_time_constant_s,
-        );
-        c.gamma_from_position = false;
-        Ok(ThrottleBackstep {
-            k2: cfg.x2_gain_nd,
-            k_xi: cfg.xi_gain_nd,
-            min_psi: cfg.min_pressure_rise_psi,
-            c,
-        })
-    }
-
-    fn law(&self, fr: &Frame) -> Backstep {
-        let sp = &self.c.sp;
-        let k = self.k2;
-        // virtual control, eq. 30 / 52: x₃d = x₁ f̃ + Css + k x₂ = −σ x₁ (x₁ + ω̃⁰) + Css + k x₂
-        let x3d = fr.x1 * fr.f_tilde(sp) + fr.css + k * fr.x2;
-        let xi = fr.x3 - x3d;
-        // ẋ₃d from the model (analytic, no numerical differentiation):
-        // ∂x₃d/∂x₁ = −σ (2x₁ + ω̃⁰) + ∂ψc/∂ω̃,  ∂x₃d/∂x₂ = ∂ψc/∂φ + k,
-        // ẋ₁ = ā f(x₁, x₂) (eq. 26, u₁ = 0: the drive holds τ⁰), ẋ₂ = b̄ (Css − x₃) (eq. 27)
-        let omega = fr.x1 + fr.omega0;
-        let phi = fr.x2 + fr.phi0;
-        let f = sp.gamma_torque(fr.phi0, fr.omega0) - sp.gamma_torque(phi, omega); // eq. 14
-        let x1_dot = sp.a_bar * f;
-        let x2_dot = sp.b_bar * (fr.css - fr.x3);
-        let x3d_dot = (-sp.sigma * (2.0 * fr.x1 + fr.omega0) + fr.pc.d_domega) * x1_dot
-            + (fr.pc.d_dphi + k) * x2_dot;
-        // eq. 37 (with gain k_ξ on ξ): F(γ, ψ) = F(γ⁰, ψ⁰) − ẋ₃d/c̄ + k_ξ ξ makes
-        // V₃ = −k_ξ ξ² (eq. 36) and ξ̇ = c̄ (x₂ − k_ξ ξ) (eq. 51); with F = γ √ψ:
-        // u₃ = [γ⁰ (√ψ⁰ − √ψ) − ẋ₃d/c̄ + k_ξ ξ] / √ψ
-        let sq = (fr.x3 + fr.psi0).max(self.min_psi).sqrt();
-        let sq0 = fr.psi0.max(0.0).sqrt();
-        let u3 = (fr.gamma0 * (sq0 - sq) - x3d_dot / sp.c_bar + self.k_xi * xi) / sq;
-        Backstep {
-            opening: (fr.gamma0 + u3) / sp.gamma_max,
-            xi,
-        }
-    }
-}
-
-impl SurgeLaw for ThrottleBackstep {
-    fn start(&mut self, inputs: &LawInputs<'_>, current: &ActuatorCommands) {
-        if let Some(fr) = self.c.frame(inputs) {
-            let raw = self.law(&fr).opening;
-            let cur = current.get(ActuatorId::Throttle);
-            let cur = if cur.is_finite() { cur } else { raw };
-            self.c.start(&fr, 0.0, raw, cur, current_torque(current));
-        }
-    }
-
-    fn update(&mut self, inputs: &LawInputs<'_>, dt_s: f64) -> LawOutput {
-        let Some(fr) = self.c.frame(inputs) else {
-            return LawOutput::idle();
-        };
-        let b = self.law(&fr);
-        if !self.c.tau_ref.is_finite() {
-            let cur = inputs.m.throttle_position;
-            let cur = if cur.is_finite() { cur } else { b.opening };
-            self.c.start(&fr, 0.0, b.opening, cur, 0.0);
-        }
-        let opening = (b.opening + self.c.offset_valve).clamp(0.0, 1.0);
-        let torque = self.c.torque_out(&fr, 0.0, dt_s); // u₁ = 0 (Theorem 2)
-        self.c.decay(dt_s);
-        let mut commands = ActuatorCommands::default();
-        commands.set(ActuatorId::DriveTorque, torque);
-        commands.set(ActuatorId::Throttle, opening);
-        LawOutput {
-            commands,
-            // V of eq. 34 (in x₁, x₂, ξ)
-            diagnostic: fr.lyapunov(&self.c.sp, b.xi),
-            event: None,
-        }
-    }
-}
-
-// ---------------------------------------------------------------------------------------------
-// robust
-// ---------------------------------------------------------------------------------------------
-
-/// `robust`: drive torque and close-coupled valve (seed 003 Theorem 3): inner loop eq. 44,
-/// outer loop eq. 46–47 with a boundary layer (Remark 2), on top of the eq. 7 torque schedule.
-#[derive(Debug, Clone)]
-pub struct Robust {
-    k2: f64,
-    delta1: f64,
-    delta2: f64,
-    eps1: f64,
-    eps2: f64,
-    c: Common,
-}
-
-impl Robust {
-    /// A reload of the running law: take over its torque reference, trim and equilibrium
-    /// cache (see `Common::take_over`); the core still starts it bumplessly.
-    pub(crate) fn take_over_from(&mut self, running: &Robust) {
-        self.c.take_over(&running.c);
-    }
-
-    /// Build for a machine.
-    pub fn new(cfg: &RobustConfig, model: &ControlModel) -> Result<Self, LawError> {
-        let law = LawId::Robust;
-        let sp = Spool::from_model(law, model)?;
-        check_common(
-            law,
-            "robust",
-            cfg.x2_gain_nd,
-            (cfg.speed_trim_kp_nm_s_per_rad, cfg.speed_trim_ki_nm_per_rad),
-            cfg.bumpless_time_constant_s,
-        )?;
-        for (key, v) in [
-            ("robust.delta1_tau", cfg.delta1_tau),
-            ("robust.delta2_psi", cfg.delta2_psi),
-        ] {
-            check(law, key, v.is_finite() && v >= 0.0, "must be ≥ 0")?;
-        }
-        for (key, v) in [
-            (
-                "robust.boundary_layer_x1_omega",
-                cfg.boundary_layer_x1_omega,
-            ),
-            ("robust.boundary_layer_x2_phi", cfg.boundary_layer_x2_phi),
-        ] {
-            check(law, key, v.is_finite() && v > 0.0, "must be > 0")?;
-        }
-        Ok(Robust {
-            k2: cfg.x2_gain_nd,
-            delta1: cfg.delta1_tau,
-            delta2: cfg.delta2_psi,
-            eps1: cfg.boundary_layer_x1_omega,
-            eps2: cfg.boundary_layer_x2_phi,
-            c: Common::new(
-                sp,
-                cfg.torque_schedule,
-                (cfg.speed_trim_kp_nm_s_per_rad, cfg.speed_trim_ki_nm_per_rad),
-                cfg.bumpless_time_constant_s,
-            ),
-        })
-    }
-
-    /// (u₁, u₂) before offsets and limits.
-    fn law(&self, fr: &Frame) -> (f64, f64) {
-        // inner loop eq. 44 as corrected by ERRATA: ū₂ = −x₁ f̃ − C̄ss − k x₂ (the printed
-        // −x₁ f̄ would not give eq. 45); the controller's model is the nominal one
-        let u2_bar = ccv_nominal(&self.c.sp, fr, self.k2);
-        // outer loop eq. 46–47 with the boundary layer of Remark 2 instead of sign()
-        let du1 = -self.delta1 * sat(fr.x1, self.eps1);
-        let du2 = -self.delta2 * sat(fr.x2, self.eps2);
-        (du1, u2_bar + du2)
-    }
-}
-
-impl SurgeLaw for Robust {
-    fn start(&mut self, inputs: &LawInputs<'_>, current: &ActuatorCommands) {
-        if let Some(fr) = self.c.frame(inputs) {
-            let (u1, u2) = self.law(&fr);
-            self.c
-                .start(&fr, u1, u2, current_ccv(current), current_torque(current));
-        }
-    }
-
-    fn update(&mut self, inputs: &LawInputs<'_>, dt_s: f64) -> LawOutput {
-        let Some(fr) = self.c.frame(inputs) else {
-            return LawOutput::idle();
-        };
-        let (u1, u2) = self.law(&fr);
-        if !self.c.tau_ref.is_finite() {
-            self.c.start(&fr, u1, u2, 0.0, 0.0);
-        }
-        let sp = self.c.sp;
-        let u2 = (u2 + self.c.offset_valve).clamp(-sp.ccv_max, sp.ccv_max);
-        let torque = self.c.torque_out(&fr, u1, dt_s);
-        self.c.decay(dt_s);
-        let mut commands = ActuatorCommands::default();
-        commands.set(ActuatorId::DriveTorque, torque);
-        commands.set(ActuatorId::CloseCoupledValve, u2);
-        LawOutput {
-            commands,
-            diagnostic: fr.lyapunov(&sp, fr.x3),
-            event: None,
-        }
-    }
-}
-
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::control::law::api::SurgeLaw;
+    use crate::control::laws::ccv::{Ccv, CcvConfig};
+    use crate::control::laws::robust::{Robust, RobustConfig};
+    use crate::control::laws::throttle_backstep::{ThrottleBackstep, ThrottleBackstepConfig};
     use crate::control::measurements::{Measurements, OperatorInputs};
     use crate::plant::spool::SpoolPlant;
     use crate::plant::{PlantInputs, SimPlant};
@@ -1140,7 +721,7 @@ mod tests {
                 m: &m,
                 op: &op,
                 model: &model,
-                history: &crate::control::law::LoopHistory::EMPTY,
+                history: &crate::control::law::api::LoopHistory::EMPTY,
             };
             let fr = law.c.frame(&inputs).unwrap();
             let u2 = law.raw_ccv(&fr);
@@ -1191,7 +772,7 @@ mod tests {
                     m: &m,
                     op: &op,
                     model: &model,
-                    history: &crate::control::law::LoopHistory::EMPTY,
+                    history: &crate::control::law::api::LoopHistory::EMPTY,
                 };
                 let fr = law.c.frame(&inputs).unwrap();
                 (fr, law.law(&fr))
@@ -1237,7 +818,7 @@ mod tests {
                 m: &m,
                 op: &op,
                 model: &model,
-                history: &crate::control::law::LoopHistory::EMPTY,
+                history: &crate::control::law::api::LoopHistory::EMPTY,
             };
             let fr = ccv.c.frame(&inputs).unwrap();
             let (u1, u2) = law.law(&fr);
@@ -1263,7 +844,7 @@ mod tests {
             m: &m,
             op: &op,
             model: &model,
-            history: &crate::control::law::LoopHistory::EMPTY,
+            history: &crate::control::law::api::LoopHistory::EMPTY,
         };
         let mut current = ActuatorCommands::default();
         current.set(ActuatorId::CloseCoupledValve, 0.03);

@@ -3,7 +3,7 @@
 //! field controllers do it. No rate limits, no trip, no safety-on, no transmitter checks.
 //!
 //! Available in `antisurge sim` and the control benchmark matrix only; the daemon does not
-//! offer it (its name does not parse as a daemon law, see [`super::law::LawId::parse_sim`]).
+//! offer it (its name does not parse as a daemon law, see [`LawId::parse_sim`](crate::control::law::api::LawId::parse_sim)).
 //! recycle-pi must beat it: zero surge where it surges, and less recycle energy.
 //!
 //! Normalised deviation (positive = safe): d = (q − c(R))/c(R), q the compressor flow in the
@@ -14,9 +14,14 @@
 //! integrator stops while the output is saturated and the error pushes
 //! further into the limit (conditional integration).
 
-use super::law::{LawInputs, LawOutput, SurgeLaw};
-use super::surge_control_line::SurgeControlLine;
-use crate::signals::{ActuatorCommands, ActuatorId};
+use crate::control::law::api::{LawError, LawNeeds, LawSpec};
+use crate::control::law::api::{LawInputs, LawOutput, SurgeLaw};
+use crate::control::model::ControlModel;
+use crate::control::laws::recycle_pi::RecyclePiConfig;
+use crate::control::surge_control_line::SurgeControlLine;
+use crate::machine::MachineData;
+use crate::vocab::signals::ActuatorSet;
+use crate::vocab::signals::{ActuatorCommands, ActuatorId};
 
 /// Proportional gain: valve fraction per unit of normalised deviation (a 5 % deviation moves
 /// the valve 5 %). Chosen as the largest round gains that close the throttle closure without a
@@ -120,5 +125,23 @@ impl SurgeLaw for BaselinePi {
         out.commands.set(ActuatorId::RecycleValve, u);
         out.diagnostic = -e;
         out
+    }
+}
+
+impl LawSpec for BaselinePi {
+    type Settings = RecyclePiConfig;
+    const NEEDS: LawNeeds = LawNeeds {
+        summary:
+            "textbook symmetric PI on the normalised deviation (simulation and benchmarks only)",
+        actuators: ActuatorSet::of(&[ActuatorId::RecycleValve]),
+        sensors: &[],
+        needs_flow: true,
+        machine_data: &[MachineData::SurgeLine, MachineData::RecycleValve],
+        model_family: None,
+    };
+    fn build(settings: &Self::Settings, model: &ControlModel) -> Result<Self, LawError> {
+        // the same control line as recycle-pi (with its checks), textbook gains
+        let rp = crate::control::laws::recycle_pi::RecyclePi::new(settings, model)?;
+        Ok(BaselinePi::new(*rp.control_line(), settings.min_opening))
     }
 }

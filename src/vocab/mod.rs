@@ -1,0 +1,9 @@
+//! The ground floor: the words every layer shares (the controller's [`Mode`], the sensors and
+//! actuators, the fault categories). This module imports nothing of the crate; every other
+//! part may import it.
+
+pub mod faults;
+pub mod mode;
+pub mod signals;
+
+pub use mode::Mode;
