@@ -5,7 +5,7 @@
 //! which counts oscillation cycles of the measured flow between 1 and 10 Hz) moves the
 //! control line right by `step_pct` of the surge-line flow, up to `max_pct`. The shift
 //! outlives a restart (the daemon keeps the count) and is reported as
-//! [`crate::control::law::LawEvent::SafetyOnShift`].
+//! [`crate::control::law::api::LawEvent::SafetyOnShift`].
 
 use serde::{Deserialize, Serialize};
 
