@@ -15,12 +15,12 @@ use antisurge::daemon::plant_node::{finish_trace, start_trace};
 use antisurge::runtime::handoff::OutputBoard;
 use antisurge::sim::trace::TraceRow;
 use antisurge::sim::PlantRun;
-use common::peak_alloc::{self, Peak};
+use common::counting_alloc::{self, Counting};
 use common::plant_node::{drive, keep_up, node};
 use std::sync::Arc;
 
 #[global_allocator]
-static GLOBAL: Peak = Peak;
+static GLOBAL: Counting = Counting;
 
 const MIB: usize = 1 << 20;
 
@@ -50,8 +50,8 @@ fn streamed_run(duration_s: f64) -> Seen {
     let dir = tempfile::tempdir().expect("tmp");
     let dt = sc.file.control_period_s;
     let half_steps = (duration_s / dt / 2.0) as u64;
-    let base = peak_alloc::in_use();
-    peak_alloc::reset_peak();
+    let base = counting_alloc::in_use();
+    counting_alloc::reset_peak();
     let outputs = Arc::new(OutputBoard::default());
     let (handoff, writer) = start_trace(&desc, &sc, dir.path()).expect("trace");
     let run = PlantRun::handing_trace_to(&desc, &sc, handoff).expect("run");
@@ -61,15 +61,15 @@ fn streamed_run(duration_s: f64) -> Seen {
     drive(&mut node, &outputs, dt, || {
         steps += 1;
         if steps == half_steps {
-            at_half = peak_alloc::allocations();
+            at_half = counting_alloc::process_allocations();
         }
         keep_up(|| writer.backlog());
     });
-    let second_half_allocs = peak_alloc::allocations() - at_half;
+    let second_half_allocs = counting_alloc::process_allocations() - at_half;
     let path = writer.path().to_path_buf();
     let result = finish_trace(&mut node, writer, "recycle-pi").expect("finish");
     let seen = Seen {
-        peak: peak_alloc::peak().saturating_sub(base),
+        peak: counting_alloc::peak().saturating_sub(base),
         rows: std::fs::read_to_string(&path)
             .expect("trace")
             .lines()

@@ -5,6 +5,8 @@
 
 mod common;
 
+use common::counting_alloc::{allocations, Counting};
+
 use antisurge::control::law::{Law, LawError, LawInputs};
 use antisurge::control::measurements::{Measurements, OperatorInputs};
 use antisurge::control::model::ControlModel;
@@ -13,42 +15,10 @@ use antisurge::signals::{ActuatorCommands, ActuatorId};
 use antisurge::sim::case::PlantCase;
 use antisurge::sim::trace::TraceRow;
 use antisurge::sim::SimResult;
-use std::alloc::{GlobalAlloc, Layout, System};
-use std::cell::Cell;
 
 const PLANT: &str = "sanadgol2006_tip";
 
 // ---------------------------------------------------------------- allocation counter
-
-struct Counting;
-
-thread_local! {
-    static ALLOCATIONS: Cell<u64> = const { Cell::new(0) };
-}
-
-// SAFETY: every call is forwarded unchanged to the system allocator; counting touches only a
-// thread-local `Cell`.
-unsafe impl GlobalAlloc for Counting {
-    unsafe fn alloc(&self, layout: Layout) -> *mut u8 {
-        let _ = ALLOCATIONS.try_with(|c| c.set(c.get() + 1));
-        // SAFETY: same contract as our caller's.
-        unsafe { System.alloc(layout) }
-    }
-    unsafe fn alloc_zeroed(&self, layout: Layout) -> *mut u8 {
-        let _ = ALLOCATIONS.try_with(|c| c.set(c.get() + 1));
-        // SAFETY: same contract as our caller's.
-        unsafe { System.alloc_zeroed(layout) }
-    }
-    unsafe fn realloc(&self, ptr: *mut u8, layout: Layout, new_size: usize) -> *mut u8 {
-        let _ = ALLOCATIONS.try_with(|c| c.set(c.get() + 1));
-        // SAFETY: same contract as our caller's.
-        unsafe { System.realloc(ptr, layout, new_size) }
-    }
-    unsafe fn dealloc(&self, ptr: *mut u8, layout: Layout) {
-        // SAFETY: same contract as our caller's.
-        unsafe { System.dealloc(ptr, layout) }
-    }
-}
 
 #[global_allocator]
 static GLOBAL: Counting = Counting;
@@ -526,7 +496,7 @@ fn the_cycle_is_allocation_free_and_deterministic() {
     };
     a.start(&inputs, &ActuatorCommands::default());
     b.start(&inputs, &ActuatorCommands::default());
-    let before = ALLOCATIONS.with(Cell::get);
+    let before = allocations();
     let mut moved = 0.0f64;
     for k in 0..2000 {
         let m = meas(k);
@@ -548,7 +518,7 @@ fn the_cycle_is_allocation_free_and_deterministic() {
         assert!(ua.abs() <= limit);
         moved = moved.max(ua.abs());
     }
-    let after = ALLOCATIONS.with(Cell::get);
+    let after = allocations();
     assert_eq!(after - before, 0, "allocations in the cycle");
     assert!(moved > 1e-6, "the law acted");
 }

@@ -12,10 +12,10 @@ use antisurge::plot::MAX_TRAJ_POINTS;
 use antisurge::sim::stream::ENVELOPE_BUCKETS;
 use antisurge::sim::trace::TraceRow;
 use antisurge::sim::{self, SimOptions};
-use common::peak_alloc::{self, Peak};
+use common::counting_alloc::{self, Counting};
 
 #[global_allocator]
-static GLOBAL: Peak = Peak;
+static GLOBAL: Counting = Counting;
 
 const MIB: usize = 1 << 20;
 
@@ -46,8 +46,8 @@ fn streamed_run(duration_s: f64) -> Seen {
     let model = sim::control_model(&desc);
     let mut half: Option<u64> = None;
     let mut second_half_allocs = u64::MAX;
-    let base = peak_alloc::in_use();
-    peak_alloc::reset_peak();
+    let base = counting_alloc::in_use();
+    counting_alloc::reset_peak();
     let (summary, trace) = sim::run_streamed(
         &desc,
         model,
@@ -60,10 +60,10 @@ fn streamed_run(duration_s: f64) -> Seen {
         &mut |frac| {
             // progress(1.0) comes right after the loop's last step
             if frac >= 0.5 && half.is_none() {
-                half = Some(peak_alloc::allocations());
+                half = Some(counting_alloc::process_allocations());
             }
             if frac == 1.0 {
-                second_half_allocs = peak_alloc::allocations() - half.unwrap_or(0);
+                second_half_allocs = counting_alloc::process_allocations() - half.unwrap_or(0);
             }
         },
         &mut |_, _| {},
@@ -73,7 +73,7 @@ fn streamed_run(duration_s: f64) -> Seen {
     let series = trace.pictures.series_rows();
     assert!(map.len() <= MAX_TRAJ_POINTS + 1 && series.len() <= 2 * ENVELOPE_BUCKETS + 2);
     let seen = Seen {
-        peak: peak_alloc::peak().saturating_sub(base),
+        peak: counting_alloc::peak().saturating_sub(base),
         rows: trace.rows,
         map_rows: map.len(),
         second_half_allocs,
