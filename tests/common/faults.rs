@@ -1,7 +1,7 @@
 //! Helpers for the fault tests against the `antisurge` binary (issue 12): a config for the
 //! in-process plant in a temporary directory, a fake systemd notification socket, and runs
-//! with piped output and resource limits. Used by tests/daemon_faults.rs and the fault
-//! campaign (tests/fault_campaign.rs).
+//! with piped output and resource limits. Used by tests/daemon/daemon_faults.rs and the fault
+//! campaign (tests/daemon/fault_campaign.rs).
 
 use super::daemon::shipped;
 use std::os::unix::net::UnixDatagram;
