@@ -110,6 +110,9 @@ pub fn spawn_notified(
 ) -> std::process::Child {
     let log = std::fs::File::create(dir.join("run.log")).expect("log file");
     std::process::Command::new(env!("CARGO_BIN_EXE_antisurge"))
+        // (the test's own status socket, the HMI and metrics off: the default ports are one
+        // per machine, and a daemon that cannot bind them does not start)
+        .envs(super::daemon::own_surfaces(dir, args))
         .args(args)
         .env("ANTISURGE_LOG", "info")
         .env_remove("LOGS_DIRECTORY")
