@@ -190,8 +190,23 @@ fn surge_counter_and_safety_on_survive_kill_9() {
             v["surge_count"].as_u64() == Some(run + 1)
         });
         seen.push((v["surge_count"].clone(), v["safety_on_count"].clone()));
-        // the state file follows within its 50 ms period
-        std::thread::sleep(Duration::from_millis(300));
+        // the state file follows (its 50-ms period): kill once it holds what the status
+        // showed, not after a fixed wall-clock wait (a busy machine may write it later)
+        let state = dir.join("state/state.json");
+        let t0 = std::time::Instant::now();
+        while !std::fs::read_to_string(&state)
+            .ok()
+            .and_then(|t| serde_json::from_str::<serde_json::Value>(&t).ok())
+            .is_some_and(|k| {
+                k["surge_count"] == v["surge_count"] && k["safety_on_count"] == v["safety_on_count"]
+            })
+        {
+            assert!(
+                t0.elapsed() < Duration::from_secs(60),
+                "the state file never showed {v:#}"
+            );
+            std::thread::sleep(Duration::from_millis(20));
+        }
         d.kill().expect("kill -9");
         let _ = d.wait();
     }
