@@ -17,6 +17,7 @@
 # Needs root (debootstrap, chroot).
 set -euo pipefail
 cd "$(dirname "$0")/.."
+. .ci/lib.sh
 [ "$(id -u)" = 0 ] || { echo "deb.sh: needs root (debootstrap and chroot)" >&2; exit 1; }
 apt_get() {
     DEBIAN_FRONTEND=noninteractive apt-get -q -o DPkg::Lock::Timeout=300 "$@"
@@ -24,7 +25,7 @@ apt_get() {
 command -v cargo-deb >/dev/null || cargo install --locked cargo-deb
 command -v debootstrap >/dev/null || { apt_get update >/dev/null && apt_get install -y --no-install-recommends debootstrap >/dev/null; }
 
-echo "== build"
+ci_block ".deb 1/5: build, cargo deb"
 # the shipped binary's profile (Cargo.toml [profile.dist]: release with fat LTO, one codegen
 # unit: less code to lock, issue 25); cargo-deb takes the assets' target/release/ from it.
 # DEB_PROFILE=release packages the release build instead (CI: the dist build takes ~10 min on
@@ -50,22 +51,36 @@ for f in ./usr/bin/antisurge ./etc/antisurge/antisurge.toml ./lib/systemd/system
     grep -q -e " $f\$" -e " $alt\$" <<<"$contents" || { echo "deb.sh: $f is not in the package" >&2; exit 1; }
 done
 
-echo "== clean root (debootstrap --variant=minbase bookworm)"
+ci_block ".deb 2/5: clean root (debootstrap --variant=minbase bookworm, cached)"
 root=$(mktemp -d /tmp/antisurge-deb-root.XXXXXX)
 chmod 755 "$root" # mktemp makes it 0700: nobody could not enter its /
 cleanup() {
     mountpoint -q "$root/proc" && umount "$root/proc"
     rm -rf --one-file-system "$root"
 }
-trap cleanup EXIT
+trap 'cleanup; ci_block_end' EXIT
 t0=$(date +%s)
-debootstrap --variant=minbase bookworm "$root" "${DEBIAN_MIRROR:-http://deb.debian.org/debian}" \
-    >"$root.debootstrap.log" 2>&1 || { tail -n 20 "$root.debootstrap.log" >&2; exit 1; }
-rm -f "$root.debootstrap.log"
-echo "clean root in $(($(date +%s) - t0)) s: $(chroot "$root" dpkg-query -W -f '.\n' | wc -l) packages, no antisurge"
+# The debootstrap'd root is cached as a tarball (per mirror; remade when older than 7 days or
+# with DEB_ROOT_REFRESH=1), so a later run (or a re-run of this block) unpacks it in seconds
+# instead of 2-2.6 min of debootstrap; every run still gets a root nothing else has touched.
+mirror=${DEBIAN_MIRROR:-http://deb.debian.org/debian}
+root_cache=${ANTISURGE_CI_CACHE:-${XDG_CACHE_HOME:-$HOME/.cache}/antisurge-ci}
+root_tar=$root_cache/debootstrap-bookworm-minbase-$(printf '%s' "$mirror" | sha256sum | cut -c1-12).tar
+if [ "${DEB_ROOT_REFRESH:-0}" != 1 ] && [ -n "$(find "$root_tar" -mtime -7 2>/dev/null)" ]; then
+    tar -C "$root" --numeric-owner -xpf "$root_tar"
+    how="unpacked from the cache $root_tar"
+else
+    debootstrap --variant=minbase bookworm "$root" "$mirror" \
+        >"$root.debootstrap.log" 2>&1 || { tail -n 20 "$root.debootstrap.log" >&2; exit 1; }
+    rm -f "$root.debootstrap.log"
+    mkdir -p "$root_cache"
+    tar -C "$root" --numeric-owner -cpf "$root_tar.tmp" . && mv "$root_tar.tmp" "$root_tar"
+    how="debootstrap (cached as $root_tar)"
+fi
+echo "clean root in $(($(date +%s) - t0)) s, $how: $(chroot "$root" dpkg-query -W -f '.\n' | wc -l) packages, no antisurge"
 chroot "$root" sh -c '! command -v antisurge && ! test -e /etc/antisurge'
 
-echo "== dpkg -i in the clean root"
+ci_block ".deb 3/5: dpkg -i in the clean root"
 cp "$deb" "$root/tmp/"
 chroot "$root" env -i PATH=/usr/sbin:/usr/bin:/sbin:/bin dpkg -i "/tmp/$(basename "$deb")"
 chroot "$root" dpkg-query -W antisurge
@@ -82,7 +97,7 @@ if file "$root/usr/bin/antisurge" | grep -q "not stripped"; then
 fi
 echo "binary: $(du -h "$root/usr/bin/antisurge" | cut -f1) (stripped)"
 
-echo "== antisurge from / as nobody in the clean root"
+ci_block ".deb 4/5: antisurge from / as nobody in the clean root"
 mount -t proc proc "$root/proc"
 in_root() {
     chroot --userspec=nobody:nogroup "$root" env -i PATH=/usr/bin:/bin HOME=/nonexistent \
@@ -96,7 +111,7 @@ in_root antisurge sim | tee "$root/tmp/sim.txt"
 grep -q "STABLE — no surge" "$root/tmp/sim.txt" || { echo "deb.sh: sim did not report STABLE" >&2; exit 1; }
 in_root antisurge | grep -q "Usage: antisurge" || { echo "deb.sh: a bare antisurge does not print help" >&2; exit 1; }
 
-echo "== the installed unit (issue 25): systemd-analyze verify, token, ExecReload as installed"
+ci_block ".deb 5/5: the installed unit (issue 25): systemd-analyze verify, token, ExecReload as installed"
 test -f "$root/etc/antisurge/operator.token" || { echo "deb.sh: postinst made no operator token" >&2; exit 1; }
 token_mode=$(chroot "$root" stat -c '%a %U:%G' /etc/antisurge/operator.token) # the root's names, not the host's
 [ "$token_mode" = "640 root:antisurge" ] || { echo "deb.sh: operator token is $token_mode, not 640 root:antisurge" >&2; exit 1; }
@@ -140,4 +155,5 @@ cp "$root/tmp/antisurge.toml.good" "$root/etc/antisurge/antisurge.toml"
 head -n 5 "$root/tmp/reload_bad.txt"
 [ "$rc" != 0 ] || { echo "deb.sh: ExecReload's check accepted a bad config" >&2; exit 1; }
 echo "ExecReload check as installed: 0 on the shipped config, $rc on a bad one"
-echo "== .deb OK"
+ci_block_end
+echo ".deb OK"

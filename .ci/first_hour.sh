@@ -13,12 +13,13 @@
 # - the cantools cross-check must show as *ignored* with its reason, not fail and not pass.
 set -euo pipefail
 repo=$(cd "$(dirname "$0")/.." && pwd)
+. "$repo/.ci/lib.sh"
 rustup_bin=$(command -v rustup) || { echo "first hour: rustup not found" >&2; exit 1; }
 rustup_home=${RUSTUP_HOME:-$HOME/.rustup}
 
 work=$(mktemp -d /tmp/antisurge-first-hour.XXXXXX)
 keep=${FIRST_HOUR_KEEP:-0}
-trap '[ "$keep" = 1 ] || rm -rf "$work"' EXIT
+trap '[ "$keep" = 1 ] || rm -rf "$work"; ci_block_end' EXIT
 home=$work/home
 mkdir -p "$home/.cargo/bin"
 # a fresh rustup user's ~/.cargo/bin: the proxies and nothing installed with cargo install
@@ -59,16 +60,17 @@ if fresh python3 -c 'import cantools' 2>/dev/null; then
 fi
 
 t0=$(date +%s)
-echo "== first hour 1/2: cargo run --release -- sim"
+ci_block "first hour 1/2: cargo run --release -- sim"
 fresh cargo run --release -- sim | tee "$work/sim.txt"
 grep -q "STABLE — no surge" "$work/sim.txt" || { echo "first hour: sim did not report STABLE" >&2; exit 1; }
 t1=$(date +%s)
-echo "== first hour 2/2: cargo test --release"
+ci_block "first hour 2/2: cargo test --release"
 set +e
 fresh cargo test --release 2>&1 | tee "$work/test.txt"
 rc=${PIPESTATUS[0]}
 set -e
 t2=$(date +%s)
+ci_block_end
 [ "$rc" = 0 ] || { echo "first hour: cargo test --release failed (exit $rc)" >&2; exit "$rc"; }
 # the loud skip: every cantools test (each calls require_cantools) listed as ignored with the reason
 n_ignored=$(grep -c '^test .* ignored, needs Python 3 with cantools' "$work/test.txt" || true)

@@ -7,5 +7,5 @@
 # them). The plain `cargo test` runs the same test with 10-s windows.
 set -euo pipefail
 cd "$(dirname "$0")/.."
-ANTISURGE_FLOOD_S=${ANTISURGE_FLOOD_S:-60} cargo test --release --test station_attack \
-    an_event_list_flood -- --nocapture
+ANTISURGE_FLOOD_S=${ANTISURGE_FLOOD_S:-60} cargo test --release --test operator \
+    station_attack::an_event_list_flood -- --nocapture

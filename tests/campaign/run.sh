@@ -4,7 +4,7 @@
 # half-written config, SIGHUP storm, misbehaving Modbus devices (exception, garbage, wrong
 # length, hang, NaN), CPU stress (stress-ng --cpu N if installed, else busy loops). Each case
 # asserts its safe outcome; prints the table README.md shows.
-# The cases live in tests/fault_campaign.rs (ignored in the normal `cargo test`).
+# The cases live in tests/daemon/fault_campaign.rs (ignored in the normal `cargo test`).
 set -euo pipefail
 cd "$(dirname "$0")/../.."
-exec cargo test --release --test fault_campaign -- --ignored --nocapture --test-threads 1
+exec cargo test --release --test daemon -- --ignored --nocapture --test-threads 1 fault_campaign::

@@ -1,5 +1,5 @@
 #!/usr/bin/env python3
-"""cantools side of tests/can_dbc_cantools.rs: an independent DBC codec to compare with.
+"""cantools side of tests/bus/can_dbc_cantools.rs: an independent DBC codec to compare with.
 
     crosscheck.py encode DBC   -> JSON on stdout: frames cantools encoded from chosen values
     crosscheck.py decode DBC   <- JSON on stdin {"frames": [{"frame_id", "extended", "data"}]}

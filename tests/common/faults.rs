@@ -1,7 +1,7 @@
 //! Helpers for the fault tests against the `antisurge` binary (issue 12): a config for the
 //! in-process plant in a temporary directory, a fake systemd notification socket, and runs
-//! with piped output and resource limits. Used by tests/daemon_faults.rs and the fault
-//! campaign (tests/fault_campaign.rs).
+//! with piped output and resource limits. Used by tests/daemon/daemon_faults.rs and the fault
+//! campaign (tests/daemon/fault_campaign.rs).
 
 use super::daemon::shipped;
 use std::os::unix::net::UnixDatagram;
@@ -110,6 +110,9 @@ pub fn spawn_notified(
 ) -> std::process::Child {
     let log = std::fs::File::create(dir.join("run.log")).expect("log file");
     std::process::Command::new(env!("CARGO_BIN_EXE_antisurge"))
+        // (the test's own status socket, the HMI and metrics off: the default ports are one
+        // per machine, and a daemon that cannot bind them does not start)
+        .envs(super::daemon::own_surfaces(dir, args))
         .args(args)
         .env("ANTISURGE_LOG", "info")
         .env_remove("LOGS_DIRECTORY")

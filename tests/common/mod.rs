@@ -92,7 +92,6 @@ pub mod daemon;
 pub mod faults;
 pub mod modbus_skid;
 pub mod node;
-pub mod peak_alloc;
 pub mod plant_node;
 
 /// Mean of one trace column over the rows from `t0_s` on (a settled tail), NaN if none.
@@ -109,5 +108,16 @@ pub fn mean_from(
         f64::NAN
     } else {
         sum / n as f64
+    }
+}
+
+/// The name libtest gives test `f` of the module `module` (its `module_path!()`): a test
+/// binary that groups several test files as modules names it `<file>::f` (the crate's own
+/// name is not part of it); at a crate's root it is `f`. For tests that re-run their own
+/// binary with `--exact`.
+pub fn own_test_name(module: &str, f: &str) -> String {
+    match module.split_once("::") {
+        Some((_, m)) => format!("{m}::{f}"),
+        None => f.to_string(),
     }
 }

@@ -1,5 +1,5 @@
-//! A Modbus TCP skid for the HMI's end-to-end tests (`tests/hmi_field_lamps.rs`,
-//! `tests/hmi_input_links.rs`): a device written here serves the independent vendor skid's
+//! A Modbus TCP skid for the HMI's end-to-end tests (`tests/operator/hmi_field_lamps.rs`,
+//! `tests/operator/hmi_input_links.rs`): a device written here serves the independent vendor skid's
 //! steady state (`tests/plants/vendor_skid_recycle.toml`, computed in process) with a little
 //! noise on every reading (no transmitter looks frozen), Δp transmitters `b` (registers 11–12)
 //! and `c` (13–14, an f32 NaN: no value), and a recycle valve stuck at 40 % whatever it is told;
