@@ -35,6 +35,8 @@ cargo build --profile "$profile"
 bin=target/$profile/antisurge
 mkdir -p target/deb-extra
 "$bin" man | gzip -9n >target/deb-extra/antisurge.1.gz
+# one page per command (antisurge-run.1, ...), the .deb's assets (Cargo.toml)
+rm -rf target/deb-extra/man && "$bin" man --out target/deb-extra/man >/dev/null && gzip -9nf target/deb-extra/man/*.1
 "$bin" completions bash >target/deb-extra/antisurge.bash
 "$bin" completions zsh >target/deb-extra/_antisurge
 "$bin" completions fish >target/deb-extra/antisurge.fish
@@ -42,7 +44,7 @@ deb=$(cargo deb --no-build --profile "$profile" --output target/debian/ | tail -
 echo "package: $deb ($(du -h "$deb" | cut -f1))"
 dpkg-deb --info "$deb" | sed -n '/Package:/,$p'
 contents=$(dpkg-deb --contents "$deb")
-for f in ./usr/bin/antisurge ./etc/antisurge/antisurge.toml ./lib/systemd/system/antisurge.service \
+for f in ./usr/bin/antisurge ./usr/share/man/man1/antisurge-run.1.gz ./etc/antisurge/antisurge.toml ./lib/systemd/system/antisurge.service \
     ./usr/lib/systemd/system/antisurge.service.d/usr-bin.conf ./usr/share/man/man1/antisurge.1.gz \
     ./usr/lib/systemd/system/antisurge-hmi.socket ./usr/lib/systemd/system/antisurge-metrics.socket \
     ./usr/share/bash-completion/completions/antisurge ./usr/share/doc/antisurge/copyright; do

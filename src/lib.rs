@@ -33,7 +33,3 @@ pub mod solver;
 pub mod sparkplug;
 pub mod surge;
 pub mod vocab;
-
-/// The sensors and actuators, under their old path: only for `tests/common/`, which another
-/// engineer owns (switch it to `antisurge::vocab::signals`, then delete this line).
-pub use vocab::signals;

@@ -36,7 +36,7 @@ use antisurge::runtime::handoff::{
     monotonic_ns, CommandBoard, HeartbeatBoard, OutputBoard, Outputs, SensorBoard, SnapshotBoard,
     Wakeup,
 };
-use antisurge::signals::{ActuatorCommands, ActuatorId, SensorId, SensorSnapshot};
+use antisurge::vocab::signals::{ActuatorCommands, ActuatorId, SensorId, SensorSnapshot};
 use antisurge::vocab::Mode;
 use socketcan::errors::CAN_ERR_BUSOFF;
 use socketcan::{

@@ -98,4 +98,4 @@ fn recycle_pi_with_defaults_holds_the_matrix_without_surge() {
     assert!(failures.is_empty(), "{failures:#?}");
 }
 
-// The ESD stroke verdicts and the plant variants they name: tests/esd_stroke_check.rs.
+// The ESD stroke verdicts and the plant variants they name: tests/control/esd_stroke_check.rs.

@@ -209,7 +209,7 @@ pub fn check(args: &CheckArgs) -> Result<std::process::ExitCode> {
                 };
                 // a bound trip contact acts after its read, one cycle and the valve write:
                 // over Modbus up to a poll period each way, else (CAN, in-process) one cycle
-                let esd = antisurge::signals::SensorId::EsdInput;
+                let esd = antisurge::vocab::signals::SensorId::EsdInput;
                 let contact_latency_s = l.signal_map.sensors.contains_key(&esd).then(|| {
                     let polled = l
                         .signal_map

@@ -17,7 +17,7 @@
 //!
 //! Correction: the seed prints "− c2 m_t" in eq. 15a. Derived as above the sign is "+"; with the
 //! printed sign the error equation keeps a forcing term 2 (A/L) c2 m_out and the estimate
-//! converges to a wrong value (tests/observer.rs shows both). The z-form uses only the
+//! converges to a wrong value (tests/control/observer.rs shows both). The z-form uses only the
 //! pressures, the speed and the outflow m_out, which the controller computes from the outlet
 //! valves' position feedback and the valve equations.
 //!

@@ -31,7 +31,7 @@ use std::time::Duration;
 ///
 /// Derivation. A valve positioner answers a small step with its linear (non-slewing) response,
 /// so a step that small is one the valve actually follows in proportion; the bumpless gain-change
-/// test (`tests/bumpless_gain_change.rs`) holds every law to 1 % of an actuator's range per cycle
+/// test (`tests/control/bumpless_gain_change.rs`) holds every law to 1 % of an actuator's range per cycle
 /// for gains ×2 and ×½, which a sound edit meets, and this limit allows twice that for the
 /// sum over the trial window. On the recycle side, recycle-pi's closing-rate limit is 0.1 of
 /// stroke per second (`[controller.recycle_pi.closing] rate_per_s`), so a 2 % closing step is

@@ -13,7 +13,7 @@
 //!
 //! The socket is `/run/systemd/journal/socket`; the environment variable
 //! `ANTISURGE_JOURNAL_SOCKET` names another one. It exists for the tests, which bind a datagram
-//! socket in a temporary directory and read what the daemon sends (`tests/journal_fields.rs`);
+//! socket in a temporary directory and read what the daemon sends (`tests/daemon/journal_fields.rs`);
 //! a deployment has no reason to set it.
 
 use std::io;

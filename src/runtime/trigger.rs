@@ -404,12 +404,19 @@ mod tests {
         let regular = within(p1 + 5 * P, p2);
         assert!(regular.len() >= 140, "{} cycles in phase 1", regular.len());
         let on_input = regular.iter().filter(|s| s.by_input).count();
+        // measured against the sets the sender delivered in that window: on a loaded machine
+        // the sender itself misses slots (it skips them, as the plant node does), and a
+        // cycle whose set never came rightly runs on its deadline
+        let stamps = stamps.lock().expect("stamps");
+        let delivered = stamps
+            .iter()
+            .filter(|&&t| t >= p1 + 5 * P && t < p2)
+            .count();
         assert!(
-            on_input * 100 >= regular.len() * 95,
-            "{on_input} of {} cycles ran on their inputs",
+            on_input * 100 >= delivered.min(regular.len()) * 95,
+            "{on_input} of {} cycles ran on their inputs ({delivered} sets delivered)",
             regular.len()
         );
-        let stamps = stamps.lock().expect("stamps");
         let at_arrival = regular
             .iter()
             .filter(|s| s.by_input && stamps.contains(&s.tick.deadline_ns))

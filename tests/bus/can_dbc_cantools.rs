@@ -27,7 +27,7 @@ use antisurge::io::can::{
     FrameId, Heartbeat, HeartbeatCodec, HeartbeatNames, MessageDef, SignalDef, SignalRole,
     SignalTarget,
 };
-use antisurge::signals::{ActuatorCommands, ActuatorId, SensorId, SensorSnapshot};
+use antisurge::vocab::signals::{ActuatorCommands, ActuatorId, SensorId, SensorSnapshot};
 use antisurge::vocab::Mode as ControllerMode;
 use serde_json::{json, Value};
 

@@ -6,7 +6,7 @@
 use crate::common;
 
 use antisurge::io::can::{CanCodec, CanDatabase, FrameId, SignalBinding};
-use antisurge::signals::{ActuatorCommands, ActuatorId, SensorId, SensorSnapshot};
+use antisurge::vocab::signals::{ActuatorCommands, ActuatorId, SensorId, SensorSnapshot};
 
 fn db() -> CanDatabase {
     CanDatabase::from_file(common::root().join("tests/fixtures/foreign_skid/skid_foreign.dbc"))

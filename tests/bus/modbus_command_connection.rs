@@ -17,7 +17,7 @@ use antisurge::io::modbus::{
 };
 use antisurge::io::signal_map::{Binding, SignalMap};
 use antisurge::runtime::handoff::{monotonic_ns, OutputBoard, Outputs, SensorBoard};
-use antisurge::signals::{ActuatorCommands, ActuatorId, SensorId};
+use antisurge::vocab::signals::{ActuatorCommands, ActuatorId, SensorId};
 use tokio_modbus::{ExceptionCode, Request, Response, SlaveRequest};
 
 /// What the device saw, in order: (connection, what).

@@ -21,7 +21,7 @@ use antisurge::runtime::handoff::{
     monotonic_ns, CommandBoard, HeartbeatBoard, OutputBoard, Outputs, SensorBoard, SnapshotBoard,
     Wakeup,
 };
-use antisurge::signals::{ActuatorCommands, ActuatorId, SensorId, SensorSnapshot};
+use antisurge::vocab::signals::{ActuatorCommands, ActuatorId, SensorId, SensorSnapshot};
 use antisurge::vocab::Mode;
 use tokio::sync::oneshot;
 use tokio::task::JoinHandle;
@@ -151,7 +151,7 @@ fn link_config(addr: SocketAddr, rate_hz: f64, heartbeat: bool) -> ModbusLinkCon
     cfg.poll_rate_hz = rate_hz;
     cfg.heartbeat_register = heartbeat.then_some(HB);
     // our own contiguous map, written merged (the default, one request per register
-    // binding, is exercised against the foreign map in tests/modbus_foreign_e2e.rs)
+    // binding, is exercised against the foreign map in tests/bus/modbus_foreign_e2e.rs)
     cfg.merge_writes = true;
     cfg
 }

@@ -9,7 +9,7 @@ use antisurge::io::modbus::{
     DataType, ExceptionCode, ModbusClient, ModbusError, ReadPlan, RegisterBinding, RegisterImage,
     RegisterTable, ResponseMode, RtuConfig, SharedImage, TransportConfig, WordOrder, WritePlan,
 };
-use antisurge::signals::{SensorId, SensorSnapshot};
+use antisurge::vocab::signals::{SensorId, SensorSnapshot};
 use tokio::net::TcpListener;
 
 const LOCALHOST: &str = "127.0.0.1:0";

@@ -12,7 +12,7 @@ use std::time::Duration;
 use antisurge::io::modbus::{HeartbeatRegister, ModbusServerConfig, PlantServer};
 use antisurge::io::signal_map::SignalMap;
 use antisurge::runtime::handoff::{CommandBoard, HeartbeatBoard, SnapshotBoard};
-use antisurge::signals::ActuatorId;
+use antisurge::vocab::signals::ActuatorId;
 use tokio::io::{AsyncReadExt, AsyncWriteExt};
 use tokio::net::TcpSocket;
 

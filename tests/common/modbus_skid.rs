@@ -11,7 +11,7 @@ use super::daemon::shipped;
 use super::root;
 use antisurge::plant::file::PlantDescription;
 use antisurge::plant::{PlantInputs, SimPlant};
-use antisurge::signals::SensorId;
+use antisurge::vocab::signals::SensorId;
 use std::future::Future;
 use std::io::{Read, Write};
 use std::net::SocketAddr;
@@ -58,7 +58,7 @@ pub fn fraction_word(v: f64) -> u16 {
 /// The device: the steady readings, its noise, and the last valve command written.
 pub struct Device {
     /// The steady readings.
-    pub steady: antisurge::signals::SensorSnapshot,
+    pub steady: antisurge::vocab::signals::SensorSnapshot,
     /// The noise.
     pub rng: Rng,
     /// The last valve command written (NaN: none yet).
@@ -160,7 +160,7 @@ pub fn serve(listener: tokio::net::TcpListener, shared: Shared) -> tokio::task::
 }
 
 /// The vendor skid's steady readings at its initial throttle and valve.
-pub fn steady_readings() -> antisurge::signals::SensorSnapshot {
+pub fn steady_readings() -> antisurge::vocab::signals::SensorSnapshot {
     let desc = PlantDescription::load(&root().join("tests/plants/vendor_skid_recycle.toml"))
         .unwrap_or_else(|e| panic!("{e}"));
     let init = &desc.file.initial;

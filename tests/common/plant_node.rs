@@ -5,8 +5,8 @@
 use antisurge::daemon::plant_node::{CommandSource, PlantNode, PlantStatus, SensorSink};
 use antisurge::plant::file::PlantDescription;
 use antisurge::runtime::handoff::{OutputBoard, Outputs, SensorBoard};
-use antisurge::signals::{ActuatorCommands, ActuatorId};
 use antisurge::sim::PlantRun;
+use antisurge::vocab::signals::{ActuatorCommands, ActuatorId};
 use std::sync::Arc;
 
 /// A node for `run` whose commands come from `outputs` (heartbeat timeout 200 ms, not held at

@@ -259,7 +259,7 @@ fn good_configs_select_what_they_say() {
     assert!(l.signal_map.uses_modbus() && l.config.bus.modbus.is_some());
     // three Δp transmitters: the core votes them (median of three, the map's settings)
     let l = load_with_env(&dir.join("field_modbus_three_dp.toml"), &[]).expect("three Δp");
-    let v = l.core.vote.per_sensor[antisurge::signals::SensorId::OrificeDp.index()]
+    let v = l.core.vote.per_sensor[antisurge::vocab::signals::SensorId::OrificeDp.index()]
         .expect("orifice_dp voted");
     assert_eq!((v.transmitters, v.deviation, v.deviation_s), (3, 0.05, 0.5));
     assert_eq!(l.signal_map.modbus_spares().len(), 2);

@@ -20,7 +20,7 @@ use antisurge::io::modbus::{
     ClientConfig, HeartbeatRegister, ModbusLinkConfig, ModbusServerConfig, TransportConfig,
 };
 use antisurge::runtime::rt_loop::RtSettings;
-use antisurge::signals::SensorId;
+use antisurge::vocab::signals::SensorId;
 use std::collections::{BTreeMap, BTreeSet};
 use std::path::PathBuf;
 

@@ -20,8 +20,8 @@ use antisurge::daemon::control_node::ControlUpdate;
 use antisurge::plant::{PlantInputs, SimPlant};
 use antisurge::runtime::handoff::monotonic_ns;
 use antisurge::runtime::rt_loop::Tick;
-use antisurge::signals::{ActuatorId, SensorId};
 use antisurge::sim::case::PlantCase;
+use antisurge::vocab::signals::{ActuatorId, SensorId};
 use std::sync::atomic::Ordering;
 
 const CYCLES: u64 = 6000;

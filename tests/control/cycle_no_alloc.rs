@@ -77,7 +77,7 @@ fn control_cycle_does_not_allocate_for_any_law() {
 #[test]
 fn voting_redundant_transmitters_does_not_allocate() {
     use antisurge::control::vote::VoteLimits;
-    use antisurge::signals::SensorId;
+    use antisurge::vocab::signals::SensorId;
     let desc = common::plant("kvangardsnes2009_recycle");
     let init = desc.file.initial;
     let inputs = PlantInputs {

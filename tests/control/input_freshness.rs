@@ -7,7 +7,7 @@ use crate::common;
 
 use antisurge::control::core::CoreSettings;
 use antisurge::daemon::config::{load_with_env, Loaded};
-use antisurge::signals::SensorId;
+use antisurge::vocab::signals::SensorId;
 
 fn shipped(rel: &str) -> String {
     common::root()

@@ -16,10 +16,10 @@ use antisurge::control::LawId;
 use antisurge::plant::recycle_system::{ix, RecyclePlant};
 use antisurge::plant::PlantInputs;
 use antisurge::scenario::Scenario;
-use antisurge::signals::ActuatorId;
 use antisurge::sim::case::PlantCase;
 use antisurge::sim::trace::TraceRow;
 use antisurge::sim::SimResult;
+use antisurge::vocab::signals::ActuatorId;
 
 const KV: &str = "kvangardsnes2009_recycle";
 const HE: &str = "hemchi2016_recycle";
@@ -532,7 +532,7 @@ fn start_at_20pct<'a>(
         model,
         history: &antisurge::control::law::api::LoopHistory::EMPTY,
     };
-    let mut cur = antisurge::signals::ActuatorCommands::default();
+    let mut cur = antisurge::vocab::signals::ActuatorCommands::default();
     cur.set(ActuatorId::RecycleValve, 0.2);
     law.start(&inputs, &cur);
     inputs
@@ -725,7 +725,7 @@ fn law_cycle_does_not_allocate() {
         let mut cfg = model.controller.recycle_pi.clone();
         cfg.pi.control_variable = cv;
         let mut law = RecyclePi::new(&cfg, &model).expect("law");
-        let mut cur = antisurge::signals::ActuatorCommands::default();
+        let mut cur = antisurge::vocab::signals::ActuatorCommands::default();
         cur.set(ActuatorId::RecycleValve, 0.2);
         let r = 2.2;
         let j = model.surge_line.flow_at_ratio(r);
@@ -1062,7 +1062,7 @@ fn started_closed(model: &ControlModel, q: impl Fn(f64) -> f64, ratio: f64) -> (
         model,
         history: &antisurge::control::law::api::LoopHistory::EMPTY,
     };
-    let mut cur = antisurge::signals::ActuatorCommands::default();
+    let mut cur = antisurge::vocab::signals::ActuatorCommands::default();
     cur.set(ActuatorId::RecycleValve, 0.0);
     law.start(&inputs, &cur);
     (law, q_line)

@@ -12,7 +12,7 @@ use antisurge::control::law::api::LawInputs;
 use antisurge::control::law::Law;
 use antisurge::control::measurements::{Measurements, OperatorInputs};
 use antisurge::control::LawId;
-use antisurge::signals::{ActuatorCommands, ActuatorId};
+use antisurge::vocab::signals::{ActuatorCommands, ActuatorId};
 
 #[test]
 fn spool_laws_do_not_allocate_per_cycle() {

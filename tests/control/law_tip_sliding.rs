@@ -12,10 +12,10 @@ use antisurge::control::law::Law;
 use antisurge::control::measurements::{Measurements, OperatorInputs};
 use antisurge::control::model::ControlModel;
 use antisurge::control::LawId;
-use antisurge::signals::{ActuatorCommands, ActuatorId};
 use antisurge::sim::case::PlantCase;
 use antisurge::sim::trace::TraceRow;
 use antisurge::sim::SimResult;
+use antisurge::vocab::signals::{ActuatorCommands, ActuatorId};
 
 const PLANT: &str = "sanadgol2006_tip";
 

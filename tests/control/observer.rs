@@ -10,8 +10,8 @@ use crate::common;
 use antisurge::control::observer::{MassFlowObserver, ObserverConfig};
 use antisurge::plant::plenum_duct::PlenumDuctPlant;
 use antisurge::plant::{PlantInputs, SimPlant};
-use antisurge::signals::SensorId;
 use antisurge::solver::{dormand_prince, AdaptiveStats, OdeSystem, Tolerance};
+use antisurge::vocab::signals::SensorId;
 use nalgebra::SVector;
 
 /// Which form of the observer's z equation.

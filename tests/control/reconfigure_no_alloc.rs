@@ -14,7 +14,7 @@ use antisurge::daemon::control_node::ControlUpdate;
 use antisurge::plant::{PlantInputs, SimPlant};
 use antisurge::runtime::handoff::monotonic_ns;
 use antisurge::runtime::rt_loop::Tick;
-use antisurge::signals::SensorId;
+use antisurge::vocab::signals::SensorId;
 use common::counting_alloc::heap_ops;
 use std::sync::atomic::Ordering;
 

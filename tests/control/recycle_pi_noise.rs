@@ -8,8 +8,8 @@ use antisurge::control::law::Law;
 use antisurge::control::laws::recycle_pi::RecyclePiConfig;
 use antisurge::control::measurements::{Measurements, OperatorInputs};
 use antisurge::control::surge_control_line::{ControlLineForm, SurgeControlLine};
-use antisurge::signals::{ActuatorCommands, ActuatorId};
 use antisurge::sim::case::PlantCase;
+use antisurge::vocab::signals::{ActuatorCommands, ActuatorId};
 
 fn run(plant: &str, right_of_line: f64, noise: f64) -> (f64, f64) {
     let p = PlantCase::load(&common::root().join("config/plants").join(plant)).unwrap();

@@ -16,7 +16,7 @@ use antisurge::daemon::{config, service};
 use antisurge::io::can::bus::BusCodec;
 use antisurge::io::can::dbc::FrameId;
 use antisurge::plant::{PlantInputs, SimPlant};
-use antisurge::signals::{ActuatorCommands, ActuatorId, SensorId, SensorSnapshot};
+use antisurge::vocab::signals::{ActuatorCommands, ActuatorId, SensorId, SensorSnapshot};
 use std::fmt::Write as _;
 use std::path::{Path, PathBuf};
 use std::sync::Arc;
@@ -126,7 +126,7 @@ fn fixture_text(codec: &BusCodec) -> String {
     let cmd1 = msg("CTRL_ActuatorCmd1");
     let mut alive = c.alive_counters();
     let mut out = String::from(
-        "# candump -l of the simulated kvangardsnes skid (tests/blackbox_candump.rs)\n",
+        "# candump -l of the simulated kvangardsnes skid (tests/daemon/blackbox_candump.rs)\n",
     );
     for (k, v) in values.iter().enumerate() {
         // the controller that was running: its recycle valve command at the tick …

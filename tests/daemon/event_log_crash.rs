@@ -16,7 +16,7 @@ use antisurge::events::{
     FallbackEntered, FallbackReason, FsyncPolicy, ModeChanged, ReadStats, Record, Replacement,
     SurgeDetected,
 };
-use antisurge::signals::SensorId;
+use antisurge::vocab::signals::SensorId;
 use antisurge::vocab::Mode;
 
 /// This module's test `f` as libtest names it (for `--exact`).

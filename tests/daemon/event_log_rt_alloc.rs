@@ -14,7 +14,7 @@ use antisurge::events::{
     RecycleTrip, Replacement, RtEvent, SafetyOnShift, SurgeCounter, SurgeDetected, Timestamp,
     TripReason,
 };
-use antisurge::signals::SensorId;
+use antisurge::vocab::signals::SensorId;
 use antisurge::vocab::Mode;
 
 #[test]

@@ -12,7 +12,7 @@ use antisurge::live::snapshot::LiveBoard;
 use antisurge::plant::{PlantInputs, SimPlant};
 use antisurge::runtime::handoff::{monotonic_ns, OutputBoard, SensorBoard, Wakeup};
 use antisurge::runtime::rt_loop::{CycleStats, Tick};
-use antisurge::signals::SensorId;
+use antisurge::vocab::signals::SensorId;
 use common::counting_alloc::allocations;
 use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
 use std::sync::Arc;

@@ -19,7 +19,7 @@
 
 use crate::common;
 
-use antisurge::signals::SensorId;
+use antisurge::vocab::signals::SensorId;
 use common::daemon::{logs, signal, spawn, until, wait};
 use common::modbus_skid::{controller_config, hmi_status, lock, start_device, status_json};
 use std::time::{Duration, Instant};

@@ -9,7 +9,7 @@
 //!
 //! ```no_run
 //! # use antisurge::io::can::*;
-//! # use antisurge::signals::*;
+//! # use antisurge::vocab::signals::*;
 //! # fn main() -> Result<(), Box<dyn std::error::Error>> {
 //! let db = CanDatabase::from_file("config/skid.dbc")?;
 //! let codec = CanCodec::new(&db, &skid_bindings())?;

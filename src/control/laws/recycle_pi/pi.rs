@@ -6,7 +6,7 @@
 //!
 //! Anti-windup by conditional integration, as in the textbook: the integrator stops while the
 //! output is saturated at a limit and the error drives it further into that limit. With every
-//! other part of recycle-pi off this *is* a textbook PI (`tests/law_recycle_pi.rs` compares it
+//! other part of recycle-pi off this *is* a textbook PI (`tests/control/law_recycle_pi.rs` compares it
 //! with an independent implementation on seed 002's plant).
 //!
 //! When another part holds the valve above the PI's demand (a trip, the closing limiter,
