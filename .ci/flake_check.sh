@@ -11,9 +11,11 @@ cd "$(dirname "$0")/.."
 runs=${1:-5}
 # binary:module of the chosen e2e tests (processes, sockets, real-time scenarios); not the
 # campaign or the Modbus rate study (minutes each), not modbus_link_outage (its one test is
-# ignored). Kept small for the 45-min budget: one run took 113 s under stress-ng on the 2-core
-# dev machine (2026-11-29), so the block is ~9-10 min for 5 runs.
-read -r -a tests <<<"${FLAKE_TESTS:-daemon:daemon_e2e daemon:daemon_faults bus:modbus_foreign_e2e operator:operator_live operator:hmi_field_lamps}"
+# ignored). Kept small for the 45-min budget: with daemon_faults and hmi_field_lamps too one
+# run took 113 s under stress-ng on the 2-core dev machine (2026-11-29), ~9.5 min for 5 runs,
+# which pushed CI past 45 min; the default keeps the three files whose kill -9 and watchdog
+# tests mixed clocks before (FLAKE_TESTS adds the others back).
+read -r -a tests <<<"${FLAKE_TESTS:-daemon:daemon_e2e bus:modbus_foreign_e2e operator:operator_live}"
 
 command -v stress-ng >/dev/null || { echo "flake check: stress-ng is not installed" >&2; exit 1; }
 declare -A exe filters

@@ -62,6 +62,15 @@ cleanup() {
 trap cleanup EXIT
 
 echo "vcan_smoke: running in '${ANTISURGE_HIL_INSIDE}' mode, kernel $(uname -r)"
+# Under qemu -icount with sleep=off (the single CI boot, see hil/suite.sh) guest time jumps
+# ahead while the guest waits for the host: the first exec of a tool pulls it over the shared
+# filesystem in host time while the guest's timers (candump's `timeout`, the start wait below)
+# run out in guest time. Read the tools once first, so no wait below spans a cold load.
+for tool in candump cansend ip timeout; do
+    p=$(command -v "$tool" 2>/dev/null) && cat "$p" >/dev/null
+done
+candump -h >/dev/null 2>&1 || true
+cansend -h >/dev/null 2>&1 || true
 
 # --- environment ----------------------------------------------------------
 check "vcan0 is a vcan interface and up" \
