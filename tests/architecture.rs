@@ -133,13 +133,11 @@ const IO_TO_CONTROL: &[(&str, &str)] = &[("src/io/signal_map.rs", "crate::contro
 /// circle:
 /// - `daemon/config` ⇄ `live` (and `live` ⇄ `sparkplug` through it): `live/` reads its
 ///   settings from `daemon/config/` while the config check calls back into `live/`;
-/// - `daemon/config` ⇄ `sparkplug`: `sparkplug/fleet.rs` builds a daemon config;
-/// - `plot` ⇄ `sim`: `plot/` draws `sim::trace` rows while `sim/stream.rs` calls `plot`.
+/// - `daemon/config` ⇄ `sparkplug`: `sparkplug/fleet.rs` builds a daemon config.
 const KNOWN_CIRCLES: &[(&str, &str)] = &[
     ("daemon/config", "live"),
     ("daemon/config", "sparkplug"),
     ("live", "sparkplug"),
-    ("plot", "sim"),
 ];
 
 fn src_root() -> PathBuf {

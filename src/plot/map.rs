@@ -38,8 +38,9 @@ const TITLE_AREA: u32 = 42;
 /// Speed lines drawn across the map's speed range.
 pub(crate) const N_SPEED_LINES: usize = 6;
 const SPEED_LINE_SAMPLES: usize = 600;
-/// Most trajectory points drawn: a longer trace is drawn from every n-th row.
-pub const MAX_TRAJ_POINTS: usize = 20_000;
+/// Most trajectory points drawn: a longer trace is drawn from every n-th row (the trace's own
+/// bound, which the streaming trace keeps too).
+pub use crate::sim::trace::MAX_TRAJ_POINTS;
 /// Preferred label position: where a speed line has fallen (right of its surge point) to this
 /// fraction of its height above ratio 1.
 const LABEL_HEIGHT_FRACTION: f64 = 0.72;

@@ -11,7 +11,7 @@ use std::path::{Path, PathBuf};
 
 /// Rows the picture keeps exactly: a run of up to this many trace rows (82 s at the default
 /// 5-ms trace period) is drawn from every row, as the whole trace was. A longer run keeps the
-/// rows the map takes of a whole trace (at most [`crate::plot::MAX_TRAJ_POINTS`], 5.4 MB),
+/// rows the map takes of a whole trace (at most [`crate::sim::trace::MAX_TRAJ_POINTS`], 5.4 MB),
 /// and the min/max envelope of at most [`ENVELOPE_BUCKETS`] time buckets for the time series.
 /// 16 384 rows are 4.5 MB.
 pub const PICTURE_ROWS: usize = 1 << 14;
@@ -217,7 +217,7 @@ impl PictureTrace {
     }
 
     /// An empty picture of a run of `rows` rows, everything reserved: the map's rows are those
-    /// [`crate::plot::map_svg`] takes of the whole trace, the envelope's buckets are sized to
+    /// `plot::map_svg` takes of the whole trace, the envelope's buckets are sized to
     /// the run (rows beyond `rows` are thinned as in [`PictureTrace::new`]).
     pub fn with_rows(rows: usize) -> Self {
         if rows <= PICTURE_ROWS {
@@ -226,7 +226,7 @@ impl PictureTrace {
                 ..Self::new_empty()
             };
         }
-        let every = rows.div_ceil(crate::plot::MAX_TRAJ_POINTS).max(1);
+        let every = rows.div_ceil(crate::sim::trace::MAX_TRAJ_POINTS).max(1);
         let sample_cap = rows.div_ceil(every);
         PictureTrace {
             sample: Vec::with_capacity(sample_cap + 1),
@@ -281,7 +281,7 @@ impl PictureTrace {
         self.envelope.is_none()
     }
 
-    /// Rows for the map ([`crate::plot::map_svg_sampled`]): real rows at an even stride, the
+    /// Rows for the map (`plot::map_svg_sampled`): real rows at an even stride, the
     /// last row of the run included.
     pub fn map_rows(&self) -> &[TraceRow] {
         &self.sample
@@ -598,7 +598,7 @@ mod tests {
             }
             assert_eq!(p.sample.capacity(), cap, "{n}: the sample never grew");
             // what map_svg takes of the whole trace
-            let stride = n.div_ceil(crate::plot::MAX_TRAJ_POINTS).max(1);
+            let stride = n.div_ceil(crate::sim::trace::MAX_TRAJ_POINTS).max(1);
             let mut taken: Vec<usize> = (0..n).step_by(stride).collect();
             if (n - 1) % stride != 0 {
                 taken.push(n - 1);

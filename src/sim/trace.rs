@@ -1,6 +1,10 @@
 //! The simulation trace: one row per trace period with every state, measurement, estimate and
 //! actuator, written as `trace.csv`.
 
+/// Most trajectory points the map draws: a longer trace is drawn from every n-th row
+/// (the map of `plot/` draws it; the streaming trace keeps the same rows).
+pub const MAX_TRAJ_POINTS: usize = 20_000;
+
 use std::io::Write;
 
 /// One trace row (SI units; NaN where a plant has no such quantity).
