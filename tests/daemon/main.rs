@@ -16,7 +16,6 @@ mod blackbox_replay;
 mod daemon_e2e;
 mod daemon_faults;
 mod daemon_trace_stream;
-mod dcs_flood;
 mod deploy_unit;
 mod event_log_crash;
 mod event_log_rt_alloc;

@@ -12,6 +12,10 @@
 //!
 //! The tests share the process's descriptor table and its open-file limit, so they run one
 //! at a time (a lock).
+//!
+//! Its own test binary, not a module of `tests/daemon/`: it holds 10 000 connections (20 000
+//! descriptors with the in-process block), which starved the other tests of one shared process
+//! ("Too many open files").
 
 use std::io::{Read, Write};
 use std::net::{SocketAddr, TcpStream};
