@@ -13,11 +13,19 @@
 //!
 //! The schedule ([`run_triggered`]), with `P` the configured period:
 //! - a fire runs a cycle at once (its `Tick::deadline_ns` is the arrival time), unless that
-//!   would break the rate: not sooner than `P/2` after the previous cycle ([`MIN_SPACING`]), and
-//!   not more than one period ahead of the configured rate over any stretch (a credit of one
-//!   cycle, which lets the loop shift its phase onto the inputs once, e.g. after a fallback).
-//!   A fire that comes too early waits for its slot; fires that come while it waits are merged
-//!   into it (a flood of trigger frames runs the loop at the configured rate, no faster);
+//!   would break the rate: not sooner than `P/2` after the previous cycle that ran on a fire
+//!   ([`MIN_SPACING`]), and not more than one period ahead of the configured rate over any
+//!   stretch (a credit of one cycle, which lets the loop shift its phase onto the inputs once,
+//!   e.g. after a fallback). A fire that comes too early waits for its slot; fires that come
+//!   while it waits are merged into it (a flood of trigger frames runs the loop at the
+//!   configured rate, no faster);
+//! - a deadline cycle holds no slot: it ran because the inputs were late, and the late inputs
+//!   it did not have run at once when they come. (A Modbus device that answers in 5–20 ms
+//!   delivers a 100-Hz link's reads 10–20 ms apart; holding each late read P/2 behind the
+//!   deadline cycle that went before it delayed the recycle trip by up to 5 ms of a fast
+//!   machine's 60–80 ms from throttle step to flow reversal.) Deadline cycles come at most one
+//!   per `P + P/4` after a fire, so with the fires' own bound the loop runs at most
+//!   1.8 × `rate_hz` (a fire every `P + P/4 + ε`, each after a deadline cycle);
 //! - no fire for `P + P/4` after the previous cycle ([`LATE_TOLERANCE`]): the cycle runs on its
 //!   deadline, and while the inputs stay away it keeps the fixed grid of `P` (today's
 //!   behaviour). The input freshness checks of the core then decide fail-safe exactly as
@@ -204,14 +212,15 @@ pub fn run_triggered(
     // theoretical time of the next cycle at the configured rate; a fire may run one period
     // ahead of it (the credit that lets the phase move onto the inputs)
     let mut tat = start;
-    let mut last_ns: Option<u64> = None;
+    // the previous cycle that ran on a fire (deadline cycles hold no slot)
+    let mut last_fire_ns: Option<u64> = None;
     let mut deadline = start + period_ns;
     let mut cycle = 0u64;
     while !stop.load(Ordering::Relaxed) {
         let fired = trigger.wait(seen, deadline);
         let due = if fired {
             let mut earliest = tat.saturating_sub(period_ns);
-            if let Some(last) = last_ns {
+            if let Some(last) = last_fire_ns {
                 earliest = earliest.max(last + min_spacing);
             }
             let due = trigger.last_fire_ns().max(earliest);
@@ -241,8 +250,10 @@ pub fn run_triggered(
             stats.by_deadline.fetch_add(1, Ordering::Relaxed);
         }
         cycle += 1;
-        last_ns = Some(due);
-        tat = tat.saturating_sub(drift).max(due) + period_ns;
+        if fired {
+            last_fire_ns = Some(due);
+            tat = tat.saturating_sub(drift).max(due) + period_ns;
+        }
         // the fallback: a period and a tolerance after a fire; after a deadline cycle, the
         // fixed grid (the configured rate while the inputs stay away)
         deadline = if fired {
@@ -446,20 +457,22 @@ mod tests {
             "first fallback a period and a quarter after the last input"
         );
 
-        // 3. a flood: never two cycles closer than P/2, and no faster than the configured rate
-        //    (one cycle of credit, and the 1/32 drift allowance)
+        // 3. a flood: never two cycles on fires closer than P/2, and the fires' cycles no
+        //    faster than the configured rate (one cycle of credit, and the 1/32 drift
+        //    allowance); a deadline cycle (a sender stalled by the loaded machine) holds no slot
         let flood = within(p3, p3 + 60 * P);
         assert!(flood.len() >= 40, "{} cycles in the flood", flood.len());
-        for w in flood.windows(2) {
+        let fires: Vec<_> = flood.iter().filter(|s| s.by_input).collect();
+        for w in fires.windows(2) {
             let step = w[1].tick.deadline_ns - w[0].tick.deadline_ns;
             assert!(step >= P / 2, "two cycles {step} ns apart");
         }
         let span = flood.last().expect("flood").tick.deadline_ns - flood[0].tick.deadline_ns;
         let allowed = span as f64 / (P as f64 * (1.0 - 1.0 / 32.0)) + 2.0;
         assert!(
-            (flood.len() as f64) <= allowed + 1.0,
-            "{} cycles in {span} ns: faster than the rate",
-            flood.len()
+            (fires.len() as f64) <= allowed + 1.0,
+            "{} cycles on fires in {span} ns: faster than the rate",
+            fires.len()
         );
         // the flood drives the cycles (a sender stalled for more than 1.25 P by the loaded
         // machine lets a deadline through now and then)
@@ -471,6 +484,75 @@ mod tests {
         assert!(
             on_deadline.len() * 10 <= flood.len(),
             "on the deadline in the flood at {on_deadline:?} ns into it"
+        );
+    }
+
+    /// Inputs slower than the configured rate (a Modbus device answering in 5–20 ms behind a
+    /// 100-Hz link): every read comes after the deadline cycle that stood in for it, and runs
+    /// at its arrival, not `P/2` after that deadline cycle.
+    #[test]
+    fn a_late_input_runs_at_once_after_the_deadline_cycle_that_stood_in_for_it() {
+        const P: u64 = 20_000_000;
+        let trigger = Arc::new(CycleTrigger::new());
+        trigger.arm(0b1);
+        let stats = CycleStats::default();
+        let stop = AtomicBool::new(false);
+        let done = Arc::new(AtomicBool::new(false));
+        let stamps = Arc::new(std::sync::Mutex::new(Vec::with_capacity(40)));
+        let (t, d, st) = (Arc::clone(&trigger), Arc::clone(&done), Arc::clone(&stamps));
+        let sender = std::thread::spawn(move || {
+            // a set every 1.6 P: the deadline cycle comes 1.25 P after each, the next set
+            // 0.35 P after that
+            let mut at = monotonic_ns() + P / 3;
+            for _ in 0..30 {
+                sleep_until(at);
+                let now = monotonic_ns();
+                t.note(0b1, now);
+                st.lock().expect("stamps").push(now);
+                at += P * 8 / 5;
+            }
+            d.store(true, Ordering::Relaxed);
+        });
+        let mut seen: Vec<Seen> = Vec::with_capacity(200);
+        let mut inputs_before = 0;
+        run_triggered(P, &trigger, &stop, &stats, |tick| {
+            let inputs = stats.by_input.load(Ordering::Relaxed);
+            if let Some(prev) = seen.last_mut() {
+                prev.by_input = inputs > inputs_before;
+            }
+            inputs_before = inputs;
+            seen.push(Seen {
+                tick,
+                by_input: false,
+            });
+            !done.load(Ordering::Relaxed)
+        });
+        sender.join().expect("sender");
+        let stamps = stamps.lock().expect("stamps");
+        // each fire that follows a deadline cycle closer than P/2 is scheduled at its own
+        // arrival (the schedule's times, not the wall clock: a loaded machine moves both)
+        let mut after_deadline = 0;
+        for w in seen.windows(2) {
+            let (before, fire) = (w[0], w[1]);
+            let gap = fire
+                .tick
+                .deadline_ns
+                .saturating_sub(before.tick.deadline_ns);
+            if !before.by_input && fire.by_input && gap < P / 2 {
+                after_deadline += 1;
+            }
+            if !before.by_input && fire.by_input {
+                assert!(
+                    stamps.contains(&fire.tick.deadline_ns),
+                    "a fire {gap} ns after a deadline cycle was held back to {} ns",
+                    fire.tick.deadline_ns
+                );
+            }
+        }
+        // (held to P/2 after the deadline cycle, none would run closer than that)
+        assert!(
+            after_deadline > 0,
+            "no input ran within P/2 of a deadline cycle"
         );
     }
 }

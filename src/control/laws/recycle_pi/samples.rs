@@ -42,7 +42,8 @@ pub struct DistinctSamples {
     noise_n: u32,
     /// Loop time with a usable value so far, s.
     watched_s: f64,
-    /// Mean interval between distinct samples, s (NaN: unknown).
+    /// Mean interval between samples as the bus delivers them (a repeated value included),
+    /// s (NaN: unknown).
     sample_dt_s: f64,
 }
 
@@ -89,7 +90,8 @@ impl DistinctSamples {
         self.noise
     }
 
-    /// Mean interval between distinct samples, s (NaN: unknown).
+    /// Mean interval between samples as the bus delivers them, a repeated value included, s
+    /// (NaN: unknown).
     pub fn sample_dt_s(&self) -> f64 {
         self.sample_dt_s
     }
@@ -142,19 +144,27 @@ impl DistinctSamples {
             if t_s < t0 + spacing_s - 1e-9 {
                 return false;
             }
+            // the sample period is the bus's, counted from the last time the newest value was
+            // read, whether or not the value moved: a noise-free transmitter at a standstill
+            // still answers every poll, and a disturbance's first sample comes one poll after
+            // the last (counting only distinct values left the period unknown until the
+            // disturbance, and the trip's horizon one period short on its first sample)
+            let read_dt = t_s - self.seen_s[self.at];
+            if read_dt > 1e-9 {
+                // (an outage is no sample period: at most 0.1 s counts)
+                let dt_c = read_dt.min(0.1);
+                self.sample_dt_s = if self.sample_dt_s.is_finite() {
+                    self.sample_dt_s + (dt_c / NOISE_TAU_S).min(1.0) * (dt_c - self.sample_dt_s)
+                } else {
+                    dt_c
+                };
+            }
             if value == v0 {
                 // the same value at a later poll: still there then
                 self.seen_s[self.at] = self.seen_s[self.at].max(t_s);
                 return false;
             }
             let dt = t_s - t0;
-            // (an outage is no sample period: at most 0.1 s counts)
-            let dt_c = dt.min(0.1);
-            self.sample_dt_s = if self.sample_dt_s.is_finite() {
-                self.sample_dt_s + (dt_c / NOISE_TAU_S).min(1.0) * (dt_c - self.sample_dt_s)
-            } else {
-                dt_c
-            };
             if self.len > 1 {
                 let (v1, _) = self.sample(1);
                 // σ ≈ |v_k − 2 v_k−1 + v_k−2|/2 for white noise (E|·| = 1.95 σ), ≈ 0 on a ramp
@@ -278,6 +288,23 @@ mod tests {
         assert!((span - 0.025).abs() < 1e-9, "{span}");
         assert!((slope + 0.12).abs() < 1e-9, "{slope}");
         assert!((start - (1.0 - 0.1 * 0.06)).abs() < 1e-12, "{start}");
+    }
+
+    #[test]
+    fn the_sample_period_is_the_polls_even_while_the_value_stands_still() {
+        // a noise-free transmitter read at 100 Hz for a second, then its first motion
+        let mut s = DistinctSamples::new();
+        s.push(0.6, 0.0);
+        for k in 1..100 {
+            assert!(!s.push(0.6, 0.01 * f64::from(k)));
+        }
+        let dt = s.sample_dt_s();
+        assert!((dt - 0.01).abs() < 1e-9, "{dt}");
+        assert!(s.push(0.45, 1.0));
+        assert!((s.sample_dt_s() - 0.01).abs() < 1e-9);
+        // an outage is no period: a 3-s gap counts at most 0.1 s
+        s.push(0.40, 4.0);
+        assert!(s.sample_dt_s() < 0.11, "{}", s.sample_dt_s());
     }
 
     #[test]

@@ -656,4 +656,21 @@ mod tests {
         assert!(steps >= 4, "{steps}");
         assert!((last - 1.0).abs() < 1e-9 || last > 0.6, "{last}");
     }
+
+    #[test]
+    fn the_horizon_holds_the_poll_period_before_any_motion() {
+        // a noise-free skid polled at 100 Hz for 2 s (a 1-kHz loop): the margin never moves,
+        // yet what the trip does on the first sample of a disturbance lands one poll later at
+        // the earliest (without the poll period the horizon of a 0.05-s valve was 7.5 ms, and
+        // a throttle slam seen on its first poll at a quarter of its travel fired nothing:
+        // Modbus end to end at 100 Hz, 1 surge cycle in 2 of 10 runs)
+        let mut trip = RecycleTrip::new(&TripConfig::default(), 0.05);
+        for k in 0..2000u32 {
+            let t = f64::from(k) * 1e-3;
+            let t_sample = (t / 0.01).floor() * 0.01;
+            trip.update(0.5, t_sample, LINE, GAP, 0.0, 0.0, ThrottlePrediction::NONE, 1e-3);
+        }
+        let h = trip.horizon_s(0.0);
+        assert!((h - (0.15 * 0.05 + 0.01)).abs() < 1e-9, "{h}");
+    }
 }
