@@ -156,7 +156,7 @@ fn rx_and_tx_frame_paths_do_not_allocate() {
         snapshots.publish(&snapshot(kf % 50.0), k, k);
         outputs.publish(&Outputs {
             commands: commands(kf % 50.0),
-            mode: 2,
+            mode: antisurge::vocab::Mode::Auto,
             law: 1,
             faults: 0,
             cycle: k,
@@ -441,7 +441,7 @@ async fn scenario() {
                 let kv = *k.lock().expect("k");
                 outputs.publish(&Outputs {
                     commands: commands(kv),
-                    mode: 2,
+                    mode: antisurge::vocab::Mode::Auto,
                     law: 5,
                     faults: 0x0000_0104,
                     cycle,

@@ -67,6 +67,14 @@ if stats:
           f"overruns {stats['overruns']}, max RSS {stats['max_rss_kib'] / 1024:.1f} MiB")
 
 check(s["surge_cycles"] == 0 and not s["flow_reversal"], "no surge cycle, no flow reversal")
+if s["surge_cycles"] or s["flow_reversal"]:
+    # where it began, for the next look: the first reversal and the flow and commands before it
+    k = next((i for i, r in enumerate(tr) if r["m_kg_s"] < 0), None)
+    if k is not None:
+        print(f"  first flow reversal at t = {tr[k]['t_s']:.3f} s (plant clock); the 50 ms before it:")
+        for r in tr[max(0, k - 10):k + 1]:
+            print(f"    t {r['t_s']:.3f} s  flow {r['m_kg_s']:.3f} kg/s  speed {r['omega_rad_s']:.1f} rad/s  "
+                  f"torque {r['drive_torque_nm']:.1f} N m  throttle {r['throttle_position']:.3f}")
 
 # the in-process reference
 ref_dir = d / "sim"

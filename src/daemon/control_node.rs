@@ -500,7 +500,7 @@ impl ControlNode {
         }
         self.outputs.publish(&Outputs {
             commands: out.commands,
-            mode: out.mode.code(),
+            mode: out.mode,
             law: out.law.code(),
             faults: fault_bits(&out.validity, &self.core.settings().supervisor)
                 | self.core.vote().fault_set().0,
@@ -670,7 +670,7 @@ impl ControlNode {
         let cmd = self.core.safe_state();
         self.outputs.publish(&Outputs {
             commands: cmd,
-            mode: Mode::Shutdown.code(),
+            mode: Mode::Shutdown,
             law: self.core.law().code(),
             faults: 0,
             cycle,

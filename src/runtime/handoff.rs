@@ -208,8 +208,8 @@ impl SensorBoard {
 pub struct Outputs {
     /// Setpoints.
     pub commands: ActuatorCommands,
-    /// Controller mode, by its code ([`Mode::code`]).
-    pub mode: u8,
+    /// Controller mode (on the wire and in the word it travels in, by [`Mode::code`]).
+    pub mode: Mode,
     /// Active law code.
     pub law: u8,
     /// Fault bits for the heartbeat.
@@ -237,7 +237,7 @@ impl OutputBoard {
             w[i] = v.to_bits();
         }
         let n = ActuatorId::COUNT;
-        w[n] = u64::from(o.mode) | (u64::from(o.law) << 8) | (u64::from(o.faults) << 32);
+        w[n] = u64::from(o.mode.code()) | (u64::from(o.law) << 8) | (u64::from(o.faults) << 32);
         w[n + 1] = o.cycle;
         w[n + 2] = o.t_ns;
         self.lock.write(&w);
@@ -257,7 +257,7 @@ impl OutputBoard {
         }
         Some(Outputs {
             commands,
-            mode: (w[n] & 0xff) as u8,
+            mode: Mode::from_code((w[n] & 0xff) as u8).unwrap_or(Mode::FailSafe),
             law: ((w[n] >> 8) & 0xff) as u8,
             faults: (w[n] >> 32) as u32,
             cycle: w[n + 1],
@@ -509,7 +509,7 @@ mod tests {
         c.set(ActuatorId::RecycleValve, 0.42);
         let o = Outputs {
             commands: c,
-            mode: Mode::Auto.code(),
+            mode: Mode::Auto,
             law: 1,
             faults: 0xdead_beef,
             cycle: 7,
@@ -521,7 +521,7 @@ mod tests {
         assert!(r.commands.get(ActuatorId::DriveTorque).is_nan());
         assert_eq!(
             (r.mode, r.law, r.faults, r.cycle, r.t_ns),
-            (Mode::Auto.code(), 1, 0xdead_beef, 7, 99)
+            (Mode::Auto, 1, 0xdead_beef, 7, 99)
         );
     }
 

@@ -136,7 +136,7 @@ fn heartbeat_from_config_is_the_skids_16_bit_counter_on_the_wire() {
     let mut tx = HeartbeatTx::new(&codec.heartbeat).expect("tx");
     let outputs = |cycle: u64| Outputs {
         commands: Default::default(),
-        mode: 2,
+        mode: antisurge::vocab::Mode::Auto,
         law: 1,
         faults: 0x0000_0101,
         cycle,

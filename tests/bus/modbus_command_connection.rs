@@ -166,7 +166,7 @@ async fn run(connection: CommandConnection, reads: usize) -> Vec<Seen> {
         c.set(ActuatorId::RecycleValve, 0.2 + 1e-3 * (cycle % 100) as f64);
         outputs.publish(&Outputs {
             commands: c,
-            mode: 2,
+            mode: antisurge::vocab::Mode::Auto,
             law: 1,
             faults: 0,
             cycle,

@@ -133,7 +133,7 @@ fn outputs(cycle: u64, recycle: f64, throttle: f64, torque: f64) -> Outputs {
     c.set(ActuatorId::DriveTorque, torque);
     Outputs {
         commands: c,
-        mode: 2,
+        mode: antisurge::vocab::Mode::Auto,
         law: 1,
         faults: 0,
         cycle,
@@ -391,7 +391,7 @@ async fn sensors_setpoints_and_heartbeat_round_trip_at_50_hz() {
     let mut alive = Vec::new();
     for k in 0..20u64 {
         let mut o = outputs(1000 + k, 0.1 + 0.01 * k as f64, 0.5, 1500.0 + k as f64);
-        o.mode = 3;
+        o.mode = antisurge::vocab::Mode::FailSafe;
         o.law = 4;
         o.faults = 0x8001_0002;
         ctl.outputs.publish(&o);

@@ -46,7 +46,7 @@ pub fn drive(
         commands.set(ActuatorId::RecycleValve, if t < 5.0 { 0.12 } else { 0.6 });
         outputs.publish(&Outputs {
             commands,
-            mode: 2,
+            mode: antisurge::vocab::Mode::Auto,
             law: 0,
             faults: 0,
             cycle: k,

@@ -56,9 +56,6 @@ use tokio::io::unix::AsyncFd;
 use tokio::io::Interest;
 use tokio::sync::watch;
 
-/// The heartbeat's mode code of fail-safe (the heartbeat block's documented codes).
-const MODE_FAILSAFE: u8 = 3;
-
 /// Longest a link back from a failure withholds a fail-safe output set, ns: twice the core's
 /// fail-safe exit hysteresis (0.5 s), so a core that resumes is written from its resumed
 /// output and a fail-safe that lasts reaches the device.
@@ -72,6 +69,7 @@ use super::register::{find_overlaps, DataType, RegisterBinding, RegisterTable};
 use crate::io::signal_map::SignalMap;
 use crate::runtime::handoff::{monotonic_ns, OutputBoard, SensorBoard, Wakeup};
 use crate::vocab::signals::{ActuatorId, SensorId};
+use crate::vocab::Mode;
 
 /// Highest accepted `poll_rate_hz` (the tokio timer has 1 ms resolution).
 pub const MAX_POLL_RATE_HZ: f64 = 1000.0;
@@ -1209,7 +1207,7 @@ impl Controller {
         match self.resync {
             Some(Some(k))
                 if o.cycle >= k.saturating_add(2)
-                    && (o.mode != MODE_FAILSAFE
+                    && (o.mode != Mode::FailSafe
                         || monotonic_ns().saturating_sub(self.resync_read_ns)
                             >= RESYNC_FAILSAFE_NS) =>
             {
@@ -1241,7 +1239,7 @@ impl Controller {
             let n = self.actuators.len();
             self.alive = self.alive.wrapping_add(1);
             let w = HeartbeatWords {
-                mode: o.mode,
+                mode: o.mode.code(),
                 alive: self.alive,
                 law: o.law,
                 faults: o.faults,
@@ -1268,7 +1266,7 @@ impl Controller {
             let at = self.watchdog_at;
             self.watchdog_writer.values(
                 wd,
-                o.mode,
+                o.mode.code(),
                 o.law,
                 o.faults | crate::faults::field::word(),
                 !withheld,

@@ -70,7 +70,7 @@ fn commands() -> ActuatorCommands {
 fn outputs(cycle: u64) -> Outputs {
     Outputs {
         commands: commands(),
-        mode: Mode::Auto.code(),
+        mode: Mode::Auto,
         law: 3,
         faults: 0x0000_0112,
         cycle,
@@ -604,9 +604,9 @@ fn heartbeat_withheld_without_fresh_outputs() {
     let decode = |f: &CanDataFrame| c.heartbeat.decode(f.data()).expect("valid heartbeat");
     assert_eq!(decode(&first).1, Some(0));
     assert_eq!(decode(&second).1, Some(1), "counter +1 per frame sent");
-    // Unknown mode code → fail_safe on the bus.
+    // (the mode travels as a `Mode`: an unknown code cannot reach the bus)
     let mut o = outputs(3);
-    o.mode = 9;
+    o.mode = Mode::FailSafe;
     let f = hb.next_frame(Some(&o)).expect("frame");
     assert_eq!(decode(&f).0.mode, Mode::FailSafe);
 }

@@ -12,7 +12,6 @@ use crate::io::can::codec::{
 };
 use crate::io::can::heartbeat::{Heartbeat, HeartbeatCodec};
 use crate::runtime::handoff::Outputs;
-use crate::vocab::Mode;
 
 /// How early a message may go before its slot on the DBC schedule, ns: half a 1 kHz wakeup
 /// period (capped at half the message's own period).
@@ -361,7 +360,7 @@ impl HeartbeatTx {
         }
         self.last_cycle = Some(o.cycle);
         let hb = Heartbeat {
-            mode: Mode::from_code(o.mode).unwrap_or(Mode::FailSafe),
+            mode: o.mode,
             active_law: o.law,
             // input faults of the control thread and the field faults of the I/O tasks
             faults: o.faults | crate::faults::field::word(),
