@@ -80,6 +80,14 @@ impl DistinctSamples {
         self.len
     }
 
+    /// Measurement time from the oldest sample held to the newest, s (0 with fewer than two).
+    pub fn span_s(&self) -> f64 {
+        if self.len < 2 {
+            return 0.0;
+        }
+        self.sample(0).1 - self.sample(self.len - 1).1
+    }
+
     /// Whether no sample is held.
     pub fn is_empty(&self) -> bool {
         self.len == 0

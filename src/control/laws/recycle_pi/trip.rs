@@ -390,6 +390,19 @@ impl RecycleTrip {
         if trend.is_finite() && armed {
             predicted = predicted.min(m0 + horizon * (trend + k * noise * per_sigma).min(0.0));
         }
+        // and the drift, fitted over the hold time (one period of the slowest surge): an
+        // approach slow against the lead time but steady, which the noise allowance of both
+        // shorter fits hides (campaign case 117: a large suction volume kept the point
+        // falling at 0.27/s of margin for 0.6 s after the closing stopped, under 1.6 % Δp
+        // noise; the lead-time fit's allowance was ≈ 0.9/s, the drift's ≈ 0.015/s, and the
+        // trip fired only at the level, 0.7 % right of the surge line)
+        // (once its samples span the hold time, less one spacing: before that a fit of a few
+        // samples is no drift, and one outlier among them made one)
+        let (drift, per_sigma) = self.drift.fitted_slope(self.hold_s);
+        let spans = self.drift.span_s() >= self.hold_s * (1.0 - 1.0 / TREND_SAMPLES as f64);
+        if drift.is_finite() && armed && spans {
+            predicted = predicted.min(m0 + horizon * (drift + k * noise * per_sigma).min(0.0));
+        }
         // the throttle's prediction: the compressor flow falls with the flow the throttle
         // passes, q (1 + m) → q (1 + m) · ratio, from the margin the point has now
         let by_throttle = if throttle_ratio.is_finite() && throttle_ratio < 1.0 {
@@ -672,5 +685,36 @@ mod tests {
         }
         let h = trip.horizon_s(0.0);
         assert!((h - (0.15 * 0.05 + 0.01)).abs() < 1e-9, "{h}");
+    }
+
+    #[test]
+    fn a_slow_steady_approach_under_noise_trips_before_the_line() {
+        // a large suction volume's drift (campaign case 117): at 50 Hz the margin falling at
+        // 0.1/s from 0.20 under ±1.7 % noise (σ ≈ 1 %), a 0.68-s valve (lead 0.1 s). The
+        // short window's and the lead-time fit's noise allowances hide the approach, and the
+        // level fires only 3σ past the trip line (at a true margin of 0.034); the drift over
+        // the hold time predicts it one horizon earlier
+        for seed in 1..=5u64 {
+            let mut trip = RecycleTrip::new(&TripConfig::default(), 0.68);
+            let dt = 0.02;
+            let truth = |t: f64| 0.20 - 0.1 * (t - 4.0).max(0.0);
+            let mut first = None;
+            for k in 0..500u32 {
+                let t = f64::from(k) * dt;
+                let m = truth(t) + 0.017 * noise(seed, t);
+                let (_, f) = trip.update(m, t, LINE, GAP, 0.1, 0.0, ThrottlePrediction::NONE, dt);
+                if let (Some(kind), None) = (f, first) {
+                    first = Some((t, kind));
+                }
+            }
+            let (t, kind) = first.expect("the trip fires");
+            assert!(t > 4.0, "seed {seed}: fired at {t} s on noise");
+            assert_eq!(kind, TripKind::Predicted, "seed {seed} at {t} s");
+            assert!(
+                truth(t) >= 0.037,
+                "seed {seed}: fired at {t} s, the margin {:.3}",
+                truth(t)
+            );
+        }
     }
 }
