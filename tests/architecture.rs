@@ -125,9 +125,9 @@ const LIVE_TO_DAEMON: &[(&str, &str)] = &[
     ("src/live/tls.rs", "crate::daemon::config::tls::TlsSection"),
 ];
 
-/// Known arrows from `io/` into `control/` (2026-11-29): the signal map builds the control
-/// core's vote settings (to fix: the vote settings as vocabulary, or built by the daemon).
-const IO_TO_CONTROL: &[(&str, &str)] = &[("src/io/signal_map.rs", "crate::control::vote::")];
+/// Known arrows from `io/` into `control/`: none (the signal map's vote settings are
+/// vocabulary since 2026-11-29, `vocab/vote.rs`).
+const IO_TO_CONTROL: &[(&str, &str)] = &[];
 
 /// Known pairs of folders that reach each other (2026-11-29), with the arrow that closes the
 /// circle:

@@ -60,7 +60,7 @@ pub struct SignalMap {
     pub feedback: BTreeMap<ActuatorId, super::feedback::FeedbackLimit>,
     /// Redundant transmitters: per measurement, the second (`b`) and third (`c`) binding
     /// that vote with its `[sensors]` binding (`a`), and the vote's settings
-    /// ([`crate::control::vote`]).
+    /// (the control core's vote, its settings in [`crate::vocab::vote`]).
     #[serde(default)]
     pub vote: BTreeMap<SensorId, VoteBinding>,
 }
@@ -76,15 +76,15 @@ pub struct VoteBinding {
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub c: Option<Binding>,
     /// Deviation alarm threshold, % of the voted value (default
-    /// [`DEFAULT_DEVIATION_PCT`](crate::control::vote::DEFAULT_DEVIATION_PCT)).
+    /// [`DEFAULT_DEVIATION_PCT`](crate::vocab::vote::DEFAULT_DEVIATION_PCT)).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub deviation_pct: Option<f64>,
     /// How long a transmitter must stay beyond the threshold before the alarm, s (default
-    /// [`DEFAULT_DEVIATION_S`](crate::control::vote::DEFAULT_DEVIATION_S)).
+    /// [`DEFAULT_DEVIATION_S`](crate::vocab::vote::DEFAULT_DEVIATION_S)).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub deviation_s: Option<f64>,
     /// Control-line shift while the vote is degraded, % of the control-line flow (default
-    /// [`DEFAULT_DEGRADED_MARGIN_PCT`](crate::control::vote::DEFAULT_DEGRADED_MARGIN_PCT)).
+    /// [`DEFAULT_DEGRADED_MARGIN_PCT`](crate::vocab::vote::DEFAULT_DEGRADED_MARGIN_PCT)).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub degraded_margin_pct: Option<f64>,
 }
@@ -96,8 +96,8 @@ impl VoteBinding {
     }
 
     /// The vote's settings in the core's units.
-    pub fn limits(&self) -> crate::control::vote::VoteLimits {
-        use crate::control::vote::VoteLimits;
+    pub fn limits(&self) -> crate::vocab::vote::VoteLimits {
+        use crate::vocab::vote::VoteLimits;
         let d = VoteLimits::defaults(if self.c.is_some() { 3 } else { 2 });
         VoteLimits {
             transmitters: d.transmitters,
@@ -202,11 +202,10 @@ impl SignalMap {
 
     /// The core's vote settings from `[vote]` (a vote whose measurement `[sensors]` does
     /// not bind is refused by [`check`](Self::check)).
-    pub fn vote_settings(&self) -> crate::control::vote::VoteSettings {
-        let mut s = crate::control::vote::VoteSettings::default();
+    pub fn vote_settings(&self) -> crate::vocab::vote::VoteSettings {
+        let mut s = crate::vocab::vote::VoteSettings::default();
         for (id, v) in &self.vote {
-            if self.sensors.contains_key(id)
-                && crate::control::vote::Conservative::of(*id).is_some()
+            if self.sensors.contains_key(id) && crate::vocab::vote::Conservative::of(*id).is_some()
             {
                 s.per_sensor[id.index()] = Some(v.limits());
             }
@@ -244,7 +243,7 @@ impl SignalMap {
             for (slot, spare) in self.vote.get(id).into_iter().flat_map(VoteBinding::spares) {
                 out.push(InputLink {
                     input: *id,
-                    transmitter: crate::control::vote::TRANSMITTER_NAMES[slot].into(),
+                    transmitter: crate::vocab::vote::TRANSMITTER_NAMES[slot].into(),
                     link: Some(link(spare)),
                 });
             }
@@ -318,7 +317,7 @@ impl SignalMap {
         }
         for (id, v) in &self.vote {
             let key = format!("vote.{}", id.name());
-            if crate::control::vote::Conservative::of(*id).is_none() {
+            if crate::vocab::vote::Conservative::of(*id).is_none() {
                 problems.push(MapProblem {
                     key: key.clone(),
                     message: format!(
@@ -373,7 +372,7 @@ impl SignalMap {
                 }
             }
             for (slot, b) in v.spares() {
-                let name = crate::control::vote::TRANSMITTER_NAMES[slot];
+                let name = crate::vocab::vote::TRANSMITTER_NAMES[slot];
                 match b {
                     Binding::Modbus(r) => {
                         let k = format!("{key}.{name}.modbus");

@@ -5,5 +5,6 @@
 pub mod faults;
 pub mod mode;
 pub mod signals;
+pub mod vote;
 
 pub use mode::Mode;
