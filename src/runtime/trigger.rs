@@ -338,6 +338,38 @@ mod tests {
         by_input: bool,
     }
 
+    /// Run the loop of period `period_ns` on `trigger` until `done`; every cycle's tick and
+    /// whether it ran on a fire (from the `by_input` count, taken on the next cycle and, for
+    /// the last, from the totals).
+    fn record(
+        period_ns: u64,
+        trigger: &CycleTrigger,
+        stats: &CycleStats,
+        done: &AtomicBool,
+        capacity: usize,
+    ) -> Vec<Seen> {
+        let stop = AtomicBool::new(false);
+        let mut seen: Vec<Seen> = Vec::with_capacity(capacity);
+        let mut inputs_before = 0;
+        run_triggered(period_ns, trigger, &stop, stats, |tick| {
+            let inputs = stats.by_input.load(Ordering::Relaxed);
+            if let Some(prev) = seen.last_mut() {
+                prev.by_input = inputs > inputs_before;
+            }
+            inputs_before = inputs;
+            seen.push(Seen {
+                tick,
+                by_input: false,
+            });
+            !done.load(Ordering::Relaxed)
+        });
+        let total_inputs = stats.by_input.load(Ordering::Relaxed);
+        if let Some(last) = seen.last_mut() {
+            last.by_input = total_inputs > inputs_before;
+        }
+        seen
+    }
+
     /// The sender's phases, monotonic ns: fires every `P` (offset from our start), then
     /// silence, then a flood of fires every `P/20`.
     #[test]
@@ -346,7 +378,6 @@ mod tests {
         let trigger = Arc::new(CycleTrigger::new());
         trigger.arm(0b11);
         let stats = CycleStats::default();
-        let stop = AtomicBool::new(false);
         let phases = Arc::new([AtomicU64::new(0), AtomicU64::new(0), AtomicU64::new(0)]);
         let done = Arc::new(AtomicBool::new(false));
         let stamps = Arc::new(std::sync::Mutex::new(Vec::with_capacity(200)));
@@ -381,26 +412,8 @@ mod tests {
             }
             d.store(true, Ordering::Relaxed);
         });
-        let mut seen: Vec<Seen> = Vec::with_capacity(1000);
-        let mut inputs_before = 0;
-        run_triggered(P, &trigger, &stop, &stats, |tick| {
-            let inputs = stats.by_input.load(Ordering::Relaxed);
-            if let Some(prev) = seen.last_mut() {
-                prev.by_input = inputs > inputs_before;
-            }
-            inputs_before = inputs;
-            seen.push(Seen {
-                tick,
-                by_input: false,
-            });
-            !done.load(Ordering::Relaxed)
-        });
+        let seen = record(P, &trigger, &stats, &done, 1000);
         sender.join().expect("sender");
-        // the last cycle's flag from the totals
-        let total_inputs = stats.by_input.load(Ordering::Relaxed);
-        if let Some(last) = seen.last_mut() {
-            last.by_input = total_inputs > inputs_before;
-        }
         let [p1, p2, p3] = [0, 1, 2].map(|i| phases[i].load(Ordering::Relaxed));
         let within = |a: u64, b: u64| -> Vec<Seen> {
             seen.iter()
@@ -496,7 +509,6 @@ mod tests {
         let trigger = Arc::new(CycleTrigger::new());
         trigger.arm(0b1);
         let stats = CycleStats::default();
-        let stop = AtomicBool::new(false);
         let done = Arc::new(AtomicBool::new(false));
         let stamps = Arc::new(std::sync::Mutex::new(Vec::with_capacity(40)));
         let (t, d, st) = (Arc::clone(&trigger), Arc::clone(&done), Arc::clone(&stamps));
@@ -513,20 +525,7 @@ mod tests {
             }
             d.store(true, Ordering::Relaxed);
         });
-        let mut seen: Vec<Seen> = Vec::with_capacity(200);
-        let mut inputs_before = 0;
-        run_triggered(P, &trigger, &stop, &stats, |tick| {
-            let inputs = stats.by_input.load(Ordering::Relaxed);
-            if let Some(prev) = seen.last_mut() {
-                prev.by_input = inputs > inputs_before;
-            }
-            inputs_before = inputs;
-            seen.push(Seen {
-                tick,
-                by_input: false,
-            });
-            !done.load(Ordering::Relaxed)
-        });
+        let seen = record(P, &trigger, &stats, &done, 200);
         sender.join().expect("sender");
         let stamps = stamps.lock().expect("stamps");
         // each fire that follows a deadline cycle closer than P/2 is scheduled at its own
