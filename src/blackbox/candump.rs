@@ -17,7 +17,7 @@
 //! `CAN_ERR_FLAG` 0x20000000) are counted and skipped, as the bus task skips them.
 
 use super::{CycleRecord, Header, Recording};
-use crate::control::measurements::{OperatorInputs, RawSensors};
+use crate::control::measurements::OperatorInputs;
 use crate::io::can::bus::{BusCodec, CanCounters, CanCountersSnapshot, RxHandler};
 use crate::io::can::dbc::FrameId;
 use crate::runtime::handoff::{CommandBoard, HeartbeatBoard, SensorBoard};
@@ -313,7 +313,7 @@ pub fn import(
             }
             next += 1;
         }
-        let (values, age_s) = sensors.snapshot(wake_ns);
+        let raw = sensors.raw(wake_ns);
         let mut cmd = ActuatorCommands::default();
         for id in ActuatorId::ALL {
             cmd.set(id, commands.get(id).0);
@@ -324,11 +324,7 @@ pub fn import(
             deadline_ns: wake_ns,
             wake_ns,
             t_s: (k * period) as f64 * 1e-9,
-            raw: RawSensors {
-                values,
-                age_s,
-                spare: sensors.spares(wake_ns),
-            },
+            raw,
             op,
             commands: cmd,
             mode: hb.map_or(crate::vocab::Mode::Init, |h| h.mode),

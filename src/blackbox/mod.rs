@@ -37,8 +37,8 @@ use std::sync::Arc;
 /// rate ([`history_capacity`]).
 pub const HISTORY_S: f64 = 10.0;
 /// Records the recorder keeps at the default 1 kHz ([`HISTORY_S`] of cycles). In memory a
-/// record takes 312 bytes, plus 160 for the spare transmitters' readings and votes once a
-/// cycle has any (3.1 MB, or 4.7 MB with redundant transmitters).
+/// record takes 320 bytes, plus 160 for the spare transmitters' readings and votes once a
+/// cycle has any (3.2 MB, or 4.8 MB with redundant transmitters).
 pub const DEFAULT_CAPACITY: usize = 10_000;
 /// Cycles recorded after a trigger before the file is written.
 pub const POST_TRIGGER_CYCLES: u64 = 2_000;
@@ -231,6 +231,8 @@ struct Kept {
     t_s: f64,
     values: SensorSnapshot,
     age_s: [f64; SensorId::COUNT],
+    /// The cycle inputs' sender clock ([`RawSensors::sender_clock_s`]), s.
+    sender_clock_s: f64,
     op: OperatorInputs,
     commands: ActuatorCommands,
     mode: Mode,
@@ -294,6 +296,7 @@ impl Kept {
             t_s: r.t_s,
             values: r.raw.values,
             age_s: r.raw.age_s,
+            sender_clock_s: r.raw.sender_clock_s(),
             op: r.op,
             commands: r.commands,
             mode: r.mode,
@@ -325,6 +328,7 @@ impl Kept {
                 values: self.values,
                 age_s: self.age_s,
                 spare,
+                sample_clock_s: cycle_clocks(self.sender_clock_s),
             },
             op: self.op,
             commands: self.commands,
@@ -344,7 +348,7 @@ impl Kept {
 
 /// Fixed-size ring of records (oldest overwritten). The spare transmitters' part is a parallel
 /// ring allocated (on the recorder thread) by the first record that has any: a controller
-/// without redundant transmitters keeps 312 bytes a cycle instead of 472.
+/// without redundant transmitters keeps 320 bytes a cycle instead of 480.
 struct Ring {
     buf: Vec<Kept>,
     spares: Option<Vec<Spares>>,
@@ -475,6 +479,17 @@ fn recorder_loop(
     }
 }
 
+/// The sender clocks of a record read back: the cycle's ([`RawSensors::sender_clock_s`]) on
+/// each cycle input, which is all the core reads of them, so a replay integrates over the
+/// same intervals as the live cycle did.
+fn cycle_clocks(sender_clock_s: f64) -> [f64; SensorId::COUNT] {
+    let mut c = [f64::NAN; SensorId::COUNT];
+    for id in crate::vocab::signals::CYCLE_INPUTS {
+        c[id.index()] = sender_clock_s;
+    }
+    c
+}
+
 /// CSV columns of a record (after the header line).
 pub fn columns() -> Vec<String> {
     let mut c: Vec<String> = ["cycle", "deadline_ns", "wake_ns", "t_s"]
@@ -487,6 +502,7 @@ pub fn columns() -> Vec<String> {
     for id in SensorId::ALL {
         c.push(format!("age_s_{}", id.name()));
     }
+    c.push("sender_clock_s".into());
     // redundant transmitters b and c of the measurements that can take a vote, and the vote
     for id in crate::control::vote::VOTABLE {
         for t in ["b", "c"] {
@@ -530,6 +546,7 @@ fn write_row(w: &mut impl Write, r: &CycleRecord) -> std::io::Result<()> {
     for v in r.raw.age_s {
         write!(w, ",{v}")?;
     }
+    write!(w, ",{}", r.raw.sender_clock_s())?;
     for (k, id) in crate::control::vote::VOTABLE.into_iter().enumerate() {
         for slot in 1..=2 {
             let (v, age) = r.raw.spare.get(id, slot);
@@ -669,6 +686,7 @@ fn parse_row(line: &str, n_cols: usize) -> Result<CycleRecord, String> {
     for v in age_s.iter_mut() {
         *v = x(next())?;
     }
+    let sample_clock_s = cycle_clocks(x(next())?);
     let mut spare = crate::control::measurements::SpareReadings::NONE;
     let mut voted = [f64::NAN; crate::control::vote::VOTABLE.len()];
     for (k, id) in crate::control::vote::VOTABLE.into_iter().enumerate() {
@@ -699,6 +717,7 @@ fn parse_row(line: &str, n_cols: usize) -> Result<CycleRecord, String> {
             values,
             age_s,
             spare,
+            sample_clock_s,
         },
         op,
         commands,
@@ -863,7 +882,7 @@ mod tests {
     #[test]
     fn the_ring_keeps_the_documented_bytes_a_cycle() {
         // HISTORY_S and DEFAULT_CAPACITY's documentation (and the memory figures in docs/benchmarks.md)
-        assert_eq!(std::mem::size_of::<Kept>(), 312);
+        assert_eq!(std::mem::size_of::<Kept>(), 320);
         assert_eq!(std::mem::size_of::<Spares>(), 160);
     }
 

@@ -267,6 +267,8 @@ pub struct ControlCore {
     history: LoopHistory,
     /// Arrival time of the newest pressure/speed sample processed, s (NaN: none yet).
     last_sample_s: f64,
+    /// The same sample on its senders' clocks ([`RawSensors::sender_clock_s`]), s (NaN: none).
+    last_sender_s: f64,
     /// Measurements of the last processed sample (repeated by a holding cycle).
     last_meas: Measurements,
     law_started: bool,
@@ -337,6 +339,7 @@ impl ControlCore {
             first_t_s: f64::NAN,
             history: LoopHistory::EMPTY,
             last_sample_s: f64::NAN,
+            last_sender_s: f64::NAN,
             last_meas: Measurements::unavailable(f64::NAN),
             law_started: false,
             failing_since_s: f64::NAN,
@@ -908,25 +911,32 @@ impl ControlCore {
         // clocks; without this a late sample would be processed twice, which a law on a fast
         // unstable mode does not survive.) Freshness is still supervised: a sample that stops
         // coming goes stale and the core fails safe as before.
-        let essentials = [
-            SensorId::PSuction,
-            SensorId::PDischarge,
-            SensorId::ShaftSpeed,
-        ];
+        let essentials = crate::vocab::signals::CYCLE_INPUTS;
         let newest_sample_s = essentials
             .iter()
             .map(|s| t_s - raw.age_s[s.index()])
             .filter(|a| a.is_finite())
             .fold(f64::NEG_INFINITY, f64::max);
+        // The time the plant let pass since the last processed sample: on the senders' clocks
+        // where they have them (RawSensors::sample_clock_s), else between this cycle and the
+        // last. A controller woken 3.4 ms after a sample taken 1 ms after the last one
+        // integrated its observer over 3.4 ms, and the drive-torque law threw the plant into
+        // surge (HIL `timing`, CI 2026-11-29). A clock that went back (its link reset) is not
+        // used for that one cycle.
+        let sender_s = raw.sender_clock_s();
+        let sender_dt = sender_s - self.last_sender_s;
         if essentials_ok
             && matches!(self.mode, Mode::Auto | Mode::Manual)
-            && newest_sample_s <= self.last_sample_s + SAME_SAMPLE_S
+            && (newest_sample_s <= self.last_sample_s + SAME_SAMPLE_S || sender_dt == 0.0)
         {
             self.history.push(self.last.get(ActuatorId::DriveTorque));
             return self.passive_output(self.last, self.last_meas, validity);
         }
         self.last_sample_s = newest_sample_s;
-        let dt = if self.last_t_s.is_finite() {
+        self.last_sender_s = sender_s;
+        let dt = if sender_dt > 0.0 {
+            sender_dt
+        } else if self.last_t_s.is_finite() {
             (t_s - self.last_t_s).max(0.0)
         } else {
             0.0
@@ -1147,6 +1157,7 @@ impl ControlCore {
 #[cfg(test)]
 mod tests {
     use super::*;
+
     use crate::scenario::Scenario;
     use crate::sim::case::PlantCase;
     use crate::sim::PlantRun;

@@ -1,7 +1,7 @@
 //! Inputs of one control cycle: raw sensor readings with their age, operator inputs, and the
 //! validated, derived measurements the laws see.
 
-use crate::vocab::signals::{SensorId, SensorSnapshot};
+use crate::vocab::signals::{SensorId, SensorSnapshot, CYCLE_INPUTS};
 
 /// Sensor readings as they arrived, with the age of each (time since it was last updated).
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -14,6 +14,14 @@ pub struct RawSensors {
     /// Transmitters `b` and `c` of measurements with redundant transmitters (the signal
     /// map's `[vote.<sensor>]`), voted with `a` by [`crate::control::vote`].
     pub spare: SpareReadings,
+    /// When each value was sampled, on its sender's own clock, s (any origin, one per
+    /// sensor): the difference of two readings is the time the sender let pass between the
+    /// two samples (CAN: alive-counter steps × the message's DBC cycle time). NaN where the
+    /// source has no clock of its own (Modbus answers, the simulator's direct path): the
+    /// core then takes the time between its cycles. The core integrates its observers and
+    /// filters over this interval, not over its own wake-ups: a controller woken late, or
+    /// a frame batch handed over at once, must not stretch or shrink the plant's time.
+    pub sample_clock_s: [f64; SensorId::COUNT],
 }
 
 /// Readings of the redundant transmitters `b` and `c` of each sensor (NaN and ∞ age where
@@ -62,12 +70,32 @@ impl Default for SpareReadings {
 }
 
 impl RawSensors {
+    /// The newest sample of the [`CYCLE_INPUTS`] on their senders' clocks
+    /// ([`sample_clock_s`](Self::sample_clock_s)), s: NaN unless every one of them that has
+    /// arrived (finite age) has such a clock, so that a cycle never mixes a sender's time with
+    /// its own. What the core integrates over, and what the black box keeps of the clocks.
+    pub fn sender_clock_s(&self) -> f64 {
+        let mut newest = f64::NAN;
+        for s in CYCLE_INPUTS {
+            if !self.age_s[s.index()].is_finite() {
+                continue;
+            }
+            let c = self.sample_clock_s[s.index()];
+            if !c.is_finite() {
+                return f64::NAN;
+            }
+            newest = if newest.is_nan() { c } else { newest.max(c) };
+        }
+        newest
+    }
+
     /// No readings at all (every value NaN, never received).
     pub fn missing() -> Self {
         RawSensors {
             values: SensorSnapshot::default(),
             age_s: [f64::INFINITY; SensorId::COUNT],
             spare: SpareReadings::NONE,
+            sample_clock_s: [f64::NAN; SensorId::COUNT],
         }
     }
 
@@ -77,6 +105,7 @@ impl RawSensors {
             values,
             age_s: [0.0; SensorId::COUNT],
             spare: SpareReadings::NONE,
+            sample_clock_s: [f64::NAN; SensorId::COUNT],
         }
     }
 
@@ -86,6 +115,7 @@ impl RawSensors {
             values,
             age_s,
             spare: SpareReadings::NONE,
+            sample_clock_s: [f64::NAN; SensorId::COUNT],
         }
     }
 
@@ -173,5 +203,31 @@ impl Measurements {
             dp_discharge_dt_pa_s: n,
             flow_fallback: false,
         }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn the_sender_clock_counts_only_when_every_arrived_essential_has_one() {
+        let mut raw = RawSensors::fresh(Default::default());
+        assert!(raw.sender_clock_s().is_nan(), "no clocks: the cycle's time");
+        raw.sample_clock_s[SensorId::PSuction.index()] = 2.0;
+        raw.sample_clock_s[SensorId::PDischarge.index()] = 2.001;
+        assert!(
+            raw.sender_clock_s().is_nan(),
+            "the speed arrived without a clock: never a mix of clocks"
+        );
+        raw.age_s[SensorId::ShaftSpeed.index()] = f64::INFINITY;
+        assert_eq!(
+            raw.sender_clock_s(),
+            2.001,
+            "an unbound speed does not count"
+        );
+        raw.age_s[SensorId::ShaftSpeed.index()] = 0.0;
+        raw.sample_clock_s[SensorId::ShaftSpeed.index()] = 1.5;
+        assert_eq!(raw.sender_clock_s(), 2.001, "the newest sample");
     }
 }

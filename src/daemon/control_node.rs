@@ -438,12 +438,8 @@ impl ControlNode {
         self.apply_updates();
         self.apply_operator_commands();
         let now = tick.wake_ns;
-        let (values, age_s) = self.sensors.snapshot(now);
-        let raw = RawSensors {
-            values,
-            age_s,
-            spare: self.sensors.spares(now),
-        };
+        let raw = self.sensors.raw(now);
+        let age_s = raw.age_s;
         let oldest = [
             SensorId::PSuction,
             SensorId::PDischarge,

@@ -184,10 +184,13 @@ impl<'a> PlantNode<'a> {
                 wake.signal();
             }
             SensorSink::InProcess(board) => {
+                // sampled at the plant's own step time: a step the host delayed still comes
+                // one scenario period after the last (RawSensors::sample_clock_s)
+                let sample_ns = (self.k as f64 * self.run.dt_s() * 1e9).round() as u64;
                 for id in SensorId::ALL {
                     // a stale (frozen) transmitter stops updating: its arrival time stays old
                     if raw.age_s[id.index()] == 0.0 {
-                        board.publish(id, raw.values.get(id), now_ns);
+                        board.publish_sampled(id, raw.values.get(id), now_ns, sample_ns);
                     }
                 }
             }

@@ -85,14 +85,9 @@ pub async fn sample_live(sensors: &SensorBoard, period_s: f64) -> Vec<Sample> {
     for _ in 0..n {
         tick.tick().await;
         let now = monotonic_ns();
-        let (values, age_s) = sensors.snapshot(now);
         out.push(Sample {
             t_s: now.saturating_sub(t0) as f64 * 1e-9,
-            raw: RawSensors {
-                values,
-                age_s,
-                spare: sensors.spares(now),
-            },
+            raw: sensors.raw(now),
         });
     }
     out

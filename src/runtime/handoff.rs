@@ -13,6 +13,7 @@
 //! - [`Wakeup`]: an eventfd the control thread signals after publishing, so a sending task
 //!   wakes without polling.
 
+use crate::control::measurements::RawSensors;
 use crate::vocab::signals::{ActuatorCommands, ActuatorId, SensorId, SensorSnapshot};
 use crate::vocab::Mode;
 use std::sync::atomic::{fence, AtomicU64, Ordering};
@@ -131,30 +132,64 @@ pub fn monotonic_ns() -> u64 {
     ts.tv_sec as u64 * 1_000_000_000 + ts.tv_nsec as u64
 }
 
-/// Latest value of every sensor with its arrival time.
+/// Latest value of every sensor with its arrival time and, where the source has one, the
+/// sample's time on its sender's clock ([`RawSensors::sample_clock_s`]).
 #[derive(Debug, Default)]
 pub struct SensorBoard {
-    slots: [SeqLock<2>; SensorId::COUNT],
+    /// Per sensor: value bits, arrival (monotonic ns), sender clock (ns, [`NO_SAMPLE_CLOCK`]).
+    slots: [SeqLock<3>; SensorId::COUNT],
     /// Redundant transmitters `b` and `c` of each sensor (the signal map's `[vote]`).
     spares: [[SeqLock<2>; 2]; SensorId::COUNT],
 }
 
+/// The sender-clock word of a reading whose source has no clock of its own.
+pub const NO_SAMPLE_CLOCK: u64 = u64::MAX;
+
 impl SensorBoard {
-    /// Publish a reading that arrived at `t_ns` (monotonic). One writer per sensor.
+    /// Publish a reading that arrived at `t_ns` (monotonic), from a source without a clock of
+    /// its own (Modbus answers). One writer per sensor.
     #[inline]
     pub fn publish(&self, id: SensorId, value: f64, t_ns: u64) {
-        self.slots[id.index()].write(&[value.to_bits(), t_ns]);
+        self.publish_sampled(id, value, t_ns, NO_SAMPLE_CLOCK);
+    }
+
+    /// Publish a reading that arrived at `t_ns` (monotonic) and was sampled at `sample_ns` on
+    /// its sender's clock (any origin; [`NO_SAMPLE_CLOCK`]: none). One writer per sensor.
+    #[inline]
+    pub fn publish_sampled(&self, id: SensorId, value: f64, t_ns: u64, sample_ns: u64) {
+        self.slots[id.index()].write(&[value.to_bits(), t_ns, sample_ns]);
     }
 
     /// Value and arrival time of one sensor (NaN and 0 if never received).
     #[inline]
     pub fn get(&self, id: SensorId) -> (f64, u64) {
-        let ([v, t], seq) = self.slots[id.index()].read();
+        let ([v, t, _], seq) = self.slots[id.index()].read();
         if seq == 0 {
             (f64::NAN, 0)
         } else {
             (f64::from_bits(v), t)
         }
+    }
+
+    /// Every input of a control cycle at `now_ns`: values, ages, the redundant transmitters
+    /// and the sender clocks. Allocation-free; the one way from the board to the core.
+    pub fn raw(&self, now_ns: u64) -> RawSensors {
+        let mut raw = RawSensors::missing();
+        for id in SensorId::ALL {
+            let ([v, t, c], seq) = self.slots[id.index()].read();
+            if seq == 0 {
+                continue;
+            }
+            raw.values.set(id, f64::from_bits(v));
+            if t > 0 {
+                raw.age_s[id.index()] = now_ns.saturating_sub(t) as f64 * 1e-9;
+            }
+            if c != NO_SAMPLE_CLOCK {
+                raw.sample_clock_s[id.index()] = c as f64 * 1e-9;
+            }
+        }
+        raw.spare = self.spares(now_ns);
+        raw
     }
 
     /// Publish a reading of transmitter `slot` (1 = `b`, 2 = `c`) of `id`; slot 0 is

@@ -35,6 +35,14 @@ pub enum SensorId {
     EsdInput,
 }
 
+/// The inputs every control cycle needs: suction and discharge pressure, shaft speed (the
+/// speed only where it is bound). A cycle runs on a new sample of these.
+pub const CYCLE_INPUTS: [SensorId; 3] = [
+    SensorId::PSuction,
+    SensorId::PDischarge,
+    SensorId::ShaftSpeed,
+];
+
 impl SensorId {
     /// Every sensor, in a fixed order (used for arrays indexed by sensor).
     pub const ALL: [SensorId; 10] = [

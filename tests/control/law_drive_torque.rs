@@ -394,3 +394,79 @@ fn loop_delay_needs_the_predictor_and_the_predictor_covers_it() {
         matched.summary.actuator_peaks
     );
 }
+
+/// The HIL closure (the command acts from the plant's next step; 0.5 ms of delay
+/// compensation, `hil/configs/can_drive_torque.toml`), with the plant paused once, at
+/// `pause_at_s`, for `pause_s` by its host while the controller's clock goes on: the sample after
+/// the pause is one scenario period after the one before, and the controller runs
+/// `pause_s` later. `sender_clock`: the samples carry the plant's step time as their sender
+/// clock, as the CAN receive side rebuilds it from the alive counter and the in-process plant
+/// publishes it (`RawSensors::sample_clock_s`).
+fn closure_with_a_host_pause(pause_at_s: f64, pause_s: f64, sender_clock: bool) -> SimResult {
+    use antisurge::control::core::{ControlCore, CoreSettings};
+    use antisurge::sim::{operator_inputs, ControllerView, PlantRun};
+    use antisurge::vocab::signals::ActuatorCommands;
+    let mut case = bohagen();
+    case.controller.drive_torque.delay_compensation_ms = 0.5;
+    let scenario = common::scenario("throttle_closure");
+    let model = antisurge::sim::control_model(&case);
+    let mut pr = PlantRun::new(&case, &scenario).expect("plant");
+    let nominal = model.drive.nominal_speed_rad_s;
+    let t0 = pr.plant().truth().load_torque_nm;
+    let settings = CoreSettings::defaults_for(&model);
+    let config = model.controller.clone();
+    let mut core = ControlCore::new(model, config, settings, LawId::DriveTorque, t0).expect("core");
+    let dt = pr.dt_s();
+    let n = pr.n_steps();
+    let mut applied = ActuatorCommands::default();
+    for k in 0..=n {
+        let t = k as f64 * dt;
+        let (st, mut raw) = pr.sense(t);
+        if sender_clock {
+            raw.sample_clock_s = [t; antisurge::vocab::signals::SensorId::COUNT];
+        }
+        // the controller's clock: the plant's, plus the pause once it happened
+        let t_controller = if t >= pause_at_s { t + pause_s } else { t };
+        let out = core.cycle(t_controller, &raw, &operator_inputs(&st, nominal));
+        pr.record(k, t, dt, &raw, &out.commands, &ControllerView::of(&out));
+        if k == n {
+            break;
+        }
+        pr.advance(&st, &applied, dt);
+        applied = out.commands;
+    }
+    pr.finish("drive-torque")
+}
+
+#[test]
+fn a_plant_paused_by_its_host_is_controlled_on_the_senders_clock() {
+    // CI, 2026-11-29, HIL `timing`: the emulated machine stood still for 3.4 ms (plant and
+    // controller alike); the controller's next cycle came 3.4 ms after the last, its sample
+    // one plant step (1 ms) after the last. Integrated over its own 3.4 ms the observer's
+    // estimate jumped by K_z·ṗ·2.4 ms ≈ 0.05 kg/s, K2 = 63 000 N·m per kg/s saturated the
+    // torque, and the plant surged 54 times (min flow −3.535 kg/s).
+    let surged = |r: &SimResult| r.summary.surge_cycles > 0 || r.summary.flow_reversal;
+    let ideal = closure_with_a_host_pause(f64::INFINITY, 0.0, true);
+    assert!(!surged(&ideal), "{:?}", ideal.summary);
+    for pause_s in [1e-3, 3.4e-3, 10e-3] {
+        let on_arrivals = closure_with_a_host_pause(6.47, pause_s, false);
+        assert!(
+            surged(&on_arrivals),
+            "{pause_s} s on the controller's own clock: {:?}",
+            on_arrivals.summary
+        );
+        let r = closure_with_a_host_pause(6.47, pause_s, true);
+        assert!(
+            !surged(&r),
+            "{pause_s} s on the sender's clock: {:?}",
+            r.summary
+        );
+        assert!(
+            (r.summary.min_flow_kg_s - ideal.summary.min_flow_kg_s).abs()
+                < 1e-3 * ideal.summary.min_flow_kg_s,
+            "{pause_s} s: min flow {} vs {}",
+            r.summary.min_flow_kg_s,
+            ideal.summary.min_flow_kg_s
+        );
+    }
+}

@@ -31,6 +31,7 @@
 mod cycle_trigger;
 mod link;
 mod rx;
+mod sender_clock;
 mod tx;
 
 use std::convert::Infallible;
@@ -60,6 +61,7 @@ use crate::runtime::trigger::CycleTrigger;
 pub use cycle_trigger::{CycleTriggerSpec, TriggerPlan, MAX_TRIGGER_MESSAGES};
 pub use link::CanLink;
 pub use rx::{classify_error_frame, BusCondition, RxHandler, RxOutcome, RxReject};
+pub use sender_clock::{RateMismatch, SenderClock};
 pub use tx::{FrameEncoder, HeartbeatTx};
 
 fn default_heartbeat_period_ms() -> u64 {

@@ -727,6 +727,22 @@ impl CanCodec {
         )
     }
 
+    /// One sender clock per message that has both an alive counter and a DBC cycle time
+    /// (None for the others), indexed by [`MessageIndex::get`]
+    /// ([`SenderClock`](crate::io::can::bus::SenderClock)).
+    pub fn sender_clocks(&self) -> Vec<Option<crate::io::can::bus::SenderClock>> {
+        self.messages
+            .iter()
+            .map(|m| match (m.guard.alive_bits(), m.cycle_time_ms) {
+                (Some(bits), Some(ms)) if ms > 0 => Some(crate::io::can::bus::SenderClock::new(
+                    u64::from(ms) * 1_000_000,
+                    1u64 << bits.clamp(1, 8),
+                )),
+                _ => None,
+            })
+            .collect()
+    }
+
     /// One receiving alive checker per message (for [`Decoded`]).
     pub fn alive_checkers(&self) -> AliveCheckers {
         AliveCheckers(

@@ -13,17 +13,12 @@ use serde::{Deserialize, Serialize};
 
 use super::{BusCodec, CanBusError};
 use crate::io::can::codec::SignalTarget;
-use crate::vocab::signals::SensorId;
 
 /// Most trigger messages (one bit each in [`crate::runtime::trigger::CycleTrigger`]).
 pub const MAX_TRIGGER_MESSAGES: usize = 32;
 
 /// The sensors every cycle needs: their messages are the default trigger.
-const CYCLE_INPUTS: [SensorId; 3] = [
-    SensorId::PSuction,
-    SensorId::PDischarge,
-    SensorId::ShaftSpeed,
-];
+use crate::vocab::signals::CYCLE_INPUTS;
 
 /// What starts a control cycle (`bus.can.cycle_trigger`).
 #[derive(Debug, Clone, PartialEq, Eq, Default, Serialize, Deserialize)]
@@ -174,6 +169,7 @@ impl BusCodec {
 mod tests {
     use super::*;
     use crate::io::can::codec::{skid_bindings, SignalBinding};
+    use crate::vocab::signals::SensorId;
     use std::path::Path;
 
     fn skid(bindings: &[SignalBinding]) -> BusCodec {

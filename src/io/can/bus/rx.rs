@@ -10,7 +10,9 @@ use super::{BusCodec, CanCounters};
 use crate::io::can::codec::{AliveCheckers, SignalTarget};
 use crate::io::can::dbc::FrameId;
 use crate::io::can::e2e::{AliveChecker, AliveStatus, FrameError};
-use crate::runtime::handoff::{CommandBoard, HeartbeatBoard, HeartbeatSeen, SensorBoard};
+use crate::runtime::handoff::{
+    CommandBoard, HeartbeatBoard, HeartbeatSeen, SensorBoard, NO_SAMPLE_CLOCK,
+};
 use crate::runtime::trigger::CycleTrigger;
 
 /// What an error frame says about the CAN controller.
@@ -106,6 +108,9 @@ pub struct RxHandler {
     /// Per message index: whether this node consumes it.
     consumes: Vec<bool>,
     checkers: AliveCheckers,
+    /// Controller: per message index, the sender's clock rebuilt from the alive counter
+    /// ([`super::SenderClock`]); empty on the plant side.
+    clocks: Vec<Option<super::SenderClock>>,
     sink: Sink,
     counters: Arc<CanCounters>,
     /// Controller: the cycle trigger.
@@ -181,6 +186,7 @@ impl RxHandler {
         }
         RxHandler {
             checkers: codec.frames.alive_checkers(),
+            clocks: codec.frames.sender_clocks(),
             consumes,
             sink: Sink::Sensors(sensors),
             codec,
@@ -221,6 +227,7 @@ impl RxHandler {
         }
         RxHandler {
             checkers: codec.frames.alive_checkers(),
+            clocks: Vec::new(),
             consumes,
             sink: Sink::Commands {
                 commands,
@@ -237,6 +244,9 @@ impl RxHandler {
     /// with a cycle trigger, wait again for every sensor message before it fires.
     pub fn reset_alive(&mut self) {
         self.checkers = self.codec.frames.alive_checkers();
+        for c in self.clocks.iter_mut().flatten() {
+            c.reset();
+        }
         if let Some(gate) = &mut self.trigger {
             gate.reset(&self.consumes);
         }
@@ -332,9 +342,29 @@ impl RxHandler {
         }
         match &self.sink {
             Sink::Sensors(board) => {
+                let index = frame.message().get();
+                let sampled = match (self.clocks.get_mut(index), status) {
+                    (Some(Some(clock)), Some(status)) => {
+                        let (at, mismatch) = clock.on_frame(status, t_ns);
+                        if let Some(m) = mismatch {
+                            tracing::warn!(
+                                target: "can",
+                                message = self.codec.frames.message_name(frame.message()).unwrap_or("?"),
+                                "the alive counter of this message advanced {:.3} s of its DBC \
+                                 cycle time over {:.3} s of arrivals: the DBC's GenMsgCycleTime \
+                                 does not match the sender; its samples are timed by their \
+                                 arrival until the link is reset",
+                                m.clock_s,
+                                m.arrivals_s
+                            );
+                        }
+                        at.unwrap_or(NO_SAMPLE_CLOCK)
+                    }
+                    _ => NO_SAMPLE_CLOCK,
+                };
                 for (target, v) in frame.values() {
                     if let SignalTarget::Sensor(s) = target {
-                        board.publish(*s, *v, t_ns);
+                        board.publish_sampled(*s, *v, t_ns, sampled);
                     }
                 }
             }

@@ -362,6 +362,42 @@ fn repeated_alive_counter_is_not_published_skipped_is() {
 }
 
 #[test]
+fn the_samples_are_timed_on_the_senders_clock_from_the_alive_counter() {
+    // PLANT_Pressures every 1 ms (GenMsgCycleTime), arriving late, in a batch, and after two
+    // lost frames: the board's sender clock advances by the counter's steps × 1 ms
+    let c = codec();
+    let mut ctl = controller(&c);
+    let msgs = messages(&c, true);
+    let mut enc = FrameEncoder::new(&c.frames, &msgs, false, refresh()).expect("enc");
+    let snap = snapshot();
+    let frames: Vec<_> = (0..6u64)
+        .map(|k| enc.encode(0, &snap, k * 1_000_000).expect("frame"))
+        .collect();
+    const MS: u64 = 1_000_000;
+    let arrivals = [
+        (0, 5 * MS),
+        (1, 8 * MS + 400_000), // 3.4 ms after the last: the receiver (or the sender's host) stood
+        (2, 8 * MS + 410_000), // 10 µs later: a batch
+        (5, 11 * MS + 500_000), // two frames lost
+    ];
+    let mut clocks = Vec::new();
+    for (k, t) in arrivals {
+        let (id, d) = parts(&frames[k]);
+        assert_eq!(ctl.rx.handle_data(id, &d, t), RxOutcome::Published);
+        let raw = ctl.sensors.raw(t);
+        assert_eq!(raw.age_s[SensorId::PSuction.index()], 0.0);
+        clocks.push(raw.sample_clock_s[SensorId::PSuction.index()]);
+    }
+    let steps: Vec<f64> = clocks.windows(2).map(|w| (w[1] - w[0]) * 1e3).collect();
+    for (got, want) in steps.iter().zip([1.0, 1.0, 3.0]) {
+        assert!((got - want).abs() < 1e-6, "steps {steps:?} ms");
+    }
+    // a reading from a source without a counter carries no sender clock
+    ctl.sensors.publish(SensorId::PSuction, 1e5, 20 * MS);
+    assert!(ctl.sensors.raw(20 * MS).sample_clock_s[SensorId::PSuction.index()].is_nan());
+}
+
+#[test]
 fn controller_ignores_frames_it_does_not_consume() {
     let c = codec();
     let mut ctl = controller(&c);
