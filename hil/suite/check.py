@@ -16,6 +16,9 @@ Tolerances (stated here, printed with every run):
   1 % of the drive rating (the controller takes over from the drive's own governor).
 - drive-torque: torque within the rating; its mean over 10–19 s within 2 % of the rating of
   the in-process run's.
+- plant_pause: the drive-torque case with the plant stopped (SIGSTOP) 8 times for about 4 ms
+  during the closure: the same checks; the samples carry the sender's clock, so the pauses
+  are not integrated by the controller.
 """
 import csv
 import json
@@ -95,7 +98,7 @@ def interp(rows, t, key):
     return a[key] + f * (b[key] - a[key])
 
 
-if case in ("recycle_pi", "drive_torque", "malformed"):
+if case in ("recycle_pi", "drive_torque", "malformed", "plant_pause"):
     check(s.get("field_failsafe_entries") == 0, "field devices never lost the controller")
     dmin = abs(s["min_flow_kg_s"] - ref["min_flow_kg_s"]) / abs(ref["min_flow_kg_s"])
     check(dmin <= 0.02, f"min flow {s['min_flow_kg_s']:.3f} vs in-process {ref['min_flow_kg_s']:.3f} kg/s: {100 * dmin:.2f} % (≤ 2 %)")
@@ -153,7 +156,11 @@ if case in ("link_bounce", "malformed", "recycle_pi"):
         worst_t = max(steps_t, default=(0.0, 0.0))
         check(worst_t[0] < 0.01 * rating, f"largest torque command step {worst_t[0]:.1f} N·m at t = {worst_t[1]:.3f} s (< 1 % of {rating:.0f}): the controller took over from the drive's own governor")
 
-if case == "drive_torque":
+if case == "plant_pause":
+    pauses = (d / "action.log").read_text().splitlines() if (d / "action.log").exists() else []
+    check(len(pauses) == 8, f"the plant was stopped 8 times during the closure ({len(pauses)} logged)")
+
+if case in ("drive_torque", "plant_pause"):
     # the torque trajectory: inside the rating, and after the closure at the same mean as the
     # in-process run (CAN quantises the pressures to 1 Pa, which the law's flow gain turns
     # into ±60 N·m of torque ripple, so the mean, not each sample, is compared)

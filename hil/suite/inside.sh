@@ -5,14 +5,14 @@
 # an in-process `antisurge sim` run of the same plant, scenario and law.
 #
 #   hil/suite/inside.sh [CASE...]     cases: recycle_pi drive_torque kill9 link_bounce malformed timing
-#                                            foreign_dbc
+#                                            foreign_dbc plant_pause
 set -euo pipefail
 cd "$(dirname "$0")/../.."
 bin=${ANTISURGE_BIN:-target/release/antisurge}
 out=${ANTISURGE_HIL_OUT:-out/hil}
 iface=vcan0
 cases=("$@")
-[[ ${#cases[@]} -gt 0 ]] || cases=(recycle_pi drive_torque kill9 link_bounce malformed timing foreign_dbc)
+[[ ${#cases[@]} -gt 0 ]] || cases=(recycle_pi drive_torque kill9 link_bounce malformed timing foreign_dbc plant_pause)
 mkdir -p "$out"
 tmp_candump=${TMPDIR:-/tmp}/antisurge-hil-candump.$$.log
 echo "HIL suite on $iface (${ANTISURGE_HIL_INSIDE:-?}), cases: ${cases[*]}"
@@ -69,7 +69,7 @@ wait_bounded() {
 }
 
 # run_case NAME CONFIG ACTION: plant + controller on vcan0; ACTION runs in the background
-# during the scenario (none | kill9 | link_bounce | malformed | timing).
+# during the scenario (none | kill9 | link_bounce | malformed | timing | plant_pause).
 run_case() {
     local name=$1 cfg=$2 action=$3
     local dir=$out/$name t0=$SECONDS
@@ -103,6 +103,18 @@ run_case() {
             sysctl -q -w net.core.rmem_max=16777216 2>/dev/null || true
             (timeout 20 chrt -f 50 candump -t a -r 16777216 -d vcan0 >"$tmp_candump" 2>"$dir/candump.err") &
             act="$act $!" ;;
+        plant_pause)
+            # the plant's host stops it for a few ms, 8 times through the closure (SIGSTOP: all
+            # its threads; its loop then skips the deadlines it missed, so plant time stands
+            # still): the samples stay one plant period apart while their arrivals are not.
+            # Before the sender's clock (CI 2026-11-29) one such pause of 3.4 ms surged the
+            # drive-torque pair.
+            (sleep 5.6
+             for k in 1 2 3 4 5 6 7 8; do
+                 kill -STOP "$plant"; sleep 0.004; kill -CONT "$plant"
+                 echo "pause $k: plant stopped about 4 ms"
+                 sleep 0.2
+             done) >"$dir/action.log" 2>&1 & act=$! ;;
         malformed) python3 hil/suite/malformed.py "$iface" 300 "$(date -d '+8 seconds' +%s.%N)" >"$dir/action.log" 2>&1 & act=$! ;;
     esac
     local rc=0
@@ -140,6 +152,7 @@ for c in "${cases[@]}"; do
         # a foreign-style DBC (tests/fixtures/foreign_skid/skid_foreign.dbc): % valve, bar, rpm,
         # a 29-bit Motorola message, the skid's 16-bit watchdog counter as the heartbeat
         foreign_dbc) run_case foreign_dbc hil/configs/can_foreign_dbc.toml none || fail=1 ;;
+        plant_pause) run_case plant_pause hil/configs/can_drive_torque.toml plant_pause || fail=1 ;;
         *) echo "unknown case $c"; fail=1 ;;
     esac
 done
