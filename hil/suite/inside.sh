@@ -109,12 +109,9 @@ run_case() {
             # still): the samples stay one plant period apart while their arrivals are not.
             # Before the sender's clock (CI 2026-11-29) one such pause of 3.4 ms surged the
             # drive-torque pair.
-            (sleep 5.6
-             for k in 1 2 3 4 5 6 7 8; do
-                 kill -STOP "$plant"; sleep 0.004; kill -CONT "$plant"
-                 echo "pause $k: plant stopped about 4 ms"
-                 sleep 0.2
-             done) >"$dir/action.log" 2>&1 & act=$! ;;
+            # (hil/suite/pause.py: a shell's fork of `sleep` stopped it for 64 ms in the VM; at
+            # FIFO 60, below the bus threads' 70: at 70 its exit starved them for 43 ms)
+            chrt -f 60 python3 hil/suite/pause.py "$plant" 5.6 8 0.2 0.004 >"$dir/action.log" 2>&1 & act=$! ;;
         malformed) python3 hil/suite/malformed.py "$iface" 300 "$(date -d '+8 seconds' +%s.%N)" >"$dir/action.log" 2>&1 & act=$! ;;
     esac
     local rc=0

@@ -107,6 +107,8 @@ pub struct PlantNode<'a> {
     last_hb_ns: u64,
     /// Plant time of the step that first saw it, s.
     last_beat_t_s: f64,
+    /// Snapshots published so far (the plant's sample clock, in periods).
+    samples: u64,
 }
 
 impl<'a> PlantNode<'a> {
@@ -141,6 +143,7 @@ impl<'a> PlantNode<'a> {
             status,
             last_hb_ns: 0,
             last_beat_t_s: 0.0,
+            samples: 0,
         }
     }
 
@@ -169,7 +172,9 @@ impl<'a> PlantNode<'a> {
         }
     }
 
-    fn publish(&self, now_ns: u64, raw: &crate::control::measurements::RawSensors) {
+    /// Publish the readings `raw` of a step at `now_ns` (monotonic), sampled at `sample_ns` on
+    /// the plant's own clock.
+    fn publish(&self, now_ns: u64, sample_ns: u64, raw: &crate::control::measurements::RawSensors) {
         match &self.sink {
             SensorSink::Bus { snapshots, wake } => {
                 // a failed (frozen) transmitter sends no valid value: NaN goes out as "not
@@ -180,13 +185,10 @@ impl<'a> PlantNode<'a> {
                         values.set(id, f64::NAN);
                     }
                 }
-                snapshots.publish(&values, self.k as u64, now_ns);
+                snapshots.publish(&values, self.k as u64, sample_ns);
                 wake.signal();
             }
             SensorSink::InProcess(board) => {
-                // sampled at the plant's own step time: a step the host delayed still comes
-                // one scenario period after the last (RawSensors::sample_clock_s)
-                let sample_ns = (self.k as f64 * self.run.dt_s() * 1e9).round() as u64;
                 for id in SensorId::ALL {
                     // a stale (frozen) transmitter stops updating: its arrival time stays old
                     if raw.age_s[id.index()] == 0.0 {
@@ -200,12 +202,17 @@ impl<'a> PlantNode<'a> {
     /// One step at `now_ns`. Returns false when the scenario is over (and not held).
     pub fn step(&mut self, now_ns: u64) -> bool {
         let dt = self.run.dt_s();
+        // sampled on the plant's own clock, one period per step (waiting for the first
+        // heartbeat included): a step its host delayed still comes one period after the last
+        // (RawSensors::sample_clock_s; the CAN sender counts it, plant_send_loop)
+        let sample_ns = (self.samples as f64 * dt * 1e9).round() as u64;
+        self.samples += 1;
         let (received, hb_ns) = self.received();
         let alive = hb_ns > 0 && now_ns.saturating_sub(hb_ns) <= self.hb_timeout_ns;
         if !self.started {
             // before the controller's first heartbeat: publish the initial steady state
             let (_, raw) = self.run.sense(0.0);
-            self.publish(now_ns, &raw);
+            self.publish(now_ns, sample_ns, &raw);
             if !alive {
                 return true;
             }
@@ -215,7 +222,7 @@ impl<'a> PlantNode<'a> {
         let at_end = self.k >= n;
         let t = self.k.min(n) as f64 * dt;
         let (st, raw) = self.run.sense(t);
-        self.publish(now_ns, &raw);
+        self.publish(now_ns, sample_ns, &raw);
         if hb_ns != self.last_hb_ns {
             // the device watchdog saw the heartbeat change in this step
             self.last_hb_ns = hb_ns;

@@ -381,7 +381,8 @@ pub struct SnapshotBoard {
 }
 
 impl SnapshotBoard {
-    /// Publish a snapshot computed at `t_ns` in cycle `cycle`.
+    /// Publish a snapshot sampled at `t_ns` on the publisher's clock (the simulated plant's:
+    /// its steps × its period, which a host that stops it does not advance) in cycle `cycle`.
     #[inline]
     pub fn publish(&self, s: &SensorSnapshot, cycle: u64, t_ns: u64) {
         let mut w = [0u64; SensorId::COUNT + 2];

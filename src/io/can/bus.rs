@@ -740,7 +740,8 @@ pub async fn run_plant(
             cfg.tx_on_change_only,
             cfg.heartbeat_period(),
             cfg.not_available,
-        )?,
+        )?
+        .counting_sample_periods(),
         snapshots: Arc::clone(&boards.snapshots),
         wake: WakeFd::register(&boards.wake)?,
     };
@@ -965,13 +966,23 @@ async fn controller_send_loop(
     }
 }
 
-/// Encode and send every message of `tx` from `values`.
+/// Encode and send every message of `tx` from `values`, now.
 fn send_all<V: SignalValues>(
     s: &Session<'_>,
     tx: &mut FrameEncoder,
     values: &V,
 ) -> Result<(), DownCause> {
-    let now = monotonic_ns();
+    send_all_at(s, tx, values, monotonic_ns())
+}
+
+/// Encode and send every message of `tx` from `values`, at `now` on the sender's clock (each
+/// message at its DBC cycle time on that clock).
+fn send_all_at<V: SignalValues>(
+    s: &Session<'_>,
+    tx: &mut FrameEncoder,
+    values: &V,
+    now: u64,
+) -> Result<(), DownCause> {
     for i in 0..tx.len() {
         if !tx.is_due(i, now) {
             CanCounters::inc(&s.counters.tx_not_due);
@@ -1013,7 +1024,13 @@ impl Role for PlantRole {
     }
 }
 
-/// Plant TX: sensor frames from the latest snapshot on every wakeup.
+/// Plant TX: sensor frames from the latest snapshot on every wakeup, on the plant's own clock
+/// (the snapshot's sampling time): a message goes out at its DBC cycle time of *plant* time,
+/// and its alive counter counts those cycle times (`counting_sample_periods`), so that a
+/// receiver timing samples by the counter (`SenderClock`) sees the plant's time even when the
+/// plant's host stopped it or this task ran late. (On the wall clock, the first step after a
+/// stop was sent and the next one, 0.3 ms later, was "not due": two plant steps under one
+/// counter step, and the drive-torque law surged in the HIL `plant_pause` case.)
 async fn plant_send_loop(
     s: &Session<'_>,
     tx: &mut FrameEncoder,
@@ -1024,8 +1041,8 @@ async fn plant_send_loop(
         wait_wake(wake)
             .await
             .map_err(|e| DownCause::io(IoOp::Wakeup, &e))?;
-        if let Some((snapshot, _cycle, _t_ns)) = snapshots.latest() {
-            send_all(s, tx, &snapshot)?;
+        if let Some((snapshot, _cycle, sampled_ns)) = snapshots.latest() {
+            send_all_at(s, tx, &snapshot, sampled_ns)?;
         }
     }
 }

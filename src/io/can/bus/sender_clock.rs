@@ -11,9 +11,13 @@
 //!
 //! The counter wraps (4 bits on the skid bus: 16 frames), so a step d stands for d + k·2^bits
 //! frames; k is the one that brings the step closest to the arrival gap in cycle times
-//! (a 20-frame outage arrives as d = 4 after about 20 periods: k = 1). The clock starts at the
-//! arrival time of the first frame (and again after a reset): only its differences mean
-//! anything.
+//! (a 20-frame outage arrives as d = 4 after about 20 periods: k = 1). A gap longer than half
+//! the counter's range (8 periods on the skid bus) therefore counts as frames lost while the
+//! sender went on, which is what a real process does: a sender stopped for 64 ms is taken as
+//! 65 ms of plant time. Only a simulated plant whose time stood still with it is wrong then
+//! (the HIL `plant_pause` case keeps its stops under 8 ms for that reason). The clock starts
+//! at the arrival time of the first frame (and again after a reset): only its differences
+//! mean anything.
 //!
 //! The DBC's cycle time is the sender's promise, and a wrong one would scale every interval:
 //! over each [`CHECK_WINDOW_NS`] of arrivals the clock must have advanced by the same time

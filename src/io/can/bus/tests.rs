@@ -398,6 +398,48 @@ fn the_samples_are_timed_on_the_senders_clock_from_the_alive_counter() {
 }
 
 #[test]
+fn a_sender_counting_sample_periods_keeps_the_receivers_clock_on_its_own() {
+    // the simulated plant encodes on its step time; a step whose frame it could not send (its
+    // task late) counts in the alive counter, so the receiver's sender clock still advances
+    // by every plant period, however the frames arrive
+    const MS: u64 = 1_000_000;
+    let c = codec();
+    let mut ctl = controller(&c);
+    let msgs = messages(&c, true);
+    let mut enc = FrameEncoder::new(&c.frames, &msgs, false, refresh())
+        .expect("enc")
+        .counting_sample_periods();
+    let snap = snapshot();
+    let mut clocks = Vec::new();
+    // plant steps at 0, 1, 3 (the step at 2 unsent) and 4 ms; all arriving 10 µs apart
+    for (k, plant_ms) in [0u64, 1, 3, 4].into_iter().enumerate() {
+        let f = enc.encode(0, &snap, plant_ms * MS).expect("frame");
+        let (id, d) = parts(&f);
+        let arrival = 50 * MS + k as u64 * 10_000;
+        assert_eq!(ctl.rx.handle_data(id, &d, arrival), RxOutcome::Published);
+        clocks.push(ctl.sensors.raw(arrival).sample_clock_s[SensorId::PSuction.index()]);
+    }
+    let steps: Vec<f64> = clocks.windows(2).map(|w| (w[1] - w[0]) * 1e3).collect();
+    for (got, want) in steps.iter().zip([1.0, 2.0, 1.0]) {
+        assert!((got - want).abs() < 1e-6, "steps {steps:?} ms");
+    }
+    assert_eq!(
+        ctl.counters.snapshot().frames_lost,
+        1,
+        "the unsent step counts as lost"
+    );
+    // a sender counting frames (the default) would have said 1 ms for the 2-ms step
+    let mut plain = FrameEncoder::new(&c.frames, &msgs, false, refresh()).expect("enc");
+    let a = plain.encode(0, &snap, 0).expect("frame");
+    let b = plain.encode(0, &snap, 2 * MS).expect("frame");
+    assert_eq!(
+        (parts(&b).1[6] & 0x0F).wrapping_sub(parts(&a).1[6] & 0x0F) & 0x0F,
+        1,
+        "PLANT_Pressures' counter (byte 6, low nibble) steps by one frame"
+    );
+}
+
+#[test]
 fn controller_ignores_frames_it_does_not_consume() {
     let c = codec();
     let mut ctl = controller(&c);

@@ -97,6 +97,9 @@ pub struct FrameEncoder {
     not_available: NotAvailable,
     /// Last number per target ([`SignalTarget::index`]), for `NotAvailable::None`.
     held: [f64; MAX_TARGETS],
+    /// The alive counter counts cycle times elapsed, not frames sent
+    /// ([`FrameEncoder::counting_sample_periods`]).
+    count_periods: bool,
 }
 
 /// The values to encode: NaN replaced by the last number (`NotAvailable::None`) or kept.
@@ -119,6 +122,17 @@ impl<V: SignalValues + ?Sized> SignalValues for Substituted<'_, V> {
 }
 
 impl FrameEncoder {
+    /// The alive counter of each cyclic message counts the cycle times elapsed on the
+    /// caller's clock (the `now_ns` given to [`encode`](Self::encode)), not the frames sent:
+    /// a sample the sender took but could not send (its task late) reaches the receiver as a
+    /// lost frame, so the receiver's sender clock (`bus::SenderClock`) still counts every
+    /// sample period. For a sender whose clock is its sampling: the simulated plant, which
+    /// encodes on its own step time.
+    pub fn counting_sample_periods(mut self) -> FrameEncoder {
+        self.count_periods = true;
+        self
+    }
+
     /// An encoder for `messages` of `codec`. With `on_change_only`, a message whose data bits
     /// did not change is skipped unless `refresh` passed since it was last sent.
     pub fn new(
@@ -222,6 +236,7 @@ impl FrameEncoder {
             refresh_ns: u64::try_from(refresh.as_nanos()).unwrap_or(u64::MAX),
             not_available,
             held: [f64::NAN; MAX_TARGETS],
+            count_periods: false,
         })
     }
 
@@ -266,6 +281,7 @@ impl FrameEncoder {
             refresh_ns,
             not_available,
             held,
+            count_periods,
         } = self;
         let m = messages.get_mut(i)?;
         if !m.due(now_ns) {
@@ -302,6 +318,15 @@ impl FrameEncoder {
                     if candidate == m.last {
                         return None;
                     }
+                }
+            }
+        }
+        if *count_periods && m.period_ns > 0 {
+            if let Some(sent) = m.last_sent_ns {
+                // the periods between the last frame and this one whose samples went unsent
+                let periods = (now_ns.saturating_sub(sent) + m.period_ns / 2) / m.period_ns;
+                for _ in 1..periods.min(255) {
+                    counters.next_value(m.index);
                 }
             }
         }
