@@ -112,18 +112,10 @@ fn the_scan_sees_a_violation_and_skips_test_modules() {
 // exceptions below; an exception that no longer occurs fails the test, so the list only shrinks.
 // ---------------------------------------------------------------------------------------------
 
-/// Known arrows from `live/` into `daemon/` (2026-11-29): `live/` takes its `[status]` and TLS
-/// settings from `daemon/config/` (to fix: `live/` owns its config section).
-const LIVE_TO_DAEMON: &[(&str, &str)] = &[
-    ("src/live/dcs.rs", "crate::daemon::config::StatusSection"),
-    ("src/live/mod.rs", "crate::daemon::config::StatusSection"),
-    ("src/live/mod.rs", "crate::daemon::config::tls::token_file"),
-    (
-        "src/live/server.rs",
-        "crate::daemon::config::tls::token_file_unsafe",
-    ),
-    ("src/live/tls.rs", "crate::daemon::config::tls::TlsSection"),
-];
+/// Known arrows from `live/` into `daemon/`: none (`live/` owns its `[status]` and TLS
+/// settings since 2026-11-29, `live/settings.rs` and `live/tls_settings.rs`; the daemon's
+/// config re-exports them).
+const LIVE_TO_DAEMON: &[(&str, &str)] = &[];
 
 /// Known arrows from `io/` into `control/`: none (the signal map's vote settings are
 /// vocabulary since 2026-11-29, `vocab/vote.rs`).
@@ -131,14 +123,9 @@ const IO_TO_CONTROL: &[(&str, &str)] = &[];
 
 /// Known pairs of folders that reach each other (2026-11-29), with the arrow that closes the
 /// circle:
-/// - `daemon/config` ⇄ `live` (and `live` ⇄ `sparkplug` through it): `live/` reads its
-///   settings from `daemon/config/` while the config check calls back into `live/`;
-/// - `daemon/config` ⇄ `sparkplug`: `sparkplug/fleet.rs` builds a daemon config.
-const KNOWN_CIRCLES: &[(&str, &str)] = &[
-    ("daemon/config", "live"),
-    ("daemon/config", "sparkplug"),
-    ("live", "sparkplug"),
-];
+/// - `daemon/config` ⇄ `sparkplug`: `sparkplug/fleet.rs` builds a daemon config, while the
+///   config check calls into `sparkplug/`.
+const KNOWN_CIRCLES: &[(&str, &str)] = &[("daemon/config", "sparkplug")];
 
 fn src_root() -> PathBuf {
     Path::new(env!("CARGO_MANIFEST_DIR")).join("src")

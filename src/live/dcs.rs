@@ -14,13 +14,13 @@ use std::sync::{Arc, LazyLock};
 use std::time::Duration;
 
 use super::snapshot::{LiveBoard, LiveSnapshot};
-use crate::daemon::config::StatusSection;
 use crate::events::{Event, EventSender};
 use crate::io::modbus::bounded_server::{
     spawn_bounded_tcp_server, ServerCounters, ServerLimits, ShedCause, ShedReport,
 };
 use crate::io::modbus::server::{lock_image, RegisterImage, SharedImage};
 use crate::io::modbus::RegisterTable;
+use crate::live::settings::StatusSection;
 
 static COUNTERS: LazyLock<Arc<ServerCounters>> = LazyLock::new(Arc::default);
 

@@ -10,7 +10,7 @@
 //! accepted action is recorded in the event log with what changed. The HMI binds loopback
 //! by default (`status.hmi_listen`, default `127.0.0.1:9651`); a non-loopback address is
 //! accepted only with `[status.tls]` (HTTPS, [`super::tls`]) and a usable operator token file
-//! (checked by `check-config`, `daemon::config::tls`). With TLS, a plain-HTTP request gets a
+//! (checked by `check-config`, `live::tls_settings`). With TLS, a plain-HTTP request gets a
 //! 400 that says to use https:// and nothing else.
 
 use std::net::SocketAddr;

@@ -22,15 +22,17 @@ pub mod metrics;
 pub mod persist;
 pub mod report;
 pub mod server;
+pub mod settings;
 pub mod snapshot;
 pub mod station;
 pub mod tls;
+pub mod tls_settings;
 
 use std::net::SocketAddr;
 use std::path::{Path, PathBuf};
 use std::sync::{Arc, Mutex, OnceLock};
 
-use crate::daemon::config::StatusSection;
+use crate::live::settings::StatusSection;
 
 /// The operator token file when `status.operator_token_file` is not set (created by
 /// `deploy/install.sh`: random, root:antisurge, mode 0640).
@@ -251,8 +253,8 @@ fn bind_all(status: &StatusSection, socket: &Path) -> Result<Bound, SurfaceError
         .map_err(|e| SurfaceError(format!("no web HMI: {e}")))?
     {
         if !addr.ip().is_loopback() {
-            let file = crate::daemon::config::tls::token_file(status);
-            if let Some(why) = crate::daemon::config::tls::token_file_problem(&file) {
+            let file = crate::live::tls_settings::token_file(status);
+            if let Some(why) = crate::live::tls_settings::token_file_problem(&file) {
                 return Err(SurfaceError(format!(
                     "not serving the web HMI on {addr} beyond loopback: {why}"
                 )));
@@ -304,8 +306,8 @@ fn bind_all(status: &StatusSection, socket: &Path) -> Result<Bound, SurfaceError
 /// surface that cannot be bound, or an unsafe operator token file, is a [`SurfaceError`].
 pub fn prepare(status: &StatusSection, identity: Identity) -> Result<LiveSetup, SurfaceError> {
     let _ = IDENTITY.set(identity);
-    let token_file = crate::daemon::config::tls::token_file(status);
-    if let Some(why) = crate::daemon::config::tls::token_file_unsafe(&token_file) {
+    let token_file = crate::live::tls_settings::token_file(status);
+    if let Some(why) = crate::live::tls_settings::token_file_unsafe(&token_file) {
         return Err(SurfaceError(why));
     }
     let socket = socket_path(status);

@@ -136,7 +136,7 @@ pub fn check_token(file: &Path, given: &str) -> Result<(), OpError> {
             file.display()
         ))
     })?;
-    if let Some(why) = crate::daemon::config::tls::token_file_unsafe(file) {
+    if let Some(why) = crate::live::tls_settings::token_file_unsafe(file) {
         return Err(OpError::Unauthorized(format!(
             "operator actions are disabled: {why}"
         )));

@@ -10,7 +10,7 @@ use rustls_pki_types::pem::PemObject;
 use rustls_pki_types::{CertificateDer, PrivateKeyDer};
 use tokio_rustls::rustls;
 
-use crate::daemon::config::tls::TlsSection;
+use crate::live::tls_settings::TlsSection;
 
 /// Why the certificate or key cannot be used.
 #[derive(Debug, thiserror::Error)]

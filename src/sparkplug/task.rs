@@ -86,7 +86,7 @@ fn mqtt_options(cfg: &SparkplugSection, will: (String, Payload)) -> Result<MqttO
     if let Some(user) = &cfg.username {
         let password = match &cfg.password_file {
             Some(f) => {
-                if let Some(why) = crate::daemon::config::tls::token_file_problem(f) {
+                if let Some(why) = crate::live::tls_settings::token_file_problem(f) {
                     return Err(format!("broker password: {why}"));
                 }
                 std::fs::read_to_string(f)

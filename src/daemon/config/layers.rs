@@ -22,22 +22,8 @@ pub struct Layer {
     pub table: toml::Table,
 }
 
-/// Where the main file's relative paths are resolved from.
-fn base_dir(main: &Path) -> PathBuf {
-    main.parent()
-        .filter(|p| !p.as_os_str().is_empty())
-        .map(Path::to_path_buf)
-        .unwrap_or_else(|| PathBuf::from("."))
-}
-
-/// Resolve `p` against the main file's directory.
-pub fn resolve(main: &Path, p: &Path) -> PathBuf {
-    if p.is_absolute() {
-        p.to_path_buf()
-    } else {
-        base_dir(main).join(p)
-    }
-}
+use crate::config::paths::base_dir;
+pub use crate::config::paths::resolve;
 
 fn read_layer(path: &Path) -> Result<Layer, FileError> {
     let text = crate::config::read_config_text(path).map_err(|e| FileError {

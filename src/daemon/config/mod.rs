@@ -47,8 +47,8 @@ pub mod running;
 pub mod sanity;
 pub mod simulation;
 pub mod sparkplug;
-pub mod status;
-pub mod tls;
+pub use crate::live::settings as status;
+pub use crate::live::tls_settings as tls;
 pub mod unit;
 
 pub use bus::{BusSection, Transport};
@@ -361,6 +361,8 @@ pub fn check(l: &Loaded) -> Vec<Problem> {
     let mut own = event_log::validate(&c.event_log);
     own.extend(c.simulation.validate());
     own.extend(c.status.validate());
+    // a port the service unit's capabilities cannot bind
+    own.extend(unit::bind_problems(&c.status));
     own.extend(c.sparkplug.validate());
     out.extend(own.into_iter().map(|p| p.locate_in(l)));
     out.extend(map_problems);

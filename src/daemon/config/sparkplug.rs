@@ -190,7 +190,7 @@ impl SparkplugSection {
             ));
         }
         if let Some(f) = &self.password_file {
-            if let Some(why) = crate::daemon::config::tls::token_file_problem(f) {
+            if let Some(why) = crate::live::tls_settings::token_file_problem(f) {
                 out.push(
                     KeyProblem::error(
                         "sparkplug.password_file",

@@ -10,8 +10,8 @@ use std::path::{Path, PathBuf};
 
 use serde::{Deserialize, Serialize};
 
-use super::problem::KeyProblem;
-use super::StatusSection;
+use super::settings::StatusSection;
+use crate::config::problem::KeyProblem;
 use crate::live::{hmi, metrics, tls};
 
 /// `[status.tls]`: serve the web HMI over HTTPS with this certificate and key (PEM files;
@@ -31,8 +31,8 @@ impl TlsSection {
     /// The same section with relative paths taken from `main`'s directory.
     pub fn resolved(&self, main: &Path) -> TlsSection {
         TlsSection {
-            cert_file: super::resolve(main, &self.cert_file),
-            key_file: super::resolve(main, &self.key_file),
+            cert_file: crate::config::paths::resolve(main, &self.cert_file),
+            key_file: crate::config::paths::resolve(main, &self.key_file),
         }
     }
 }

@@ -1,6 +1,10 @@
-//! `[status]`: status line, statistics, status socket, metrics, HMI and the DCS block.
+//! `[status]`: status line, statistics, status socket, metrics, HMI and the DCS block: the
+//! settings of `live/`, kept here with the parts that use them (the daemon's config
+//! re-exports them; the TLS part is `tls_settings`).
 
-use super::problem::KeyProblem;
+use super::tls_settings as tls;
+
+use crate::config::problem::KeyProblem;
 use serde::{Deserialize, Serialize};
 use std::path::PathBuf;
 
@@ -35,7 +39,7 @@ pub struct StatusSection {
     pub hmi_listen: Option<String>,
     /// `[status.tls]`: serve the HMI over HTTPS (certificate and key, PEM).
     #[serde(default)]
-    pub tls: Option<super::tls::TlsSection>,
+    pub tls: Option<tls::TlsSection>,
     /// Modbus TCP server block for the DCS, `host:port` (default: off). Read-only input
     /// registers; register map in README.md.
     #[serde(default)]
@@ -128,10 +132,12 @@ impl StatusSection {
             .unwrap_or_else(|| default_modbus_max_connections(open_file_limit()))
     }
 
-    /// The section's own rules: the status-line interval, and where the HMI and the metrics
-    /// endpoint may listen with the TLS files ([`super::tls::bind_problems`]).
+    /// The section's own rules: the status-line interval, where the HMI and the metrics
+    /// endpoint may listen with the TLS files ([`tls::bind_problems`]), and the DCS block's
+    /// limits. (The ports the service unit can bind are the daemon's check:
+    /// `daemon::config::unit::bind_problems`.)
     pub fn validate(&self) -> Vec<KeyProblem> {
-        let mut out = super::tls::bind_problems(self);
+        let mut out = tls::bind_problems(self);
         let s = self.log_interval_s;
         if !(s.is_finite() && s >= 0.0) {
             out.insert(
@@ -143,8 +149,6 @@ impl StatusSection {
             );
         }
         out.extend(self.dcs_limit_problems(open_file_limit()));
-        // a port the service unit's capabilities cannot bind (issue 25)
-        out.extend(super::unit::bind_problems(self));
         out
     }
 
