@@ -121,11 +121,9 @@ const LIVE_TO_DAEMON: &[(&str, &str)] = &[];
 /// vocabulary since 2026-11-29, `vocab/vote.rs`).
 const IO_TO_CONTROL: &[(&str, &str)] = &[];
 
-/// Known pairs of folders that reach each other (2026-11-29), with the arrow that closes the
-/// circle:
-/// - `daemon/config` ⇄ `sparkplug`: `sparkplug/fleet.rs` builds a daemon config, while the
-///   config check calls into `sparkplug/`.
-const KNOWN_CIRCLES: &[(&str, &str)] = &[("daemon/config", "sparkplug")];
+/// Known pairs of folders that reach each other: none since 2026-11-29 (`live/` and
+/// `sparkplug/` own their config sections; the daemon's config re-exports them).
+const KNOWN_CIRCLES: &[(&str, &str)] = &[];
 
 fn src_root() -> PathBuf {
     Path::new(env!("CARGO_MANIFEST_DIR")).join("src")

@@ -9,7 +9,7 @@ use std::path::PathBuf;
 use std::sync::{Arc, Mutex};
 use std::time::{Duration, Instant};
 
-use crate::daemon::config::SparkplugSection;
+use super::settings::SparkplugSection;
 use crate::events::event::Event;
 use crate::events::{EventLog, EventLogConfig, FsyncPolicy};
 use crate::live::server::LiveContext;

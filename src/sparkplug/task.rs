@@ -20,7 +20,7 @@ use super::catalogue::{self, Deadbands, Ranges, COMPRESSOR, OP_RESULT};
 use super::edge::{self, BdSeqStore, Command, EdgeNode, MetricDef, Topics, Value};
 use super::forward::{HostEvent, LogFollower, Spool};
 use super::proto::Payload;
-use crate::daemon::config::SparkplugSection;
+use super::settings::SparkplugSection;
 use crate::events::event::Event;
 use crate::live::server::{LiveContext, SERVED_KEPT};
 

@@ -46,9 +46,9 @@ pub mod reload;
 pub mod running;
 pub mod sanity;
 pub mod simulation;
-pub mod sparkplug;
 pub use crate::live::settings as status;
 pub use crate::live::tls_settings as tls;
+pub use crate::sparkplug::settings as sparkplug;
 pub mod unit;
 
 pub use bus::{BusSection, Transport};

@@ -6,7 +6,7 @@ use std::path::{Path, PathBuf};
 
 use serde::{Deserialize, Serialize};
 
-use super::problem::KeyProblem;
+use crate::config::problem::KeyProblem;
 
 /// `[sparkplug]`: publish the controller to an MQTT broker as a Sparkplug B edge node.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
@@ -107,8 +107,14 @@ impl SparkplugSection {
     /// The same section with relative file paths taken from `main`'s directory.
     pub fn resolved(&self, main: &Path) -> SparkplugSection {
         SparkplugSection {
-            password_file: self.password_file.as_ref().map(|p| super::resolve(main, p)),
-            ca_file: self.ca_file.as_ref().map(|p| super::resolve(main, p)),
+            password_file: self
+                .password_file
+                .as_ref()
+                .map(|p| crate::config::paths::resolve(main, p)),
+            ca_file: self
+                .ca_file
+                .as_ref()
+                .map(|p| crate::config::paths::resolve(main, p)),
             ..self.clone()
         }
     }
@@ -134,7 +140,7 @@ impl SparkplugSection {
     pub fn validate(&self) -> Vec<KeyProblem> {
         let mut out = Vec::new();
         for (name, pct) in &self.deadbands_pct {
-            if !crate::sparkplug::catalogue::is_analogue(name) {
+            if !super::catalogue::is_analogue(name) {
                 out.push(
                     KeyProblem::error(
                         format!("sparkplug.deadbands_pct.{name}"),
@@ -142,7 +148,7 @@ impl SparkplugSection {
                     )
                     .with_hint(format!(
                         "known: {}",
-                        crate::sparkplug::catalogue::analogue_names().join(", ")
+                        super::catalogue::analogue_names().join(", ")
                     )),
                 );
             } else if !(pct.is_finite() && *pct >= 0.0) {
@@ -165,10 +171,10 @@ impl SparkplugSection {
         if let Err(e) = self.broker_host_port() {
             out.push(KeyProblem::error("sparkplug.broker", e));
         }
-        if let Err(e) = crate::sparkplug::edge::check_id("group_id", &self.group_id) {
+        if let Err(e) = super::edge::check_id("group_id", &self.group_id) {
             out.push(KeyProblem::error("sparkplug.group_id", e.to_string()));
         }
-        if let Err(e) = crate::sparkplug::edge::check_id("edge_node_id", &self.edge_node_id) {
+        if let Err(e) = super::edge::check_id("edge_node_id", &self.edge_node_id) {
             out.push(KeyProblem::error("sparkplug.edge_node_id", e.to_string()));
         }
         if self.keep_alive_s == 0 {
@@ -207,7 +213,7 @@ impl SparkplugSection {
             }
         }
         if let Some(f) = &self.ca_file {
-            if let Err(e) = crate::sparkplug::task::ca_roots(f) {
+            if let Err(e) = super::task::ca_roots(f) {
                 out.push(KeyProblem::error("sparkplug.ca_file", e));
             }
         }
