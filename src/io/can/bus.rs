@@ -553,6 +553,10 @@ counters! {
     alive_skipped,
     /// Frames lost according to the alive counters (sum of the skipped values).
     frames_lost,
+    /// Sensor messages whose alive counter, over a second of arrivals, disagreed with their
+    /// DBC cycle time by more than 20 %: their samples are then timed by arrival until the
+    /// link is reset (`SenderClock`; the journal names the message).
+    sender_clock_distrusted,
     /// Remote (RTR) frames, ignored.
     remote_frames,
     /// CAN FD frames, ignored (the DBC describes classic CAN).

@@ -347,6 +347,7 @@ impl RxHandler {
                     (Some(Some(clock)), Some(status)) => {
                         let (at, mismatch) = clock.on_frame(status, t_ns);
                         if let Some(m) = mismatch {
+                            CanCounters::inc(&self.counters.sender_clock_distrusted);
                             tracing::warn!(
                                 target: "can",
                                 message = self.codec.frames.message_name(frame.message()).unwrap_or("?"),

@@ -398,6 +398,37 @@ fn the_samples_are_timed_on_the_senders_clock_from_the_alive_counter() {
 }
 
 #[test]
+fn a_sender_slower_than_its_dbc_cycle_time_loses_its_clock_and_is_counted() {
+    // PLANT_Pressures is declared at 1 ms; this sender sends every 2 ms, +1 per frame: after a
+    // second of arrivals its counter's time is half the arrivals', the clock is withdrawn
+    // (samples timed by arrival), the counter says so once
+    const MS: u64 = 1_000_000;
+    let c = codec();
+    let mut ctl = controller(&c);
+    let msgs = messages(&c, true);
+    let mut enc = FrameEncoder::new(&c.frames, &msgs, false, refresh()).expect("enc");
+    let snap = snapshot();
+    let mut withdrawn_at = None;
+    for k in 0..700u64 {
+        let f = enc.encode(0, &snap, 2 * k * MS).expect("frame");
+        let (id, d) = parts(&f);
+        let t = 2 * k * MS;
+        assert_eq!(ctl.rx.handle_data(id, &d, t), RxOutcome::Published);
+        let clock = ctl.sensors.raw(t).sample_clock_s[SensorId::PSuction.index()];
+        if clock.is_nan() && withdrawn_at.is_none() {
+            withdrawn_at = Some(k);
+        }
+        assert_eq!(
+            clock.is_nan(),
+            withdrawn_at.is_some(),
+            "withdrawn for good at {k}"
+        );
+    }
+    assert_eq!(withdrawn_at, Some(500), "after one second of arrivals");
+    assert_eq!(ctl.counters.snapshot().sender_clock_distrusted, 1);
+}
+
+#[test]
 fn a_sender_counting_sample_periods_keeps_the_receivers_clock_on_its_own() {
     // the simulated plant encodes on its step time; a step whose frame it could not send (its
     // task late) counts in the alive counter, so the receiver's sender clock still advances
