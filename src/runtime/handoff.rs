@@ -223,18 +223,11 @@ impl SensorBoard {
         out
     }
 
-    /// Snapshot of all sensors with their ages at `now_ns`, s (∞ if never received).
+    /// Snapshot of all sensors with their ages at `now_ns`, s (∞ if never received): the
+    /// values and ages of [`raw`](Self::raw).
     pub fn snapshot(&self, now_ns: u64) -> (SensorSnapshot, [f64; SensorId::COUNT]) {
-        let mut values = SensorSnapshot::default();
-        let mut age = [f64::INFINITY; SensorId::COUNT];
-        for id in SensorId::ALL {
-            let (v, t) = self.get(id);
-            values.set(id, v);
-            if t > 0 {
-                age[id.index()] = now_ns.saturating_sub(t) as f64 * 1e-9;
-            }
-        }
-        (values, age)
+        let raw = self.raw(now_ns);
+        (raw.values, raw.age_s)
     }
 }
 

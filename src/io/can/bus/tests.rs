@@ -361,6 +361,25 @@ fn repeated_alive_counter_is_not_published_skipped_is() {
     assert_eq!(ctl.counters.snapshot().alive_skipped, 1);
 }
 
+const MS: u64 = 1_000_000;
+
+/// Hand sensor frame `f` to the controller's receive side at `t_ns` (it must be published)
+/// and read the suction pressure's sender clock, s (NaN: none).
+fn sender_clock_after(ctl: &mut Controller, f: &CanDataFrame, t_ns: u64) -> f64 {
+    let (id, d) = parts(f);
+    assert_eq!(ctl.rx.handle_data(id, &d, t_ns), RxOutcome::Published);
+    ctl.sensors.raw(t_ns).sample_clock_s[SensorId::PSuction.index()]
+}
+
+/// The steps between consecutive sender clocks are `want`, ms.
+fn assert_clock_steps_ms(clocks: &[f64], want: &[f64]) {
+    let steps: Vec<f64> = clocks.windows(2).map(|w| (w[1] - w[0]) * 1e3).collect();
+    assert_eq!(steps.len(), want.len(), "steps {steps:?} ms");
+    for (got, want) in steps.iter().zip(want) {
+        assert!((got - want).abs() < 1e-6, "steps {steps:?} ms");
+    }
+}
+
 #[test]
 fn the_samples_are_timed_on_the_senders_clock_from_the_alive_counter() {
     // PLANT_Pressures every 1 ms (GenMsgCycleTime), arriving late, in a batch, and after two
@@ -371,27 +390,23 @@ fn the_samples_are_timed_on_the_senders_clock_from_the_alive_counter() {
     let mut enc = FrameEncoder::new(&c.frames, &msgs, false, refresh()).expect("enc");
     let snap = snapshot();
     let frames: Vec<_> = (0..6u64)
-        .map(|k| enc.encode(0, &snap, k * 1_000_000).expect("frame"))
+        .map(|k| enc.encode(0, &snap, k * MS).expect("frame"))
         .collect();
-    const MS: u64 = 1_000_000;
     let arrivals = [
         (0, 5 * MS),
         (1, 8 * MS + 400_000), // 3.4 ms after the last: the receiver (or the sender's host) stood
         (2, 8 * MS + 410_000), // 10 µs later: a batch
         (5, 11 * MS + 500_000), // two frames lost
     ];
-    let mut clocks = Vec::new();
-    for (k, t) in arrivals {
-        let (id, d) = parts(&frames[k]);
-        assert_eq!(ctl.rx.handle_data(id, &d, t), RxOutcome::Published);
-        let raw = ctl.sensors.raw(t);
-        assert_eq!(raw.age_s[SensorId::PSuction.index()], 0.0);
-        clocks.push(raw.sample_clock_s[SensorId::PSuction.index()]);
-    }
-    let steps: Vec<f64> = clocks.windows(2).map(|w| (w[1] - w[0]) * 1e3).collect();
-    for (got, want) in steps.iter().zip([1.0, 1.0, 3.0]) {
-        assert!((got - want).abs() < 1e-6, "steps {steps:?} ms");
-    }
+    let clocks: Vec<f64> = arrivals
+        .into_iter()
+        .map(|(k, t)| {
+            let clock = sender_clock_after(&mut ctl, &frames[k], t);
+            assert_eq!(ctl.sensors.raw(t).age_s[SensorId::PSuction.index()], 0.0);
+            clock
+        })
+        .collect();
+    assert_clock_steps_ms(&clocks, &[1.0, 1.0, 3.0]);
     // a reading from a source without a counter carries no sender clock
     ctl.sensors.publish(SensorId::PSuction, 1e5, 20 * MS);
     assert!(ctl.sensors.raw(20 * MS).sample_clock_s[SensorId::PSuction.index()].is_nan());
@@ -402,7 +417,6 @@ fn a_sender_slower_than_its_dbc_cycle_time_loses_its_clock_and_is_counted() {
     // PLANT_Pressures is declared at 1 ms; this sender sends every 2 ms, +1 per frame: after a
     // second of arrivals its counter's time is half the arrivals', the clock is withdrawn
     // (samples timed by arrival), the counter says so once
-    const MS: u64 = 1_000_000;
     let c = codec();
     let mut ctl = controller(&c);
     let msgs = messages(&c, true);
@@ -410,11 +424,9 @@ fn a_sender_slower_than_its_dbc_cycle_time_loses_its_clock_and_is_counted() {
     let snap = snapshot();
     let mut withdrawn_at = None;
     for k in 0..700u64 {
-        let f = enc.encode(0, &snap, 2 * k * MS).expect("frame");
-        let (id, d) = parts(&f);
         let t = 2 * k * MS;
-        assert_eq!(ctl.rx.handle_data(id, &d, t), RxOutcome::Published);
-        let clock = ctl.sensors.raw(t).sample_clock_s[SensorId::PSuction.index()];
+        let f = enc.encode(0, &snap, t).expect("frame");
+        let clock = sender_clock_after(&mut ctl, &f, t);
         if clock.is_nan() && withdrawn_at.is_none() {
             withdrawn_at = Some(k);
         }
@@ -433,7 +445,6 @@ fn a_sender_counting_sample_periods_keeps_the_receivers_clock_on_its_own() {
     // the simulated plant encodes on its step time; a step whose frame it could not send (its
     // task late) counts in the alive counter, so the receiver's sender clock still advances
     // by every plant period, however the frames arrive
-    const MS: u64 = 1_000_000;
     let c = codec();
     let mut ctl = controller(&c);
     let msgs = messages(&c, true);
@@ -441,19 +452,16 @@ fn a_sender_counting_sample_periods_keeps_the_receivers_clock_on_its_own() {
         .expect("enc")
         .counting_sample_periods();
     let snap = snapshot();
-    let mut clocks = Vec::new();
     // plant steps at 0, 1, 3 (the step at 2 unsent) and 4 ms; all arriving 10 µs apart
-    for (k, plant_ms) in [0u64, 1, 3, 4].into_iter().enumerate() {
-        let f = enc.encode(0, &snap, plant_ms * MS).expect("frame");
-        let (id, d) = parts(&f);
-        let arrival = 50 * MS + k as u64 * 10_000;
-        assert_eq!(ctl.rx.handle_data(id, &d, arrival), RxOutcome::Published);
-        clocks.push(ctl.sensors.raw(arrival).sample_clock_s[SensorId::PSuction.index()]);
-    }
-    let steps: Vec<f64> = clocks.windows(2).map(|w| (w[1] - w[0]) * 1e3).collect();
-    for (got, want) in steps.iter().zip([1.0, 2.0, 1.0]) {
-        assert!((got - want).abs() < 1e-6, "steps {steps:?} ms");
-    }
+    let clocks: Vec<f64> = [0u64, 1, 3, 4]
+        .into_iter()
+        .enumerate()
+        .map(|(k, plant_ms)| {
+            let f = enc.encode(0, &snap, plant_ms * MS).expect("frame");
+            sender_clock_after(&mut ctl, &f, 50 * MS + k as u64 * 10_000)
+        })
+        .collect();
+    assert_clock_steps_ms(&clocks, &[1.0, 2.0, 1.0]);
     assert_eq!(
         ctl.counters.snapshot().frames_lost,
         1,
