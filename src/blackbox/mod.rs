@@ -25,7 +25,7 @@ pub mod replay;
 
 use crate::control::measurements::{OperatorInputs, RawSensors};
 use crate::control::ControllerConfig;
-use crate::vocab::signals::{ActuatorCommands, ActuatorId, SensorId, SensorSnapshot};
+use crate::vocab::signals::{ActuatorCommands, ActuatorId, SensorId, SensorSnapshot, CYCLE_INPUTS};
 use crate::vocab::Mode;
 use serde::{Deserialize, Serialize};
 use std::io::{BufRead, Write};
@@ -37,8 +37,8 @@ use std::sync::Arc;
 /// rate ([`history_capacity`]).
 pub const HISTORY_S: f64 = 10.0;
 /// Records the recorder keeps at the default 1 kHz ([`HISTORY_S`] of cycles). In memory a
-/// record takes 320 bytes, plus 160 for the spare transmitters' readings and votes once a
-/// cycle has any (3.2 MB, or 4.8 MB with redundant transmitters).
+/// record takes 344 bytes, plus 160 for the spare transmitters' readings and votes once a
+/// cycle has any (3.4 MB, or 5.0 MB with redundant transmitters).
 pub const DEFAULT_CAPACITY: usize = 10_000;
 /// Cycles recorded after a trigger before the file is written.
 pub const POST_TRIGGER_CYCLES: u64 = 2_000;
@@ -233,6 +233,9 @@ struct Kept {
     age_s: [f64; SensorId::COUNT],
     /// The cycle inputs' sender clock ([`RawSensors::sender_clock_s`]), s.
     sender_clock_s: f64,
+    /// The cycle inputs' sample numbers ([`RawSensors::sample_seq`], in
+    /// [`CYCLE_INPUTS`](crate::vocab::signals::CYCLE_INPUTS) order): all the core reads of them.
+    cycle_seq: [u64; CYCLE_INPUTS.len()],
     op: OperatorInputs,
     commands: ActuatorCommands,
     mode: Mode,
@@ -297,6 +300,7 @@ impl Kept {
             values: r.raw.values,
             age_s: r.raw.age_s,
             sender_clock_s: r.raw.sender_clock_s(),
+            cycle_seq: CYCLE_INPUTS.map(|id| r.raw.sample_seq[id.index()]),
             op: r.op,
             commands: r.commands,
             mode: r.mode,
@@ -329,6 +333,7 @@ impl Kept {
                 age_s: self.age_s,
                 spare,
                 sample_clock_s: cycle_clocks(self.sender_clock_s),
+                sample_seq: cycle_seqs(self.cycle_seq),
             },
             op: self.op,
             commands: self.commands,
@@ -348,7 +353,7 @@ impl Kept {
 
 /// Fixed-size ring of records (oldest overwritten). The spare transmitters' part is a parallel
 /// ring allocated (on the recorder thread) by the first record that has any: a controller
-/// without redundant transmitters keeps 320 bytes a cycle instead of 480.
+/// without redundant transmitters keeps 344 bytes a cycle instead of 504.
 struct Ring {
     buf: Vec<Kept>,
     spares: Option<Vec<Spares>>,
@@ -490,6 +495,17 @@ fn cycle_clocks(sender_clock_s: f64) -> [f64; SensorId::COUNT] {
     c
 }
 
+/// The sample numbers of a record read back: those of the cycle inputs, which is all the core
+/// reads of them (0, unnumbered, for the others), so a replay holds the same cycles as the
+/// live core did.
+fn cycle_seqs(cycle_seq: [u64; CYCLE_INPUTS.len()]) -> [u64; SensorId::COUNT] {
+    let mut q = [0u64; SensorId::COUNT];
+    for (id, n) in CYCLE_INPUTS.into_iter().zip(cycle_seq) {
+        q[id.index()] = n;
+    }
+    q
+}
+
 /// CSV columns of a record (after the header line).
 pub fn columns() -> Vec<String> {
     let mut c: Vec<String> = ["cycle", "deadline_ns", "wake_ns", "t_s"]
@@ -503,6 +519,9 @@ pub fn columns() -> Vec<String> {
         c.push(format!("age_s_{}", id.name()));
     }
     c.push("sender_clock_s".into());
+    for id in CYCLE_INPUTS {
+        c.push(format!("seq_{}", id.name()));
+    }
     // redundant transmitters b and c of the measurements that can take a vote, and the vote
     for id in crate::control::vote::VOTABLE {
         for t in ["b", "c"] {
@@ -547,6 +566,9 @@ fn write_row(w: &mut impl Write, r: &CycleRecord) -> std::io::Result<()> {
         write!(w, ",{v}")?;
     }
     write!(w, ",{}", r.raw.sender_clock_s())?;
+    for id in CYCLE_INPUTS {
+        write!(w, ",{}", r.raw.sample_seq[id.index()])?;
+    }
     for (k, id) in crate::control::vote::VOTABLE.into_iter().enumerate() {
         for slot in 1..=2 {
             let (v, age) = r.raw.spare.get(id, slot);
@@ -687,6 +709,11 @@ fn parse_row(line: &str, n_cols: usize) -> Result<CycleRecord, String> {
         *v = x(next())?;
     }
     let sample_clock_s = cycle_clocks(x(next())?);
+    let mut cycle_seq = [0u64; CYCLE_INPUTS.len()];
+    for n in cycle_seq.iter_mut() {
+        *n = u(next())?;
+    }
+    let sample_seq = cycle_seqs(cycle_seq);
     let mut spare = crate::control::measurements::SpareReadings::NONE;
     let mut voted = [f64::NAN; crate::control::vote::VOTABLE.len()];
     for (k, id) in crate::control::vote::VOTABLE.into_iter().enumerate() {
@@ -718,6 +745,7 @@ fn parse_row(line: &str, n_cols: usize) -> Result<CycleRecord, String> {
             age_s,
             spare,
             sample_clock_s,
+            sample_seq,
         },
         op,
         commands,
@@ -746,6 +774,7 @@ mod tests {
         raw.values.values[0] = 101_325.123_456_79 + k as f64 * 1e-7;
         raw.values.values[1] = -0.0;
         raw.age_s[0] = 1.0 / 3.0;
+        raw.sample_seq[CYCLE_INPUTS[1].index()] = 3 * k + 1;
         let mut commands = ActuatorCommands::default();
         commands.values[0] = std::f64::consts::PI * k as f64;
         CycleRecord {
@@ -793,6 +822,7 @@ mod tests {
             let mut v: Vec<u64> = vec![r.cycle, r.deadline_ns, r.wake_ns, r.t_s.to_bits()];
             v.extend(r.raw.values.values.iter().map(|x| x.to_bits()));
             v.extend(r.raw.age_s.iter().map(|x| x.to_bits()));
+            v.extend(r.raw.sample_seq);
             v.extend(r.commands.values.iter().map(|x| x.to_bits()));
             v.push(r.law_torque_nm.to_bits());
             v
@@ -882,7 +912,7 @@ mod tests {
     #[test]
     fn the_ring_keeps_the_documented_bytes_a_cycle() {
         // HISTORY_S and DEFAULT_CAPACITY's documentation (and the memory figures in docs/benchmarks.md)
-        assert_eq!(std::mem::size_of::<Kept>(), 320);
+        assert_eq!(std::mem::size_of::<Kept>(), 344);
         assert_eq!(std::mem::size_of::<Spares>(), 160);
     }
 

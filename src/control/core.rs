@@ -18,9 +18,6 @@ use crate::surge::{Detection, SurgeDetector};
 use crate::vocab::signals::{ActuatorCommands, ActuatorId, SensorId};
 use crate::vocab::Mode;
 
-/// Arrival times closer than this are the same sample (clock rounding), s.
-const SAME_SAMPLE_S: f64 = 1e-6;
-
 /// Settings of the control core that are not law gains.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct CoreSettings {
@@ -265,8 +262,9 @@ pub struct ControlCore {
     first_t_s: f64,
     /// Total drive torque commands of the last cycles (for delay-compensating laws).
     history: LoopHistory,
-    /// Arrival time of the newest pressure/speed sample processed, s (NaN: none yet).
-    last_sample_s: f64,
+    /// Sample numbers of the cycle inputs last processed ([`RawSensors::cycle_seq`]; `None`:
+    /// none yet, or not numbered).
+    last_cycle_seq: Option<[u64; crate::vocab::signals::CYCLE_INPUTS.len()]>,
     /// The same sample on its senders' clocks ([`RawSensors::sender_clock_s`]), s (NaN: none).
     last_sender_s: f64,
     /// Measurements of the last processed sample (repeated by a holding cycle).
@@ -338,7 +336,7 @@ impl ControlCore {
             last_t_s: f64::NAN,
             first_t_s: f64::NAN,
             history: LoopHistory::EMPTY,
-            last_sample_s: f64::NAN,
+            last_cycle_seq: None,
             last_sender_s: f64::NAN,
             last_meas: Measurements::unavailable(f64::NAN),
             law_started: false,
@@ -911,12 +909,10 @@ impl ControlCore {
         // clocks; without this a late sample would be processed twice, which a law on a fast
         // unstable mode does not survive.) Freshness is still supervised: a sample that stops
         // coming goes stale and the core fails safe as before.
+        // A sample is known by its number (RawSensors::sample_seq: the sensor board's publish
+        // count), not by its age: ages move with the reader's clock.
         let essentials = crate::vocab::signals::CYCLE_INPUTS;
-        let newest_sample_s = essentials
-            .iter()
-            .map(|s| t_s - raw.age_s[s.index()])
-            .filter(|a| a.is_finite())
-            .fold(f64::NEG_INFINITY, f64::max);
+        let cycle_seq = raw.cycle_seq();
         // The time the plant let pass since the last processed sample: on the senders' clocks
         // where they have them (RawSensors::sample_clock_s), else between this cycle and the
         // last. A controller woken 3.4 ms after a sample taken 1 ms after the last one
@@ -927,12 +923,12 @@ impl ControlCore {
         let sender_dt = sender_s - self.last_sender_s;
         if essentials_ok
             && matches!(self.mode, Mode::Auto | Mode::Manual)
-            && (newest_sample_s <= self.last_sample_s + SAME_SAMPLE_S || sender_dt == 0.0)
+            && ((cycle_seq.is_some() && cycle_seq == self.last_cycle_seq) || sender_dt == 0.0)
         {
             self.history.push(self.last.get(ActuatorId::DriveTorque));
             return self.passive_output(self.last, self.last_meas, validity);
         }
-        self.last_sample_s = newest_sample_s;
+        self.last_cycle_seq = cycle_seq;
         self.last_sender_s = sender_s;
         let dt = if sender_dt > 0.0 {
             sender_dt
@@ -1242,6 +1238,7 @@ mod tests {
             assert!(out.commands.get(ActuatorId::RecycleValve).is_finite());
             let (_, next) = run.sense(t);
             raw.values = next.values;
+            raw.sample_seq = next.sample_seq;
             raw.values.set(SensorId::ShaftSpeed, f64::NAN);
         }
         // the plant-file machine owns its drive: the same sample without speed fails safe
@@ -1455,9 +1452,12 @@ mod tests {
         (core, raw, op)
     }
 
-    fn aged(raw: &RawSensors, age_s: f64) -> RawSensors {
+    /// `raw` read at `t_s`, `age_s` after it was sampled: its sample number counts the
+    /// microseconds of its sampling time (one number per sample, as the sensor board's).
+    fn aged(raw: &RawSensors, t_s: f64, age_s: f64) -> RawSensors {
         let mut r = *raw;
         r.age_s = [age_s; SensorId::COUNT];
+        r.sample_seq = [((t_s - age_s) * 1e6).round() as u64 + 1; SensorId::COUNT];
         r
     }
 
@@ -1482,7 +1482,7 @@ mod tests {
             if !in_blip && due > last_arrival {
                 last_arrival = due;
             }
-            let out = core.cycle(t, &aged(&raw, t - last_arrival), &op);
+            let out = core.cycle(t, &aged(&raw, t, t - last_arrival), &op);
             assert_ne!(out.mode, Mode::FailSafe, "fail-safe at {t:.3} s");
             if !out.validity.ok(SensorId::PSuction) {
                 stale_cycles += 1;
@@ -1502,13 +1502,13 @@ mod tests {
         let dt = 1e-3;
         for k in 0..1000 {
             let t = k as f64 * dt;
-            assert_eq!(core.cycle(t, &aged(&raw, 0.0), &op).mode, Mode::Auto);
+            assert_eq!(core.cycle(t, &aged(&raw, t, 0.0), &op).mode, Mode::Auto);
         }
         // answers stop at t = 1 s
         let mut entered = None;
         for k in 1000..2000 {
             let t = k as f64 * dt;
-            let out = core.cycle(t, &aged(&raw, t - 0.999), &op);
+            let out = core.cycle(t, &aged(&raw, t, t - 0.999), &op);
             if out.mode == Mode::FailSafe && entered.is_none() {
                 entered = Some(t);
             }
@@ -1523,7 +1523,7 @@ mod tests {
         let mut resumed = None;
         for k in 2000..3000 {
             let t = k as f64 * dt;
-            let out = core.cycle(t, &aged(&raw, 0.0), &op);
+            let out = core.cycle(t, &aged(&raw, t, 0.0), &op);
             if out.mode == Mode::Auto && resumed.is_none() {
                 resumed = Some(t);
             }
@@ -1585,7 +1585,7 @@ mod tests {
         // a link down: every reading stale (the last values kept, aged past their timeouts)
         let (mut core, raw, op, held) = started_holding_torque();
         for k in 1..=200 {
-            let out = core.cycle(k as f64 * 1e-3, &aged(&raw, k as f64 * 1e-3), &op);
+            let out = core.cycle(k as f64 * 1e-3, &aged(&raw, k as f64 * 1e-3, k as f64 * 1e-3), &op);
             if out.mode == Mode::FailSafe {
                 // not commanded: the drive keeps its own governor, and no stale command
                 // reaches it in the first frames after the link is back
@@ -1646,6 +1646,7 @@ mod tests {
         assert!(held.law_diagnostic.is_nan(), "the law did not run");
         // a new sample runs the law, with dt over both periods
         let mut next = raw;
+        next.sample_seq = raw.sample_seq.map(|n| n + 1);
         next.values.set(
             SensorId::PDischarge,
             raw.values.get(SensorId::PDischarge) + 50.0,
@@ -1653,8 +1654,17 @@ mod tests {
         let out = core.cycle(0.002, &next, &op);
         assert!(out.law_diagnostic.is_finite());
         assert!((out.measurements.t_s - 0.002).abs() < 1e-12);
+        // the number decides, not the age: a new sample whose age puts it at the last one's
+        // time (two frames handed over in one batch) runs the law; the last one again holds
+        let mut batched = next;
+        batched.sample_seq = next.sample_seq.map(|n| n + 1);
+        batched.age_s = [0.001; SensorId::COUNT];
+        assert!(core.cycle(0.003, &batched, &op).law_diagnostic.is_finite());
+        let mut late = batched;
+        late.age_s = [0.002; SensorId::COUNT];
+        assert!(core.cycle(0.004, &late, &op).law_diagnostic.is_nan());
         // a sample that stops coming still goes stale and fails safe
-        let mut stale = next;
+        let mut stale = batched;
         stale.age_s = [0.2; SensorId::COUNT];
         assert_eq!(core.cycle(0.2, &stale, &op).mode, Mode::FailSafe);
     }
@@ -1675,6 +1685,7 @@ mod tests {
         let sample = |k: usize, b: f64, c: f64| {
             let mut r = raw;
             r.values.set(SensorId::PDischarge, pd + (k % 2) as f64);
+            r.sample_seq = raw.sample_seq.map(|n| n + k as u64);
             r.spare.set(SensorId::OrificeDp, 1, b, 0.0);
             r.spare.set(SensorId::OrificeDp, 2, c, 0.0);
             r

@@ -22,6 +22,11 @@ pub struct RawSensors {
     /// filters over this interval, not over its own wake-ups: a controller woken late, or
     /// a frame batch handed over at once, must not stretch or shrink the plant's time.
     pub sample_clock_s: [f64; SensorId::COUNT],
+    /// How many samples of each value its source has delivered so far (the sensor board's
+    /// publish count, the simulator's sample count): two readings with the same number are
+    /// one sample, however their ages moved. 0: the source does not number its samples (a
+    /// test's hand-made readings), and every cycle takes it as a new one.
+    pub sample_seq: [u64; SensorId::COUNT],
 }
 
 /// Readings of the redundant transmitters `b` and `c` of each sensor (NaN and ∞ age where
@@ -89,6 +94,24 @@ impl RawSensors {
         newest
     }
 
+    /// The sample numbers ([`sample_seq`](Self::sample_seq)) of the [`CYCLE_INPUTS`] that
+    /// have arrived (finite age; 0 for the others): a cycle with the same numbers as the last
+    /// one processed has no new sample. `None` when one of them is not numbered by its
+    /// source, so that a cycle never takes an unnumbered reading for a repeated one.
+    pub fn cycle_seq(&self) -> Option<[u64; CYCLE_INPUTS.len()]> {
+        let mut seq = [0u64; CYCLE_INPUTS.len()];
+        for (k, s) in CYCLE_INPUTS.into_iter().enumerate() {
+            if !self.age_s[s.index()].is_finite() {
+                continue;
+            }
+            match self.sample_seq[s.index()] {
+                0 => return None,
+                n => seq[k] = n,
+            }
+        }
+        Some(seq)
+    }
+
     /// No readings at all (every value NaN, never received).
     pub fn missing() -> Self {
         RawSensors {
@@ -96,6 +119,7 @@ impl RawSensors {
             age_s: [f64::INFINITY; SensorId::COUNT],
             spare: SpareReadings::NONE,
             sample_clock_s: [f64::NAN; SensorId::COUNT],
+            sample_seq: [0; SensorId::COUNT],
         }
     }
 
@@ -106,6 +130,7 @@ impl RawSensors {
             age_s: [0.0; SensorId::COUNT],
             spare: SpareReadings::NONE,
             sample_clock_s: [f64::NAN; SensorId::COUNT],
+            sample_seq: [0; SensorId::COUNT],
         }
     }
 
@@ -116,6 +141,7 @@ impl RawSensors {
             age_s,
             spare: SpareReadings::NONE,
             sample_clock_s: [f64::NAN; SensorId::COUNT],
+            sample_seq: [0; SensorId::COUNT],
         }
     }
 
@@ -229,5 +255,21 @@ mod tests {
         raw.age_s[SensorId::ShaftSpeed.index()] = 0.0;
         raw.sample_clock_s[SensorId::ShaftSpeed.index()] = 1.5;
         assert_eq!(raw.sender_clock_s(), 2.001, "the newest sample");
+    }
+
+    #[test]
+    fn the_cycle_seq_is_the_arrived_inputs_numbers_and_none_for_an_unnumbered_one() {
+        let mut raw = RawSensors::fresh(Default::default());
+        assert_eq!(raw.cycle_seq(), None, "hand-made readings: not numbered");
+        raw.sample_seq[SensorId::PSuction.index()] = 7;
+        raw.sample_seq[SensorId::PDischarge.index()] = 9;
+        assert_eq!(raw.cycle_seq(), None, "the speed arrived unnumbered");
+        raw.age_s[SensorId::ShaftSpeed.index()] = f64::INFINITY;
+        assert_eq!(raw.cycle_seq(), Some([7, 9, 0]), "an unbound speed does not count");
+        raw.age_s[SensorId::ShaftSpeed.index()] = 0.5;
+        raw.sample_seq[SensorId::ShaftSpeed.index()] = 3;
+        assert_eq!(raw.cycle_seq(), Some([7, 9, 3]));
+        raw.sample_seq[SensorId::TSuction.index()] = 0;
+        assert_eq!(raw.cycle_seq(), Some([7, 9, 3]), "only the cycle inputs count");
     }
 }

@@ -85,6 +85,9 @@ pub struct ControlNode {
     overruns: OverrunReporter,
     health: Arc<Health>,
     stats: Arc<CycleStats>,
+    field: Arc<crate::io::link::FieldFaults>,
+    /// The field fault word read at the start of this cycle.
+    field_word: u32,
     period_ns: u64,
     t0_ns: u64,
     prev_mode: Mode,
@@ -149,6 +152,9 @@ pub struct ControlWiring {
     pub health: Arc<Health>,
     /// Shared cycle statistics.
     pub stats: Arc<CycleStats>,
+    /// The field faults the link tasks raise (read each cycle: the fault word on the wire,
+    /// the link named as the root of stale inputs, the slow-link policy).
+    pub field: Arc<crate::io::link::FieldFaults>,
 }
 
 impl ControlNode {
@@ -167,6 +173,8 @@ impl ControlNode {
             overruns: OverrunReporter::new(Duration::from_secs(10), Instant::now()),
             health: w.health,
             stats: w.stats,
+            field: w.field,
+            field_word: 0,
             period_ns,
             t0_ns: u64::MAX, // set from the first tick: time comes from the ticks only
             prev_mode: Mode::Init,
@@ -256,7 +264,7 @@ impl ControlNode {
                         .unwrap_or(Cause::of(CauseKind::InputFault));
                 // a link that is down is the root of the inputs it carries going stale
                 let carried_by = cause.input.map_or(u8::MAX, |i| self.input_links[i.index()]);
-                cause.rooted_in_link(crate::faults::field::down_link_among(carried_by))
+                cause.rooted_in_link(self.field.down_link_among(carried_by))
             }
             Mode::Auto | Mode::Manual if matches!(from, Mode::Init | Mode::FailSafe) => {
                 Cause::of(CauseKind::InputsHealthy)
@@ -354,6 +362,7 @@ impl ControlNode {
             law: out.law,
             flow_source,
             fault_bits: sensor_lamp_bits(&out.validity) & needed,
+            field_faults: self.field_word,
             cause: self.cause,
             flow_map: q,
             pressure_ratio: r,
@@ -439,15 +448,10 @@ impl ControlNode {
         self.apply_operator_commands();
         let now = tick.wake_ns;
         let raw = self.sensors.raw(now);
-        let age_s = raw.age_s;
-        let oldest = [
-            SensorId::PSuction,
-            SensorId::PDischarge,
-            SensorId::ShaftSpeed,
-        ]
-        .iter()
-        .map(|s| age_s[s.index()])
-        .fold(0.0f64, f64::max);
+        let oldest = crate::vocab::signals::CYCLE_INPUTS
+            .iter()
+            .map(|s| raw.age_s[s.index()])
+            .fold(0.0f64, f64::max);
         if oldest.is_finite() {
             self.stats.input_age.record((oldest * 1e9) as u64);
         }
@@ -456,9 +460,10 @@ impl ControlNode {
             self.t0_ns = tick.deadline_ns.saturating_sub(self.period_ns);
         }
         let t_s = now.saturating_sub(self.t0_ns) as f64 * 1e-9;
-        // the slow-link policy: a field link slow but alive widens the control line
-        let slow =
-            crate::faults::field::word() & crate::vocab::faults::FaultCategory::FieldLinkSlow.bit();
+        // the field faults of this cycle; the slow-link policy: a field link slow but alive
+        // widens the control line
+        self.field_word = self.field.word();
+        let slow = self.field_word & crate::vocab::faults::FaultCategory::FieldLinkSlow.bit();
         self.core.set_link_slow(slow != 0);
         let out = self.core.cycle(t_s, &raw, &self.op);
         if let Some(bb) = &mut self.blackbox {
@@ -498,8 +503,10 @@ impl ControlNode {
             commands: out.commands,
             mode: out.mode,
             law: out.law.code(),
+            // the input faults of this cycle and the field faults of the link tasks
             faults: fault_bits(&out.validity, &self.core.settings().supervisor)
-                | self.core.vote().fault_set().0,
+                | self.core.vote().fault_set().0
+                | self.field_word,
             cycle: tick.cycle,
             t_ns: now,
         });

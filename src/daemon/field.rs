@@ -12,7 +12,7 @@ use crate::io::can::bus::{
     ControllerBoards, PlantBoards,
 };
 use crate::io::feedback::FeedbackSupervisor;
-use crate::io::field_link::{EventSink, FieldLinkReporter};
+use crate::io::link::{EventSink, FieldLinkReporter, LinkReports};
 use crate::io::modbus::{
     run_controller_triggering as modbus_controller, run_plant_server, LinkMonitor, LinkState,
     ModbusLinkConfig, Pacing, TransportConfig, WriteHealth,
@@ -74,16 +74,17 @@ pub fn modbus_reads_drive_the_cycle(l: &Loaded) -> bool {
             .is_some_and(|m| m.cycle_trigger == crate::io::modbus::link::ModbusCycleTrigger::Reads)
 }
 
-/// The event sink of a [`FieldLinkReporter`]: the daemon's event log.
-fn event_sink(events: EventSender) -> EventSink {
-    Arc::new(move |e: Event| {
+/// Where the field links report: the daemon's event log and its field-fault handle.
+pub fn link_reports(events: EventSender, faults: Arc<crate::io::link::FieldFaults>) -> LinkReports {
+    let sink: EventSink = Arc::new(move |e: Event| {
         let _ = events.send(e);
-    })
+    });
+    LinkReports { sink, faults }
 }
 
 /// CAN state changes through the one reporter.
-fn bus_event_hook(events: EventSender, interface: String) -> crate::io::can::bus::StateHook {
-    let reporter = std::sync::Mutex::new(FieldLinkReporter::new(interface, event_sink(events)));
+fn bus_event_hook(reports: &LinkReports, interface: String) -> crate::io::can::bus::StateHook {
+    let reporter = std::sync::Mutex::new(reports.reporter(interface));
     Arc::new(move |s| {
         if let Some(state) = s.to_event() {
             let mut r = reporter
@@ -101,7 +102,7 @@ pub async fn supervise_feedback(
     sensors: Arc<SensorBoard>,
     outputs: Arc<OutputBoard>,
     timeouts_s: [f64; crate::vocab::signals::SensorId::COUNT],
-    events: EventSender,
+    reports: LinkReports,
     shutdown: watch::Receiver<bool>,
     health: Arc<super::control_node::Health>,
 ) {
@@ -142,9 +143,9 @@ pub async fn supervise_feedback(
                 }
             },
             |t| {
-                let r = reporters.entry(t.actuator).or_insert_with(|| {
-                    FieldLinkReporter::new(t.actuator.name(), event_sink(events.clone()))
-                });
+                let r = reporters
+                    .entry(t.actuator)
+                    .or_insert_with(|| reports.reporter(t.actuator.name()));
                 r.fault(
                     FaultCategory::ActuatorFeedbackMismatch,
                     t.active,
@@ -487,7 +488,7 @@ pub fn spawn_controller_links(
     tasks: &mut JoinSet<()>,
     boards: ControllerBoards,
     shutdown: watch::Receiver<bool>,
-    events: EventSender,
+    reports: LinkReports,
     health: Arc<super::control_node::Health>,
 ) -> Result<LinkCounters> {
     let ControllerBoards {
@@ -522,7 +523,7 @@ pub fn spawn_controller_links(
             Arc::clone(&sensors),
             Arc::clone(&outputs),
             timeouts_s,
-            events.clone(),
+            reports.clone(),
             shutdown.clone(),
             Arc::clone(&health),
         ));
@@ -533,7 +534,7 @@ pub fn spawn_controller_links(
         counters.can = Some(Arc::clone(&handles.counters));
         counters.can_state = Some(state);
         counters.can_name = Some(can_link_name(&can.interface));
-        let handles = handles.with_hook(bus_event_hook(events.clone(), can.interface.clone()));
+        let handles = handles.with_hook(bus_event_hook(&reports, can.interface.clone()));
         let boards = ControllerBoards {
             sensors: Arc::clone(&sensors),
             outputs: Arc::clone(&outputs),
@@ -556,7 +557,7 @@ pub fn spawn_controller_links(
         counters.modbus = Some(Arc::clone(&monitor));
         counters.modbus_name = Some(modbus_link_name(&cfg));
         crate::live::metrics::register_modbus_link(modbus_link_name(&cfg), Arc::clone(&monitor));
-        let reporter = FieldLinkReporter::new(modbus_link_name(&cfg), event_sink(events.clone()));
+        let reporter = reports.reporter(modbus_link_name(&cfg));
         let freshness_s = map
             .modbus_sensors()
             .iter()

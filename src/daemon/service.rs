@@ -535,6 +535,8 @@ async fn serve(loaded: Loaded, opts: RunOptions) -> Result<()> {
     .map_err(|e| anyhow!("{e}"))?;
     let mut core = core;
     core.request_auto(cfg.control.mode == config::StartMode::Auto);
+    // the field faults the link tasks raise, read by the control thread each cycle
+    let field_faults = Arc::new(crate::io::link::FieldFaults::default());
     let node = ControlNode::new(
         core,
         operator_inputs(&loaded),
@@ -547,6 +549,7 @@ async fn serve(loaded: Loaded, opts: RunOptions) -> Result<()> {
             events: Some(log.rt_sender().map_err(|e| anyhow!("{e}"))?),
             health: Arc::clone(&health),
             stats: Arc::clone(&stats),
+            field: Arc::clone(&field_faults),
         },
         cfg.cycle.period_ns(),
     );
@@ -615,7 +618,7 @@ async fn serve(loaded: Loaded, opts: RunOptions) -> Result<()> {
                     trigger: trigger.clone(),
                 },
                 shutdown_rx.clone(),
-                events.clone(),
+                super::field::link_reports(events.clone(), Arc::clone(&field_faults)),
                 Arc::clone(&health),
             )?;
         }

@@ -5,7 +5,7 @@
 
 pub mod can;
 pub mod feedback;
-pub mod field_link;
+pub mod link;
 pub mod modbus;
 pub mod signal_map;
 pub mod units;

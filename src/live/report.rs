@@ -275,7 +275,7 @@ impl StatusReport {
                 .filter(|id| s.fault_bits & (1 << id.index()) != 0)
                 .map(|input| FaultLamp { input })
                 .collect(),
-            field_faults: crate::vocab::faults::FaultSet(crate::faults::field::word())
+            field_faults: crate::vocab::faults::FaultSet(s.field_faults)
                 .categories()
                 .map(|c| c.name().to_string())
                 .collect(),
@@ -633,6 +633,12 @@ mod tests {
         assert_eq!(json["p_discharge_pa"], 2.5e5);
         assert_eq!(json["orifice_dp_pa"], 1234.0);
         assert_eq!(json["t_suction_k"], 293.15);
+        assert_eq!(json["field_faults"], serde_json::json!([]));
+        // the field links' faults come with the cycle's snapshot
+        let mut ff = pv;
+        ff.field_faults = crate::vocab::faults::FaultCategory::FieldWriteFailed.bit();
+        let fr = StatusReport::new(&ff, 1.0, serde_json::Value::Null, serde_json::Value::Null);
+        assert_eq!(fr.field_faults, ["field_write_failed"]);
         let text = human(&r);
         assert!(
             text.contains(

@@ -71,6 +71,8 @@ pub struct LiveSnapshot {
     pub flow_source: FlowSourceNow,
     /// Bit i set when sensor i is not usable.
     pub fault_bits: u32,
+    /// The field links' fault word this cycle ([`crate::io::link::FieldFaults::word`]).
+    pub field_faults: u32,
     /// Cause of the last mode change (None before the first).
     pub cause: Option<Cause>,
     /// Operating point: flow in map coordinates.
@@ -168,6 +170,7 @@ impl Default for LiveSnapshot {
             law: LawId::None,
             flow_source: FlowSourceNow::None,
             fault_bits: 0,
+            field_faults: 0,
             cause: None,
             flow_map: f64::NAN,
             pressure_ratio: f64::NAN,
@@ -305,7 +308,7 @@ impl LiveBoard {
             s.p_discharge_pa.to_bits(),
             s.orifice_dp_pa.to_bits(),
             s.t_suction_k.to_bits(),
-            0,
+            u64::from(s.field_faults),
         ];
         let mut w = {
             let mut all = [0u64; WORDS];
@@ -372,6 +375,7 @@ impl LiveBoard {
                 .copied()
                 .unwrap_or(FlowSourceNow::None),
             fault_bits: w[3] as u32,
+            field_faults: w[28] as u32,
             safety_on_count: (w[3] >> 32) as u32,
             cause,
             surge_count: w[4],
@@ -440,6 +444,7 @@ mod tests {
             law: LawId::RecyclePi,
             flow_source: FlowSourceNow::ObserverFallback,
             fault_bits: 0b1010,
+            field_faults: 0x0300,
             cause: Some(Cause {
                 kind: CauseKind::InputFault,
                 input: Some(SensorId::PDischarge),

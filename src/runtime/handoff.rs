@@ -171,8 +171,8 @@ impl SensorBoard {
         }
     }
 
-    /// Every input of a control cycle at `now_ns`: values, ages, the redundant transmitters
-    /// and the sender clocks. Allocation-free; the one way from the board to the core.
+    /// Every input of a control cycle at `now_ns`: values, ages, sample numbers, the redundant
+    /// transmitters and the sender clocks. Allocation-free; the one way from the board to the core.
     pub fn raw(&self, now_ns: u64) -> RawSensors {
         let mut raw = RawSensors::missing();
         for id in SensorId::ALL {
@@ -181,6 +181,8 @@ impl SensorBoard {
                 continue;
             }
             raw.values.set(id, f64::from_bits(v));
+            // the slot's write count is the sensor's sample number (the core's sample identity)
+            raw.sample_seq[id.index()] = seq;
             if t > 0 {
                 raw.age_s[id.index()] = now_ns.saturating_sub(t) as f64 * 1e-9;
             }

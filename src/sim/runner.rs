@@ -150,18 +150,24 @@ pub struct SimResult {
     pub summary: Summary,
 }
 
-/// Apply scenario faults and noise to the plant's readings; returns raw sensors with ages.
+/// Apply scenario faults and noise to the plant's readings; returns raw sensors with ages and
+/// sample numbers (`seq`: each transmitter's count of samples; a stale one sends none).
 fn field_readings(
     t_s: f64,
     clean: &SensorSnapshot,
     faults: &[SensorState; SensorId::COUNT],
     noise: &[(f64, crate::scenario::Distribution); SensorId::COUNT],
     frozen: &mut SensorSnapshot,
+    seq: &mut [u64; SensorId::COUNT],
     rng: &mut NoiseSource,
 ) -> RawSensors {
     let mut raw = RawSensors::fresh(*clean);
     for id in SensorId::ALL {
         let i = id.index();
+        if !matches!(faults[i], SensorState::Stale { .. }) {
+            seq[i] += 1;
+        }
+        raw.sample_seq[i] = seq[i];
         match faults[i] {
             SensorState::Ok => {
                 let (amp, dist) = noise[i];
@@ -230,6 +236,8 @@ pub struct PlantRun<'a> {
     detector: SurgeDetector,
     rng: NoiseSource,
     frozen: SensorSnapshot,
+    /// Samples each transmitter has sent ([`RawSensors::sample_seq`]).
+    sample_seq: [u64; SensorId::COUNT],
     peaks: ActuatorPeaks,
     min_flow: f64,
     min_margin: f64,
@@ -552,6 +560,7 @@ impl<'a> PlantRun<'a> {
             detector: SurgeDetector::new(DetectorConfig::default()),
             rng: NoiseSource::new(scenario.file.seed),
             frozen,
+            sample_seq: [0; SensorId::COUNT],
             peaks: ActuatorPeaks {
                 drive_torque_rating_nm: desc.file.drive.rated_torque_nm,
                 nominal_load_torque_nm: t0_torque,
@@ -706,6 +715,7 @@ impl<'a> PlantRun<'a> {
             &st.faults,
             &st.noise,
             &mut self.frozen,
+            &mut self.sample_seq,
             &mut self.rng,
         );
         (st, raw)

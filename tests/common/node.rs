@@ -17,6 +17,8 @@ pub struct BareNode {
     pub outputs: Arc<OutputBoard>,
     pub health: Arc<Health>,
     pub stats: Arc<CycleStats>,
+    /// The field faults the node reads each cycle (as the daemon's link tasks raise them).
+    pub field: Arc<antisurge::io::link::FieldFaults>,
     /// Reconfigurations sent to the node (applied at its next cycle boundary).
     pub updates: rtrb::Producer<ControlUpdate>,
     /// What the node retired, to be dropped off its thread.
@@ -41,6 +43,7 @@ pub fn bare_node_with_events(
     let stats = Arc::new(CycleStats::default());
     let (updates, updates_rx) = rtrb::RingBuffer::<ControlUpdate>::new(4);
     let (retired_tx, retired) = rtrb::RingBuffer::new(8);
+    let field = Arc::new(antisurge::io::link::FieldFaults::default());
     let node = ControlNode::new(
         core,
         op,
@@ -53,6 +56,7 @@ pub fn bare_node_with_events(
             events,
             health: Arc::clone(&health),
             stats: Arc::clone(&stats),
+            field: Arc::clone(&field),
         },
         period_ns,
     );
@@ -62,6 +66,7 @@ pub fn bare_node_with_events(
         outputs,
         health,
         stats,
+        field,
         updates,
         retired,
     }

@@ -62,6 +62,7 @@ fn control_node_cycle_with_live_snapshot_allocates_nothing_while_polled() {
             events: None,
             health: Arc::new(Health::default()),
             stats: Arc::clone(&stats),
+            field: Arc::new(antisurge::io::link::FieldFaults::default()),
         },
         1_000_000,
     );

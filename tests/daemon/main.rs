@@ -19,6 +19,7 @@ mod daemon_trace_stream;
 mod deploy_unit;
 mod event_log_crash;
 mod event_log_rt_alloc;
+mod field_faults_node;
 mod fault_campaign;
 mod journal_fields;
 mod live_no_alloc;

@@ -122,6 +122,7 @@ fn the_cycle_never_waits_on_a_node_whose_broker_acknowledges_nothing() {
         updates: _updates,
         retired: _retired,
         health: _health,
+        field: _field,
     } = common::node::bare_node_with_events(
         core,
         op,

@@ -1268,7 +1268,7 @@ impl Controller {
                 wd,
                 o.mode.code(),
                 o.law,
-                o.faults | crate::faults::field::word(),
+                o.faults,
                 !withheld,
                 &mut self.write_values[at..],
             );

@@ -387,8 +387,9 @@ impl HeartbeatTx {
         let hb = Heartbeat {
             mode: o.mode,
             active_law: o.law,
-            // input faults of the control thread and the field faults of the I/O tasks
-            faults: o.faults | crate::faults::field::word(),
+            // input faults of the control thread and the field faults of the I/O tasks (the
+            // control thread ORs those in, crate::io::link::FieldFaults)
+            faults: o.faults,
         };
         let alive = self.alive;
         self.alive = if alive >= self.alive_max {

@@ -1,20 +1,39 @@
-//! The `FieldLink` seam: what every field link (CAN interface, Modbus connection) reports,
-//! in one vocabulary, and the state→event wiring written once.
+//! What every field link (CAN interface, Modbus connection) reports, in one vocabulary, and
+//! the state→event wiring written once.
 //!
 //! A transport task keeps its own socket, retry and backoff, and tells a
 //! [`FieldLinkReporter`] what happened: link state changes ([`BusState`]) and faults
 //! ([`FaultCategory`] with a cause in words). The reporter drops repeats and turns every
 //! transition into one `bus_state` or `field_fault` event, one journal line and the active
-//! fault word ([`FieldLinkReporter::faults`]) that status shows.
+//! fault word ([`FieldLinkReporter::faults`]) that status shows; the same faults go to the
+//! daemon's [`FieldFaults`] handle, for the fault word on the wire.
 
 use std::sync::atomic::{AtomicU32, Ordering};
 use std::sync::Arc;
 
+use super::FieldFaults;
 use crate::events::event::{BusState, Event};
 use crate::vocab::faults::{FaultCategory, FaultSet, FieldLinkKind};
 
 /// Where a reporter's events go (the daemon's event sender, or a test's vector).
 pub type EventSink = Arc<dyn Fn(Event) + Send + Sync>;
+
+/// Where the links' reports go: the event sink and the field-fault handle. The daemon builds
+/// one and hands it to every link task, which makes its reporters from it.
+#[derive(Clone)]
+pub struct LinkReports {
+    /// Events.
+    pub sink: EventSink,
+    /// The fault word on the wire, and the links down.
+    pub faults: Arc<FieldFaults>,
+}
+
+impl LinkReports {
+    /// A reporter for `link` (e.g. `can0`, `modbus:10.0.0.5:502`).
+    pub fn reporter(&self, link: impl Into<String>) -> FieldLinkReporter {
+        FieldLinkReporter::new(link, Arc::clone(&self.sink), Arc::clone(&self.faults))
+    }
+}
 
 /// Reports one link's transitions (see the module documentation).
 pub struct FieldLinkReporter {
@@ -23,20 +42,20 @@ pub struct FieldLinkReporter {
     last: Option<BusState>,
     faults: Arc<AtomicU32>,
     causes: [Option<String>; FaultCategory::ALL.len()],
-    /// Whether active faults go into the fault word on the wire ([`crate::faults::field`]).
-    on_wire: bool,
-    /// Whether the link is down now (as told to [`crate::faults::field::link_down`]).
+    /// Where active faults go for the fault word on the wire (`None`: nowhere, tests, tools).
+    field: Option<Arc<FieldFaults>>,
+    /// Whether the link is down now (as told to [`FieldFaults::link_down`]).
     down: bool,
 }
 
 impl Drop for FieldLinkReporter {
     fn drop(&mut self) {
-        if self.on_wire {
+        if let Some(field) = &self.field {
             for c in FaultSet(self.faults.load(Ordering::Relaxed)).categories() {
-                crate::faults::field::clear(c);
+                field.clear(c);
             }
             if self.down {
-                crate::faults::field::link_down(FieldLinkKind::of_link_name(&self.link), false);
+                field.link_down(FieldLinkKind::of_link_name(&self.link), false);
             }
         }
     }
@@ -53,24 +72,29 @@ impl std::fmt::Debug for FieldLinkReporter {
 }
 
 impl FieldLinkReporter {
-    /// A reporter for `link` (e.g. `can0`, `modbus:10.0.0.5:502`) sending to `sink`.
-    pub fn new(link: impl Into<String>, sink: EventSink) -> FieldLinkReporter {
+    /// A reporter for `link` (e.g. `can0`, `modbus:10.0.0.5:502`) sending to `sink`, its
+    /// faults counted in `field`.
+    pub fn new(
+        link: impl Into<String>,
+        sink: EventSink,
+        field: Arc<FieldFaults>,
+    ) -> FieldLinkReporter {
+        let mut r = FieldLinkReporter::detached(link, sink);
+        r.field = Some(field);
+        r
+    }
+
+    /// A reporter whose faults stay out of the fault word on the wire (tests, tools).
+    pub fn detached(link: impl Into<String>, sink: EventSink) -> FieldLinkReporter {
         FieldLinkReporter {
             link: link.into(),
             sink,
             last: None,
             faults: Arc::new(AtomicU32::new(0)),
             causes: Default::default(),
-            on_wire: true,
+            field: None,
             down: false,
         }
-    }
-
-    /// A reporter whose faults stay out of the fault word on the wire (tests, tools).
-    pub fn detached(link: impl Into<String>, sink: EventSink) -> FieldLinkReporter {
-        let mut r = FieldLinkReporter::new(link, sink);
-        r.on_wire = false;
-        r
     }
 
     /// The link's name.
@@ -102,10 +126,10 @@ impl FieldLinkReporter {
             state,
         });
         let down = matches!(state, BusState::Down | BusState::BusOff);
-        if self.on_wire && down != self.down {
+        if let Some(field) = self.field.as_ref().filter(|_| down != self.down) {
             // the root cause the control thread names when the inputs this link carries go
             // stale ("Modbus link down", not "p_suction stale")
-            crate::faults::field::link_down(FieldLinkKind::of_link_name(&self.link), down);
+            field.link_down(FieldLinkKind::of_link_name(&self.link), down);
         }
         self.down = down;
         if down {
@@ -127,15 +151,15 @@ impl FieldLinkReporter {
             return;
         }
         if active {
-            if !was && self.on_wire {
-                crate::faults::field::raise(fault);
+            if let Some(field) = self.field.as_ref().filter(|_| !was) {
+                field.raise(fault);
             }
             self.faults.fetch_or(fault.bit(), Ordering::Relaxed);
             self.causes[i] = Some(cause.to_string());
             tracing::error!(target: "field", link = %self.link, fault = fault.name(), "{}: {cause}", fault.describe());
         } else {
-            if self.on_wire {
-                crate::faults::field::clear(fault);
+            if let Some(field) = &self.field {
+                field.clear(fault);
             }
             self.faults.fetch_and(!fault.bit(), Ordering::Relaxed);
             self.causes[i] = None;
@@ -192,6 +216,28 @@ mod tests {
             ]
         );
         assert_eq!(r.faults().load(Ordering::Relaxed), 0);
+    }
+
+    #[test]
+    fn the_handle_counts_the_reporters_faults_and_a_dropped_reporter_clears_them() {
+        let field = Arc::new(FieldFaults::default());
+        let mut a = FieldLinkReporter::new("can0", Arc::new(|_| {}), Arc::clone(&field));
+        let mut b = FieldLinkReporter::new("modbus:x", Arc::new(|_| {}), Arc::clone(&field));
+        a.state(BusState::Down, "interface down");
+        b.fault(FaultCategory::FieldWriteFailed, true, "exception 2");
+        assert_eq!(field.down_link(), Some(FieldLinkKind::Can));
+        assert_eq!(
+            field.word(),
+            FaultCategory::FieldLinkDown.bit() | FaultCategory::FieldWriteFailed.bit()
+        );
+        drop(a);
+        assert_eq!(field.down_link(), None, "a reporter gone takes its link down with it");
+        assert_eq!(field.word(), FaultCategory::FieldWriteFailed.bit());
+        b.fault(FaultCategory::FieldWriteFailed, false, "written");
+        assert_eq!(field.word(), 0);
+        let (mut d, _) = reporter();
+        d.fault(FaultCategory::FieldWriteFailed, true, "exception 2");
+        assert_eq!(field.word(), 0, "a detached reporter counts nowhere");
     }
 
     #[test]
