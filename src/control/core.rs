@@ -1585,7 +1585,11 @@ mod tests {
         // a link down: every reading stale (the last values kept, aged past their timeouts)
         let (mut core, raw, op, held) = started_holding_torque();
         for k in 1..=200 {
-            let out = core.cycle(k as f64 * 1e-3, &aged(&raw, k as f64 * 1e-3, k as f64 * 1e-3), &op);
+            let out = core.cycle(
+                k as f64 * 1e-3,
+                &aged(&raw, k as f64 * 1e-3, k as f64 * 1e-3),
+                &op,
+            );
             if out.mode == Mode::FailSafe {
                 // not commanded: the drive keeps its own governor, and no stale command
                 // reaches it in the first frames after the link is back

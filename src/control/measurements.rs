@@ -265,11 +265,19 @@ mod tests {
         raw.sample_seq[SensorId::PDischarge.index()] = 9;
         assert_eq!(raw.cycle_seq(), None, "the speed arrived unnumbered");
         raw.age_s[SensorId::ShaftSpeed.index()] = f64::INFINITY;
-        assert_eq!(raw.cycle_seq(), Some([7, 9, 0]), "an unbound speed does not count");
+        assert_eq!(
+            raw.cycle_seq(),
+            Some([7, 9, 0]),
+            "an unbound speed does not count"
+        );
         raw.age_s[SensorId::ShaftSpeed.index()] = 0.5;
         raw.sample_seq[SensorId::ShaftSpeed.index()] = 3;
         assert_eq!(raw.cycle_seq(), Some([7, 9, 3]));
         raw.sample_seq[SensorId::TSuction.index()] = 0;
-        assert_eq!(raw.cycle_seq(), Some([7, 9, 3]), "only the cycle inputs count");
+        assert_eq!(
+            raw.cycle_seq(),
+            Some([7, 9, 3]),
+            "only the cycle inputs count"
+        );
     }
 }

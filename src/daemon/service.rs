@@ -458,10 +458,114 @@ pub fn run(opts: &RunOptions) -> Result<()> {
     }
     let rt = crate::runtime::rt_loop::io_runtime(&loaded.config.cycle, "antisurge-io")
         .context("cannot start the I/O runtime")?;
-    rt.block_on(serve(loaded, opts.clone()))
+    let plan = ServePlan::of(&loaded, opts)?;
+    rt.block_on(serve(loaded, plan))
 }
 
-async fn serve(loaded: Loaded, opts: RunOptions) -> Result<()> {
+/// What `antisurge run` starts, with which settings, decided from the loaded configuration
+/// and the options alone (no file, socket or thread touched): the plan step of the service,
+/// [`serve`] the spawn step that carries it out.
+#[derive(Debug, Clone, PartialEq)]
+pub struct ServePlan {
+    /// What starts a control cycle, in words (event log, journal, stats file).
+    pub cycle_trigger: String,
+    /// Whether a cycle trigger is made (CAN inputs or Modbus reads drive the cycle).
+    pub triggered: bool,
+    /// Where the sensors come from and the commands go.
+    pub plant: PlantPlan,
+    /// The black box's directory (beside the event log) and its ring's records.
+    pub blackbox_dir: PathBuf,
+    /// Records of the black box's ring ([`crate::blackbox::history_capacity`]).
+    pub blackbox_records: usize,
+    /// Whether the core asks for automatic mode at start.
+    pub start_auto: bool,
+    /// Whether the Sparkplug B edge node runs.
+    pub sparkplug: bool,
+    /// Whether the config directory is watched (else SIGHUP alone reloads).
+    pub watch_files: bool,
+    /// How long watched files must stay unchanged before a reload.
+    pub settle: Duration,
+    /// The running configuration's record (`check-config --against-running`), and beside
+    /// it the reload's verdict and the operator's override.
+    pub running_file: PathBuf,
+    /// The reload verdict `antisurge reload` waits for.
+    pub verdict_file: PathBuf,
+    /// The operator's override of the reload's valve-step dry run.
+    pub override_file: PathBuf,
+    /// Stop after this long (None: until a signal).
+    pub duration_s: Option<f64>,
+}
+
+/// The plant side of a [`ServePlan`].
+#[derive(Debug, Clone, PartialEq)]
+pub enum PlantPlan {
+    /// The simulated plant in process; `hold`: it holds its last state after the scenario
+    /// ends (else the run stops there); its trace and summary go to `out_dir`.
+    InProcess {
+        /// Hold after the scenario's end.
+        hold: bool,
+        /// Trace and summary directory.
+        out_dir: Option<PathBuf>,
+        /// The run stops when the scenario ends (a trace asked for, no duration).
+        stop_at_end: bool,
+    },
+    /// The field links of the signal map (CAN, Modbus).
+    Field,
+}
+
+impl ServePlan {
+    /// The plan for `loaded` run with `opts`.
+    pub fn of(loaded: &Loaded, opts: &RunOptions) -> Result<ServePlan> {
+        let cfg = &loaded.config;
+        // what starts a cycle: the arrival of its CAN inputs, the Modbus link's reads, or the
+        // fixed deadline
+        let trigger_plan = super::field::controller_trigger_plan(loaded)?;
+        let modbus_reads = super::field::modbus_reads_drive_the_cycle(loaded);
+        let cycle_trigger = if modbus_reads {
+            "inputs: modbus reads".to_string()
+        } else {
+            trigger_plan
+                .as_ref()
+                .map_or_else(|| "deadline".to_string(), |p| p.describe())
+        };
+        let plant = match cfg.bus.transport {
+            Transport::InProcess => PlantPlan::InProcess {
+                // a run without an end and a place for its trace holds the plant's last state
+                hold: opts.out_dir.is_none()
+                    || opts.duration_s.is_none()
+                    || cfg.simulation.hold_after_end,
+                out_dir: opts.out_dir.clone(),
+                stop_at_end: opts.out_dir.is_some() && opts.duration_s.is_none(),
+            },
+            Transport::Field => PlantPlan::Field,
+        };
+        let running_file =
+            config::running::RunningConfig::path_beside(&crate::live::socket_path(&cfg.status));
+        Ok(ServePlan {
+            cycle_trigger,
+            triggered: trigger_plan.is_some() || modbus_reads,
+            plant,
+            blackbox_dir: cfg
+                .event_log
+                .path
+                .parent()
+                .map_or_else(|| PathBuf::from("blackbox"), |d| d.join("blackbox")),
+            blackbox_records: crate::blackbox::history_capacity(cfg.cycle.period_ns()),
+            start_auto: cfg.control.mode == config::StartMode::Auto,
+            sparkplug: cfg.sparkplug.enabled,
+            watch_files: cfg.reload.watch_files,
+            settle: Duration::from_secs_f64(cfg.reload.settle_ms / 1e3),
+            verdict_file: running_file.with_file_name(super::reload_trial::VERDICT_FILE),
+            override_file: running_file.with_file_name(super::reload_trial::OVERRIDE_FILE),
+            running_file,
+            duration_s: opts.duration_s,
+        })
+    }
+}
+
+/// The spawn step: start what `plan` names, serve until a signal or the plan's end, then
+/// command the safe state and stop.
+async fn serve(loaded: Loaded, plan: ServePlan) -> Result<()> {
     let cfg = loaded.config.clone();
     if let Some(dir) = cfg.event_log.path.parent() {
         let _ = std::fs::create_dir_all(dir);
@@ -494,18 +598,8 @@ async fn serve(loaded: Loaded, opts: RunOptions) -> Result<()> {
             return Err(anyhow::Error::new(e));
         }
     };
-    // what starts a cycle: the arrival of its CAN inputs, the Modbus link's reads, or the
-    // fixed deadline
-    let trigger_plan = super::field::controller_trigger_plan(&loaded)?;
-    let modbus_reads = super::field::modbus_reads_drive_the_cycle(&loaded);
-    let cycle_trigger = if modbus_reads {
-        "inputs: modbus reads".to_string()
-    } else {
-        trigger_plan
-            .as_ref()
-            .map_or_else(|| "deadline".to_string(), |p| p.describe())
-    };
-    let trigger = (trigger_plan.is_some() || modbus_reads).then(|| Arc::new(CycleTrigger::new()));
+    let cycle_trigger = plan.cycle_trigger.clone();
+    let trigger = plan.triggered.then(|| Arc::new(CycleTrigger::new()));
     tracing::info!(target: "rt", "control cycle trigger: {cycle_trigger}");
     let _ = events.send(Event::started_with_trigger(
         &loaded.main_path,
@@ -534,7 +628,7 @@ async fn serve(loaded: Loaded, opts: RunOptions) -> Result<()> {
     )
     .map_err(|e| anyhow!("{e}"))?;
     let mut core = core;
-    core.request_auto(cfg.control.mode == config::StartMode::Auto);
+    core.request_auto(plan.start_auto);
     // the field faults the link tasks raise, read by the control thread each cycle
     let field_faults = Arc::new(crate::io::link::FieldFaults::default());
     let node = ControlNode::new(
@@ -561,15 +655,10 @@ async fn serve(loaded: Loaded, opts: RunOptions) -> Result<()> {
     let live_board = Arc::clone(&live.board);
     // the black box: per-cycle records, written on fail-safe, surge and exit next to the
     // event log (crate::blackbox)
-    let bb_dir = cfg
-        .event_log
-        .path
-        .parent()
-        .map_or_else(|| PathBuf::from("blackbox"), |d| d.join("blackbox"));
     let (bb_tx, recorder) = crate::blackbox::Recorder::start(
-        bb_dir,
+        plan.blackbox_dir.clone(),
         blackbox_header(&loaded),
-        crate::blackbox::history_capacity(cfg.cycle.period_ns()),
+        plan.blackbox_records,
     )
     .context("cannot start the black-box recorder")?;
     let node = node
@@ -594,20 +683,19 @@ async fn serve(loaded: Loaded, opts: RunOptions) -> Result<()> {
     let mut plant = None;
     let mut link_counters = super::field::LinkCounters::default();
     let plant_stop = Arc::new(AtomicBool::new(false));
-    match cfg.bus.transport {
-        Transport::InProcess => {
-            let hold = opts.out_dir.is_none() || opts.duration_s.is_none();
+    match &plan.plant {
+        PlantPlan::InProcess { hold, out_dir, .. } => {
             plant = Some(spawn_in_process_plant(
                 &loaded,
                 Arc::clone(&sensors),
                 Arc::clone(&outputs),
                 Arc::clone(&plant_stop),
-                opts.out_dir.clone(),
-                hold || cfg.simulation.hold_after_end,
+                out_dir.clone(),
+                *hold,
             )?);
             tracing::info!(target: "antisurge", "in-process plant `{}` running scenario `{}`", loaded.machine.name, cfg.simulation.scenario);
         }
-        Transport::Field => {
+        PlantPlan::Field => {
             link_counters = super::field::spawn_controller_links(
                 &loaded,
                 &mut tasks,
@@ -644,7 +732,7 @@ async fn serve(loaded: Loaded, opts: RunOptions) -> Result<()> {
         &mut tasks,
     );
     // the Sparkplug B edge node (issue 26): off the control thread, reads the same snapshot
-    if cfg.sparkplug.enabled {
+    if plan.sparkplug {
         let inputs = crate::sparkplug::EdgeInputs {
             ctx: _live.clone(),
             ranges: crate::sparkplug::catalogue::Ranges::of(&crate::live::hmi::MapLines::new(
@@ -666,7 +754,7 @@ async fn serve(loaded: Loaded, opts: RunOptions) -> Result<()> {
     let mut sigint = tokio::signal::unix::signal(tokio::signal::unix::SignalKind::interrupt())?;
     let mut sighup = tokio::signal::unix::signal(tokio::signal::unix::SignalKind::hangup())?;
     let (watch_tx, mut watch_rx) = tokio::sync::mpsc::channel::<()>(16);
-    let _watcher = if cfg.reload.watch_files {
+    let _watcher = if plan.watch_files {
         super::reload_watch::watch_config_dir(&loaded.main_path, watch_tx)
             .map_err(|e| tracing::warn!(target: "config", "not watching the config directory ({e}); SIGHUP still reloads"))
             .ok()
@@ -674,10 +762,9 @@ async fn serve(loaded: Loaded, opts: RunOptions) -> Result<()> {
         drop(watch_tx);
         None
     };
-    let settle = Duration::from_secs_f64(cfg.reload.settle_ms / 1e3);
+    let settle = plan.settle;
     // what runs, for `check-config --against-running` (issue 25: no half file)
-    let running_file =
-        config::running::RunningConfig::path_beside(&crate::live::socket_path(&cfg.status));
+    let running_file = plan.running_file.clone();
     let record = |l: &Loaded| {
         if let Err(e) = config::running::RunningConfig::of(l).save(&running_file) {
             tracing::warn!(target: "config", "cannot record the running configuration in {}: {e}; `check-config --against-running` will not see it", running_file.display());
@@ -685,8 +772,8 @@ async fn serve(loaded: Loaded, opts: RunOptions) -> Result<()> {
     };
     record(&loaded);
     // the answer `antisurge reload` waits for (issue 25: the reload's exit status)
-    let verdict_file = running_file.with_file_name(super::reload_trial::VERDICT_FILE);
-    let override_file = running_file.with_file_name(super::reload_trial::OVERRIDE_FILE);
+    let verdict_file = plan.verdict_file.clone();
+    let override_file = plan.override_file.clone();
     let _ = std::fs::remove_file(&override_file);
     let mut verdict = super::reload_trial::Verdict {
         seq: 0,
@@ -802,7 +889,7 @@ async fn serve(loaded: Loaded, opts: RunOptions) -> Result<()> {
                         loading = Some(start_load(&current.main_path));
                     }
                 }
-                if let Some(d) = opts.duration_s {
+                if let Some(d) = plan.duration_s {
                     if started.elapsed().as_secs_f64() >= d { break "duration elapsed".into(); }
                 }
                 let every = current.config.status.log_interval_s;
@@ -815,7 +902,7 @@ async fn serve(loaded: Loaded, opts: RunOptions) -> Result<()> {
                         if log.writable() { "" } else { " · event log DEGRADED (not writable, retrying)" });
                 }
                 if let Some(p) = &plant {
-                    if p.status.finished.load(Ordering::Relaxed) && opts.duration_s.is_none() && opts.out_dir.is_some() {
+                    if p.status.finished.load(Ordering::Relaxed) && matches!(plan.plant, PlantPlan::InProcess { stop_at_end: true, .. }) {
                         break "scenario finished".into();
                     }
                 }
@@ -873,6 +960,89 @@ async fn serve(loaded: Loaded, opts: RunOptions) -> Result<()> {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    fn loaded(rel: &str) -> Loaded {
+        let path = Path::new(env!("CARGO_MANIFEST_DIR")).join(rel);
+        load_with_time_limit(&path).unwrap_or_else(|p| panic!("{rel}: {}", format_problems(&p)))
+    }
+
+    #[test]
+    fn the_plan_of_the_shipped_config_runs_the_plant_in_process_and_holds_it() {
+        let l = loaded("config/antisurge.toml");
+        let plan = ServePlan::of(&l, &RunOptions::default()).expect("plan");
+        assert_eq!(
+            plan.plant,
+            PlantPlan::InProcess {
+                hold: true,
+                out_dir: None,
+                stop_at_end: false
+            }
+        );
+        // in process, nothing drives the cycle but its deadline
+        assert_eq!(
+            (plan.cycle_trigger.as_str(), plan.triggered),
+            ("deadline", false)
+        );
+        assert_eq!(
+            plan.blackbox_dir,
+            l.config
+                .event_log
+                .path
+                .parent()
+                .expect("dir")
+                .join("blackbox")
+        );
+        assert_eq!(plan.blackbox_records, 10_000, "10 s at 1 kHz");
+        assert_eq!(plan.verdict_file.parent(), plan.running_file.parent());
+        assert_ne!(plan.verdict_file, plan.running_file);
+        assert_eq!(plan.duration_s, None);
+        // a run asked for a trace without a duration stops when the scenario ends; with a
+        // duration the plant stops at the scenario's end and the run at the duration
+        let traced = RunOptions {
+            out_dir: Some("out".into()),
+            ..RunOptions::default()
+        };
+        let p = ServePlan::of(&l, &traced).expect("plan");
+        assert!(matches!(
+            p.plant,
+            PlantPlan::InProcess {
+                hold: true,
+                stop_at_end: true,
+                ..
+            }
+        ));
+        let timed = RunOptions {
+            duration_s: Some(5.0),
+            ..traced
+        };
+        let p = ServePlan::of(&l, &timed).expect("plan");
+        let hold = l.config.simulation.hold_after_end;
+        assert!(
+            matches!(p.plant, PlantPlan::InProcess { hold: h, stop_at_end: false, .. } if h == hold),
+            "{:?}",
+            p.plant
+        );
+        assert_eq!(p.duration_s, Some(5.0));
+    }
+
+    #[test]
+    fn the_plan_of_a_modbus_skid_runs_its_links_and_its_cycle_on_the_reads_or_the_deadline() {
+        let l = loaded("tests/good_configs/field_modbus_recycle_pi.toml");
+        let plan = ServePlan::of(&l, &RunOptions::default()).expect("plan");
+        assert_eq!(plan.plant, PlantPlan::Field);
+        let reads = super::super::field::modbus_reads_drive_the_cycle(&l);
+        assert_eq!(plan.triggered, reads);
+        assert_eq!(
+            plan.cycle_trigger,
+            if reads {
+                "inputs: modbus reads"
+            } else {
+                "deadline"
+            }
+        );
+        assert_eq!(plan.blackbox_records, 500, "10 s at 50 Hz");
+        assert!(!plan.sparkplug);
+    }
 
     #[test]
     fn a_deeply_nested_config_is_refused_on_the_loader_stack() {

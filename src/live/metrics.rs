@@ -88,9 +88,8 @@ impl Collector for LiveCollector {
                 None,
                 g.metric_type(),
             )?;
-            let word = crate::vocab::faults::FaultSet(
-                self.live.latest().map_or(0, |s| s.field_faults),
-            );
+            let word =
+                crate::vocab::faults::FaultSet(self.live.latest().map_or(0, |s| s.field_faults));
             for c in crate::vocab::faults::FaultCategory::ALL {
                 let g = ConstGauge::new(i64::from(word.has(c)));
                 g.encode(fam.encode_family(&[("fault", c.name())])?)?;

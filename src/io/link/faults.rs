@@ -107,7 +107,11 @@ mod tests {
         assert_eq!(f.down_link_among(modbus), None, "a Modbus input");
         assert_eq!(f.down_link_among(can | modbus), Some(FieldLinkKind::Can));
         assert_eq!(f.down_link_among(0), None, "on no field link");
-        assert_eq!(f.down_link_among(u8::MAX), Some(FieldLinkKind::Can), "not told: any link");
+        assert_eq!(
+            f.down_link_among(u8::MAX),
+            Some(FieldLinkKind::Can),
+            "not told: any link"
+        );
         f.link_down(FieldLinkKind::Can, false);
         f.link_down(FieldLinkKind::Can, false);
         assert_eq!(f.down_link(), None, "an unpaired up does not go below zero");

@@ -231,7 +231,11 @@ mod tests {
             FaultCategory::FieldLinkDown.bit() | FaultCategory::FieldWriteFailed.bit()
         );
         drop(a);
-        assert_eq!(field.down_link(), None, "a reporter gone takes its link down with it");
+        assert_eq!(
+            field.down_link(),
+            None,
+            "a reporter gone takes its link down with it"
+        );
         assert_eq!(field.word(), FaultCategory::FieldWriteFailed.bit());
         b.fault(FaultCategory::FieldWriteFailed, false, "written");
         assert_eq!(field.word(), 0);
