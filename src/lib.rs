@@ -23,6 +23,7 @@ pub mod faults;
 pub mod io;
 pub mod live;
 pub mod machine;
+pub mod node;
 pub mod physics;
 pub mod plant;
 pub mod plot;

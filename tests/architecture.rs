@@ -291,6 +291,22 @@ fn live_does_not_reach_into_the_daemon() {
 }
 
 #[test]
+fn the_real_time_nodes_do_not_use_the_daemon_or_a_runtime() {
+    // node/ is the per-cycle body of a real-time thread: the daemon wires it, never the
+    // reverse, and no async runtime, socket or file enters it
+    let v = violations(
+        "node",
+        &["crate::daemon", "tokio", "std::net", "std::fs::"],
+        &[],
+    );
+    assert!(
+        v.is_empty(),
+        "node/ reaches out of its cycle:\n{}",
+        v.join("\n")
+    );
+}
+
+#[test]
 fn the_field_buses_do_not_reach_into_the_controller() {
     let (v, stale) = rule("io", &["crate::control"], IO_TO_CONTROL);
     assert!(v.is_empty(), "io/ uses control/:\n{}", v.join("\n"));

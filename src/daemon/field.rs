@@ -104,7 +104,7 @@ pub async fn supervise_feedback(
     timeouts_s: [f64; crate::vocab::signals::SensorId::COUNT],
     reports: LinkReports,
     shutdown: watch::Receiver<bool>,
-    health: Arc<super::control_node::Health>,
+    health: Arc<crate::node::control::Health>,
 ) {
     let mut acks = health
         .acknowledgements
@@ -289,7 +289,7 @@ pub async fn report_modbus(
     monitor: Arc<LinkMonitor>,
     mut reporter: FieldLinkReporter,
     budget: QualityBudget,
-    health: Arc<super::control_node::Health>,
+    health: Arc<crate::node::control::Health>,
     shutdown: watch::Receiver<bool>,
 ) {
     let mut states = monitor.subscribe();
@@ -489,7 +489,7 @@ pub fn spawn_controller_links(
     boards: ControllerBoards,
     shutdown: watch::Receiver<bool>,
     reports: LinkReports,
-    health: Arc<super::control_node::Health>,
+    health: Arc<crate::node::control::Health>,
 ) -> Result<LinkCounters> {
     let ControllerBoards {
         sensors,

@@ -2,16 +2,13 @@
 //! skid as a bus node).
 //!
 //! - [`config`]: the one schema, layered loading, located errors, cross-field checks.
-//! - [`control_node`]: the control thread's cycle (pure core + boards + event ring).
-//! - [`plant_node`]: the plant's real-time step with field-device fail-safe.
+//! - the per-cycle real-time nodes it runs are in [`crate::node`].
 //! - [`field`]: the CAN and Modbus tasks of both nodes.
 //! - [`service`], [`plant_service`]: wiring, signals, reload, shutdown.
 
 pub mod config;
-pub mod control_node;
 pub mod field;
 pub mod notify;
-pub mod plant_node;
 pub mod plant_service;
 pub mod reload_trial;
 pub mod reload_watch;

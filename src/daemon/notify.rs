@@ -6,7 +6,7 @@
 //! control loop's [`Health`]: a slow config load, a reload or a busy I/O task can never delay
 //! a `WATCHDOG=1`, and only a stuck control loop stops them (issue 12, item 1).
 
-use super::control_node::Health;
+use crate::node::control::Health;
 use sd_notify::NotifyState;
 use std::sync::atomic::Ordering;
 use std::time::{Duration, Instant};

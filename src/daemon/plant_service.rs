@@ -5,8 +5,8 @@
 
 use super::config::{self, Transport};
 use super::field::{spawn_plant_links, PlantLinks};
-use super::plant_node::{CommandSource, PlantNode, PlantStatus, SensorSink};
 use super::service::scenario_path;
+use crate::node::plant::{CommandSource, PlantNode, PlantStatus, SensorSink};
 use crate::runtime::handoff::{monotonic_ns, CommandBoard, HeartbeatBoard, SnapshotBoard, Wakeup};
 use crate::runtime::rt_loop::{run_periodic, setup_current_thread, CycleStats};
 use crate::scenario::Scenario;
@@ -92,7 +92,7 @@ pub fn run(opts: &PlantOptions) -> Result<()> {
     let (st, stp, lk) = (Arc::clone(&status), Arc::clone(&stop), links.clone());
     // the trace streams to out_dir/trace.csv from a writer thread started here, of ordinary
     // priority (the plant thread below takes real-time priority and only hands it the rows)
-    let (handoff, writer) = super::plant_node::start_trace(&desc, &scenario, &out_dir)
+    let (handoff, writer) = crate::node::plant::start_trace(&desc, &scenario, &out_dir)
         .map_err(|e| anyhow!("plant trace: {e}"))?;
     let plant = std::thread::Builder::new()
         .name("antisurge-plant".into())
@@ -125,7 +125,7 @@ pub fn run(opts: &PlantOptions) -> Result<()> {
                     .find(|l| l.code() == c)
                     .copied()
             });
-            super::plant_node::finish_trace(&mut node, writer, law.map_or("unknown", |l| l.name()))
+            crate::node::plant::finish_trace(&mut node, writer, law.map_or("unknown", |l| l.name()))
                 .map_err(|e| anyhow!("{e}"))
         })?;
 

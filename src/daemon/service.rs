@@ -11,12 +11,12 @@
 //!   and time, and is applied only if no file changed while it was read.
 
 use super::config::{self, Loaded, Transport};
-use super::control_node::{ControlNode, ControlUpdate, ControlWiring, Health};
-use super::plant_node::{CommandSource, PlantNode, PlantStatus, SensorSink};
 use crate::control::core::ControlCore;
 use crate::control::measurements::OperatorInputs;
 use crate::events::event::Event;
 use crate::events::{EventLog, EventSender};
+use crate::node::control::{ControlNode, ControlUpdate, ControlWiring, Health};
+use crate::node::plant::{CommandSource, PlantNode, PlantStatus, SensorSink};
 use crate::runtime::handoff::{monotonic_ns, OutputBoard, SensorBoard, Wakeup};
 use crate::runtime::rt_loop::{run_periodic, setup_current_thread, CycleStats, RtSettings};
 use crate::runtime::trigger::{run_triggered, CycleTrigger};
@@ -161,7 +161,7 @@ fn spawn_in_process_plant(
     // it the rows
     let trace = match &out_dir {
         Some(dir) => Some(
-            super::plant_node::start_trace(&desc, &scenario, dir)
+            crate::node::plant::start_trace(&desc, &scenario, dir)
                 .map_err(|e| anyhow!("in-process plant trace: {e}"))?,
         ),
         None => None,
@@ -195,7 +195,7 @@ fn spawn_in_process_plant(
             let stats = CycleStats::default();
             run_periodic(period, &stop, &stats, |_| node.step(monotonic_ns()));
             if let (Some(dir), Some(writer)) = (out_dir, writer) {
-                let result = super::plant_node::finish_trace(&mut node, writer, &law)
+                let result = crate::node::plant::finish_trace(&mut node, writer, &law)
                     .map_err(|e| anyhow!("{e}"))?;
                 crate::sim::output::write_summary(&dir, &result.summary)
                     .map_err(|e| anyhow!("{e}"))?;

@@ -3,7 +3,7 @@
 
 use antisurge::control::core::{ControlCore, Reconfiguration};
 use antisurge::control::measurements::OperatorInputs;
-use antisurge::daemon::control_node::{ControlNode, ControlUpdate, ControlWiring, Health};
+use antisurge::node::control::{ControlNode, ControlUpdate, ControlWiring, Health};
 use antisurge::runtime::handoff::{OutputBoard, SensorBoard, Wakeup};
 use antisurge::runtime::rt_loop::CycleStats;
 use std::sync::Arc;

@@ -2,7 +2,7 @@
 //! stepped by hand on a made-up clock, with a made-up controller: the trace tests drive it
 //! as fast as it goes instead of in real time.
 
-use antisurge::daemon::plant_node::{CommandSource, PlantNode, PlantStatus, SensorSink};
+use antisurge::node::plant::{CommandSource, PlantNode, PlantStatus, SensorSink};
 use antisurge::plant::file::PlantDescription;
 use antisurge::runtime::handoff::{OutputBoard, Outputs, SensorBoard};
 use antisurge::sim::PlantRun;

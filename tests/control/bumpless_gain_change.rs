@@ -16,7 +16,7 @@ use antisurge::control::law::REGISTRY;
 use antisurge::control::measurements::OperatorInputs;
 use antisurge::control::model::ControlModel;
 use antisurge::control::{ControllerConfig, LawId};
-use antisurge::daemon::control_node::ControlUpdate;
+use antisurge::node::control::ControlUpdate;
 use antisurge::plant::{PlantInputs, SimPlant};
 use antisurge::runtime::handoff::monotonic_ns;
 use antisurge::runtime::rt_loop::Tick;

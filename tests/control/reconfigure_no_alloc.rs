@@ -10,7 +10,7 @@ use crate::common;
 use antisurge::control::core::{ControlCore, CoreSettings};
 use antisurge::control::measurements::OperatorInputs;
 use antisurge::control::LawId;
-use antisurge::daemon::control_node::ControlUpdate;
+use antisurge::node::control::ControlUpdate;
 use antisurge::plant::{PlantInputs, SimPlant};
 use antisurge::runtime::handoff::monotonic_ns;
 use antisurge::runtime::rt_loop::Tick;

@@ -5,7 +5,7 @@
 
 use crate::common;
 
-use antisurge::daemon::plant_node::{finish_trace, start_trace};
+use antisurge::node::plant::{finish_trace, start_trace};
 use antisurge::runtime::handoff::OutputBoard;
 use antisurge::sim::trace::COLUMNS;
 use antisurge::sim::PlantRun;

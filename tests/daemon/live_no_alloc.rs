@@ -7,8 +7,8 @@ use crate::common;
 
 use antisurge::control::core::{ControlCore, CoreSettings};
 use antisurge::control::LawId;
-use antisurge::daemon::control_node::{ControlNode, ControlWiring, Health};
 use antisurge::live::snapshot::LiveBoard;
+use antisurge::node::control::{ControlNode, ControlWiring, Health};
 use antisurge::plant::{PlantInputs, SimPlant};
 use antisurge::runtime::handoff::{monotonic_ns, OutputBoard, SensorBoard, Wakeup};
 use antisurge::runtime::rt_loop::{CycleStats, Tick};

@@ -11,7 +11,7 @@
 
 use crate::common;
 
-use antisurge::daemon::plant_node::{finish_trace, start_trace};
+use antisurge::node::plant::{finish_trace, start_trace};
 use antisurge::runtime::handoff::OutputBoard;
 use antisurge::sim::trace::TraceRow;
 use antisurge::sim::PlantRun;

@@ -396,7 +396,7 @@ impl ControlNode {
     }
 
     /// The kinds of field link that carry each sensor (from the input->link table built at
-    /// start, [`super::field::input_link_kinds`]): a cause is rooted in a link only when that
+    /// start, [`crate::daemon::field::input_link_kinds`]): a cause is rooted in a link only when that
     /// link carries the input (with CAN and Modbus, the CAN link down is not the root of a
     /// Modbus input's fault).
     pub fn with_input_links(mut self, kinds: [u8; SensorId::COUNT]) -> Self {
