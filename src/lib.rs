@@ -12,7 +12,6 @@
 //! - [`io`]: CAN (DBC) and Modbus adapters; [`events`]: the append-only event log.
 #![forbid(unsafe_op_in_unsafe_fn)]
 
-pub mod bench_matrix;
 pub mod blackbox;
 pub mod campaign;
 pub mod config;

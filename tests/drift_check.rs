@@ -6,9 +6,9 @@
 
 mod common;
 
-use antisurge::bench_matrix::{self, Case, FieldFault, CASES};
 use antisurge::control::LawId;
 use antisurge::scenario::Scenario;
+use antisurge::sim::bench::{self, Case, FieldFault, CASES};
 use antisurge::sim::case::PlantCase;
 
 const PLANTS: [&str; 2] = ["kvangardsnes2009_recycle", "hemchi2016_recycle"];
@@ -30,8 +30,8 @@ fn a_step_bias_is_found_within_100_ms_and_recycle_pi_holds_the_line() {
     let sc = scenario_of(case);
     for stem in PLANTS {
         let p = common::plant(stem);
-        for margin in bench_matrix::MARGINS_PCT {
-            let r = bench_matrix::run_case(&p, &sc, case, LawId::RecyclePi, margin).unwrap();
+        for margin in bench::MARGINS_PCT {
+            let r = bench::run_case(&p, &sc, case, LawId::RecyclePi, margin).unwrap();
             // found once, early: the bias is fully there 30 ms after its start, and a law
             // acting on it closes kvangardsnes2009 into surge ≈ 150 ms after the start
             assert_eq!(r.dp_drift_found, 1, "{r:?}");
@@ -60,11 +60,11 @@ fn a_slightly_wrong_map_fires_no_false_find() {
         let p: PlantCase = common::plant(stem);
         let truth = antisurge::sim::control_model(&p);
         for (flow, rise) in offs {
-            let model = bench_matrix::map_off(&truth, flow, rise);
+            let model = bench::map_off(&truth, flow, rise);
             assert_ne!(model.map, truth.map, "map_off changed nothing on {stem}");
             for case in CASES.iter() {
                 let sc = scenario_of(case);
-                let r = bench_matrix::run_case_with_model(
+                let r = bench::run_case_with_model(
                     &p,
                     &sc,
                     case,
@@ -99,9 +99,9 @@ fn noise_with_other_seeds_fires_no_false_find() {
                 fault: FieldFault::Noise { seed },
             };
             let sc = scenario_of(&case);
-            for law in bench_matrix::LAWS {
-                for margin in bench_matrix::MARGINS_PCT {
-                    let r = bench_matrix::run_case(&p, &sc, &case, law, margin).unwrap();
+            for law in bench::LAWS {
+                for margin in bench::MARGINS_PCT {
+                    let r = bench::run_case(&p, &sc, &case, law, margin).unwrap();
                     assert_eq!(
                         r.dp_drift_found, 0,
                         "{stem} seed {seed} {law:?} @ {margin} %: {r:?}"

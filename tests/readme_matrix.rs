@@ -3,8 +3,8 @@
 
 mod common;
 
-use antisurge::bench_matrix::{self, CaseResult};
 use antisurge::control::LawId;
+use antisurge::sim::bench::{self, CaseResult};
 use antisurge::sim::case::PlantCase;
 use std::process::Command;
 
@@ -47,7 +47,7 @@ fn matrix() -> Vec<CaseResult> {
         .iter()
         .map(|s| PlantCase::load(&cfg.join("plants").join(format!("{s}.toml"))).expect("plant"))
         .collect();
-    bench_matrix::run_matrix(&plants, &cfg, 2).expect("matrix")
+    bench::run_matrix(&plants, &cfg, 2).expect("matrix")
 }
 
 #[test]

@@ -45,7 +45,7 @@ pub const DUCT_LENGTH_FACTOR: (f64, f64) = (0.5, 2.0);
 pub const LINE_LENGTH_FACTOR: (f64, f64) = (0.5, 2.0);
 /// Map flow-axis stretch (the surge line moves with it) and pressure-rise (Ψ − 1) scale of the
 /// base plant's fitted map (chosen: ±10 %, the spread of a vendor map against a test-bed map;
-/// the same transformation as `bench_matrix::map_off`, applied to the plant and the
+/// the same transformation as `sim::bench::map_off`, applied to the plant and the
 /// controller alike: a different machine, known to the controller).
 pub const MAP_FLOW_FACTOR: (f64, f64) = (0.9, 1.1);
 /// See [`MAP_FLOW_FACTOR`].

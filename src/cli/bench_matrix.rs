@@ -32,16 +32,16 @@ pub fn run(args: &BenchMatrixArgs) -> Result<()> {
             .map(|n| n.get())
             .unwrap_or(1)
     });
-    let rows = antisurge::bench_matrix::run_matrix(&plants, &cfg, threads)
+    let rows = antisurge::sim::bench::run_matrix(&plants, &cfg, threads)
         .context("running the benchmark matrix")?;
     let esd =
-        antisurge::bench_matrix::esd_strokes(&plants, &cfg).context("checking the ESD stroke")?;
-    let variants = antisurge::bench_matrix::esd_variants_markdown(&cfg)
+        antisurge::sim::bench::esd_strokes(&plants, &cfg).context("checking the ESD stroke")?;
+    let variants = antisurge::sim::bench::esd_variants_markdown(&cfg)
         .context("running the ESD on the plant variants")?;
     let md = format!(
         "{}\nESD rundown, recycle-pi:\n\n{}{}",
-        antisurge::bench_matrix::markdown(&rows),
-        antisurge::bench_matrix::esd_markdown(&esd),
+        antisurge::sim::bench::markdown(&rows),
+        antisurge::sim::bench::esd_markdown(&esd),
         variants
     );
     print!("{md}");

@@ -222,7 +222,7 @@ pub fn check(args: &CheckArgs) -> Result<std::process::ExitCode> {
                     };
                     poll_s + 1.0 / l.config.cycle.rate_hz
                 });
-                match antisurge::bench_matrix::esd_stroke_warning_as_wired(
+                match antisurge::sim::bench::esd_stroke_warning_as_wired(
                     p,
                     margin_pct,
                     contact_latency_s,

@@ -1,6 +1,7 @@
 //! The in-process simulation behind `antisurge sim`: plant + scenario + control core, faster
 //! than real time, with a trace, a summary and pictures.
 
+pub mod bench;
 pub mod case;
 pub mod output;
 pub mod runner;

@@ -7,7 +7,7 @@
 
 use crate::common;
 
-use antisurge::bench_matrix::{self, esd_holds, EsdStroke, TripSignal, MARGINS_PCT};
+use antisurge::sim::bench::{self, esd_holds, EsdStroke, TripSignal, MARGINS_PCT};
 use antisurge::sim::case::PlantCase;
 use std::process::Command;
 
@@ -59,8 +59,8 @@ fn stroke_warning(err: &str) -> &str {
 
 fn verdict(margin_pct: f64) -> EsdStroke {
     let p = common::plant("kvangardsnes2009_recycle");
-    let sc = bench_matrix::builtin_esd_scenario().expect("scenario");
-    bench_matrix::esd_stroke(&p, &sc, margin_pct)
+    let sc = bench::builtin_esd_scenario().expect("scenario");
+    bench::esd_stroke(&p, &sc, margin_pct)
         .expect("ESD run")
         .expect("recycle valve")
 }
@@ -138,7 +138,7 @@ fn a_valve_fast_enough_gets_no_esd_warning() {
 }
 
 fn variants() -> Vec<(std::path::PathBuf, PlantCase)> {
-    bench_matrix::esd_variants(&common::root().join("config")).expect("variants")
+    bench::esd_variants(&common::root().join("config")).expect("variants")
 }
 
 fn stroke_of(p: &PlantCase) -> f64 {
@@ -155,13 +155,13 @@ fn stroke_of(p: &PlantCase) -> f64 {
 /// the situation the check names (speed decay alone, or the trip contact wired).
 #[test]
 fn every_stroke_the_check_names_has_a_variant_that_holds_the_esd() {
-    let sc = bench_matrix::builtin_esd_scenario().expect("scenario");
+    let sc = bench::builtin_esd_scenario().expect("scenario");
     let variants = variants();
     let mut used = vec![false; variants.len()];
     for base in ["kvangardsnes2009_recycle", "hemchi2016_recycle"] {
         let p = common::plant(base);
         for m in MARGINS_PCT {
-            let v = bench_matrix::esd_stroke(&p, &sc, m).unwrap().unwrap();
+            let v = bench::esd_stroke(&p, &sc, m).unwrap().unwrap();
             if v.holds_own() {
                 continue;
             }
@@ -182,7 +182,7 @@ fn every_stroke_the_check_names_has_a_variant_that_holds_the_esd() {
             });
             used[i] = true;
             let (f, q) = &variants[i];
-            let r = bench_matrix::esd_run(q, &sc, m, trip).unwrap();
+            let r = bench::esd_run(q, &sc, m, trip).unwrap();
             assert_eq!(r.surge_cycles, 0, "{} at {m} %: {r:?}", f.display());
             assert!(esd_holds(&r), "{} at {m} %: {r:?}", f.display());
         }
@@ -197,26 +197,25 @@ fn every_stroke_the_check_names_has_a_variant_that_holds_the_esd() {
 /// contact wired, and a slow contact (one 50 Hz Modbus poll) does not save it.
 #[test]
 fn the_wired_contact_is_what_holds_the_5_pct_esd() {
-    let sc = bench_matrix::builtin_esd_scenario().expect("scenario");
+    let sc = bench::builtin_esd_scenario().expect("scenario");
     let (f, q) = variants()
         .into_iter()
         .min_by(|a, b| stroke_of(&a.1).total_cmp(&stroke_of(&b.1)))
         .expect("a variant");
-    let decay = bench_matrix::esd_run(&q, &sc, 5.0, TripSignal::SpeedDecay).unwrap();
+    let decay = bench::esd_run(&q, &sc, 5.0, TripSignal::SpeedDecay).unwrap();
     assert!(decay.surge_cycles > 0, "{}: {decay:?}", f.display());
-    let wired = bench_matrix::esd_run(&q, &sc, 5.0, TripSignal::Contact).unwrap();
+    let wired = bench::esd_run(&q, &sc, 5.0, TripSignal::Contact).unwrap();
     assert!(esd_holds(&wired), "{}: {wired:?}", f.display());
-    let slow = bench_matrix::Case {
+    let slow = bench::Case {
         name: "ESD rundown, contact read by a 50 Hz poll",
         scenario: "emergency-shutdown",
-        fault: bench_matrix::FieldFault::EsdContact { delay_s: 0.02 },
+        fault: bench::FieldFault::EsdContact { delay_s: 0.02 },
     };
-    let r =
-        bench_matrix::run_case(&q, &sc, &slow, antisurge::control::LawId::RecyclePi, 5.0).unwrap();
+    let r = bench::run_case(&q, &sc, &slow, antisurge::control::LawId::RecyclePi, 5.0).unwrap();
     assert!(r.surge_cycles > 0, "{}: {r:?}", f.display());
     // at 10 % the same variant holds with the speed decay alone and with the contact
     for trip in [TripSignal::SpeedDecay, TripSignal::Contact] {
-        let r = bench_matrix::esd_run(&q, &sc, 10.0, trip).unwrap();
+        let r = bench::esd_run(&q, &sc, 10.0, trip).unwrap();
         assert!(esd_holds(&r), "{} at 10 % {trip:?}: {r:?}", f.display());
     }
 }

@@ -122,7 +122,7 @@ fn built_in_defaults_settle_the_closure_on_the_control_line_without_valve_ripple
 /// by a safety-on step (hemchi2016 at 10 %: 14.9 % mean margin, 4.9 % beyond the line).
 #[test]
 fn with_noise_the_machine_sits_on_its_control_line_not_right_of_it() {
-    use antisurge::bench_matrix::{run_case_traced, FieldFault, CASES};
+    use antisurge::sim::bench::{run_case_traced, FieldFault, CASES};
     let case = CASES
         .iter()
         .find(|c| matches!(c.fault, FieldFault::Noise { .. }))
