@@ -1076,33 +1076,6 @@ async fn run_halves(
     }
 }
 
-/// Exponential backoff: `initial`, `2·initial`, … capped at `max`.
-#[derive(Debug, Clone, Copy)]
-struct Backoff {
-    initial: Duration,
-    max: Duration,
-    next: Duration,
-}
-
-impl Backoff {
-    fn new(initial: Duration, max: Duration) -> Backoff {
-        let initial = initial.max(Duration::from_millis(1));
-        Backoff {
-            initial,
-            max: max.max(initial),
-            next: initial,
-        }
-    }
-    fn next_delay(&mut self) -> Duration {
-        let d = self.next;
-        self.next = (d * 2).min(self.max);
-        d
-    }
-    fn reset(&mut self) {
-        self.next = self.initial;
-    }
-}
-
 /// Open the socket and read the controller state. A controller still in bus-off (no
 /// automatic restart, or not restarted yet) counts as a failed open, so the task keeps
 /// backing off instead of reporting a link that cannot carry frames.
@@ -1130,7 +1103,7 @@ async fn run_link<R: Role>(cfg: &CanBusConfig, role: &mut R, handles: BusHandles
         hook: on_change.as_ref(),
         counters: &counters,
     };
-    let mut backoff = Backoff::new(
+    let mut backoff = crate::io::link::Backoff::new(
         Duration::from_millis(cfg.reconnect_backoff_initial_ms),
         Duration::from_millis(cfg.reconnect_backoff_max_ms),
     );

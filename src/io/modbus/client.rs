@@ -407,8 +407,8 @@ pub struct ModbusClient {
     ctx: Option<Context>,
     /// Link failures since the last well-formed exchange.
     failures: u32,
-    /// Backoff applied after the last failure, ms.
-    backoff_ms: u64,
+    /// The wait before a reconnect (the field links' one retry strategy).
+    backoff: crate::io::link::Backoff,
     next_attempt: Option<Instant>,
     ever_connected: bool,
     /// Set while an exchange is awaited; still set at the next call if the caller dropped
@@ -444,7 +444,10 @@ impl ModbusClient {
             config,
             ctx: None,
             failures: 0,
-            backoff_ms: 0,
+            backoff: crate::io::link::Backoff::new(
+                Duration::from_millis(config.backoff_initial_ms),
+                Duration::from_millis(config.backoff_max_ms),
+            ),
             next_attempt: None,
             ever_connected: false,
             in_flight: false,
@@ -468,7 +471,7 @@ impl ModbusClient {
         } else if self.failures > 0 {
             ConnectionState::Broken {
                 consecutive_failures: self.failures,
-                backoff_ms: self.backoff_ms,
+                backoff_ms: self.backoff.last().as_millis() as u64,
             }
         } else {
             ConnectionState::Idle
@@ -548,6 +551,7 @@ impl ModbusClient {
         }
         self.next_attempt = None;
         self.failures = 0;
+        self.backoff.reset();
     }
 
     /// Read every binding of `plan` into `out` (same order as [`ReadPlan::bindings`]), SI units.
@@ -848,20 +852,15 @@ impl ModbusClient {
     /// A well-formed exchange happened: reset the backoff.
     fn mark_good(&mut self) {
         self.failures = 0;
+        self.backoff.reset();
     }
 
     /// Drop the connection and schedule the next attempt.
     fn mark_broken(&mut self) {
         self.ctx = None;
-        self.backoff_ms = if self.failures == 0 {
-            self.config.backoff_initial_ms
-        } else {
-            self.backoff_ms
-                .saturating_mul(2)
-                .clamp(self.config.backoff_initial_ms, self.config.backoff_max_ms)
-        };
+        let wait = self.backoff.next_delay();
         self.failures = self.failures.saturating_add(1);
-        self.next_attempt = Some(Instant::now() + Duration::from_millis(self.backoff_ms));
+        self.next_attempt = Some(Instant::now() + wait);
     }
 }
 

@@ -918,18 +918,6 @@ fn config_defaults_unknown_keys_and_validation() {
 }
 
 #[test]
-fn backoff_doubles_to_the_cap_and_resets() {
-    let ms = Duration::from_millis;
-    let mut b = Backoff::new(ms(50), ms(2000));
-    let seq: Vec<u128> = (0..8).map(|_| b.next_delay().as_millis()).collect();
-    assert_eq!(seq, [50, 100, 200, 400, 800, 1600, 2000, 2000]);
-    b.reset();
-    assert_eq!(b.next_delay(), ms(50));
-    let mut b = Backoff::new(Duration::ZERO, Duration::ZERO);
-    assert_eq!(b.next_delay(), ms(1), "never zero: no busy loop");
-}
-
-#[test]
 fn bus_state_text_and_event_mapping() {
     use crate::events::event::BusState as E;
     let down = DownCause::io(IoOp::Receive, &io::Error::from_raw_os_error(libc::ENETDOWN));
