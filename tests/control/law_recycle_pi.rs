@@ -1331,3 +1331,88 @@ fn reconfigure(
         antisurge::control::core::ControlCore::prepare(core.model(), cfg, law).expect("prepare");
     let _replaced = core.commit(r);
 }
+
+/// Drive a started law open loop at 1 kHz, the valve following the command at once, over
+/// `n` cycles from cycle `k0`: flow `q(k)` (map units) at `ratio`, from the fallback while
+/// `fallback(k)`. Returns the commands, one a cycle.
+fn drive_with_source(
+    law: &mut RecyclePi,
+    model: &ControlModel,
+    ratio: f64,
+    (k0, n): (usize, usize),
+    u0: f64,
+    q: impl Fn(usize) -> f64,
+    fallback: impl Fn(usize) -> bool,
+) -> Vec<f64> {
+    let op = operator();
+    let mut u = u0;
+    let mut out = Vec::with_capacity(n);
+    for k in k0..k0 + n {
+        let mut m = measurements(q(k), ratio);
+        m.t_s = k as f64 * 1e-3;
+        m.recycle_position = u;
+        m.flow_fallback = fallback(k);
+        let inputs = LawInputs {
+            m: &m,
+            op: &op,
+            model,
+            history: &antisurge::control::law::api::LoopHistory::EMPTY,
+        };
+        u = law
+            .update(&inputs, 1e-3)
+            .commands
+            .get(ActuatorId::RecycleValve);
+        out.push(u);
+    }
+    out
+}
+
+/// A frozen Δp under a feed drop (campaign cases 155 and 120): the observer's flow reads
+/// reversed, the trip opens the valve fully; when the transmitter is trusted again and shows
+/// the point far right of the control line, the trip's hold ends at once and the valve closes
+/// at the return rate (the distance to the line over one answer time), faster than the
+/// closing limiter's 0.1/s, and never below the line opening. Where the returned
+/// transmitter shows the point left of the control line, the hold stays.
+#[test]
+fn the_flow_transmitters_return_releases_a_trip_taken_on_the_fallback() {
+    let model = antisurge::sim::control_model(&common::plant(KV));
+    let ratio = 2.0;
+    // 2 s 30 % right of the line on the transmitter, 0.5 s reversed on the fallback, then
+    // the transmitter again at `back` × the line's flow
+    let run = |back: f64| {
+        let (mut law, q_line) = started_closed(&model, |q| 1.3 * q, ratio);
+        let q = |k: usize| match k {
+            0..2000 => 1.3 * q_line,
+            2000..2500 => -q_line,
+            _ => back * q_line,
+        };
+        let fb = |k: usize| (2000..2500).contains(&k);
+        let u = drive_with_source(&mut law, &model, ratio, (0, 2500), 0.0, q, fb);
+        let u_at_return = *u.last().expect("commands");
+        let tripped_at_return = law.tripped();
+        let after = drive_with_source(&mut law, &model, ratio, (2500, 1000), u_at_return, q, fb);
+        (u_at_return, tripped_at_return, law.tripped(), after)
+    };
+    // far right on the return: released on the first cycle, closing faster than 0.1/s
+    let (u0, held, held_after, after) = run(2.0);
+    assert!(
+        u0 > 0.99 && held,
+        "the fallback's reversal trips fully: {u0}"
+    );
+    assert!(!held_after, "the hold ends on the return");
+    let u1 = *after.last().expect("commands");
+    assert!(
+        u1 < u0 - 0.3,
+        "1 s after the return the valve closed from {u0:.3} to {u1:.3} only"
+    );
+    // never below the line opening: closing from u takes at most the fraction of the flow
+    // the valve passes, so u ≥ u0/2 keeps a point at twice the line's flow on it
+    let lowest = after.iter().cloned().fold(f64::INFINITY, f64::min);
+    assert!(lowest >= 0.5 * u0 - 1e-9, "{lowest}");
+    // left of the line on the return: the trip keeps holding
+    let (_, _, held_left, after) = run(0.95);
+    assert!(
+        held_left || after.iter().all(|&u| u > 0.99),
+        "a return left of the line keeps the valve open"
+    );
+}

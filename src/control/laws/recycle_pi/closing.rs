@@ -16,6 +16,11 @@
 //! valve; the limiter then closes the valve at its rate and stops it where the point reaches
 //! the control line, where the PI takes over (it follows the held output, see
 //! [`super::pi`]).
+//!
+//! One exception to the rate: a trip held on the observer's flow estimate and ended by the
+//! flow transmitter's return (the transmitter shows the point right of the control line)
+//! closes at the return rate, the distance to the line over one answer time of the pressures
+//! ([`ClosingLimiter::return_rate_per_s`]), until the PI's own demand is selected again.
 
 use crate::physics::valve::Characteristic;
 use serde::{Deserialize, Serialize};
@@ -71,8 +76,11 @@ impl ClosingLimiter {
     /// the measured position `u_pos` (NaN: not measured, the last output stands in), the
     /// compressor flow `q` and the control-line flow `c` (map units); `approach_cap_per_s`
     /// a further cap on the closing rate from the recycle trip (see
-    /// [`ClosingLimiter::approach_cap_per_s`]; ∞: none). −∞ when off. Never above `u_last`:
-    /// the limiter only holds a closing back, it never opens.
+    /// [`ClosingLimiter::approach_cap_per_s`]; ∞: none); `return_rate_per_s` a faster rate
+    /// allowed in place of `rate_per_s` (see [`ClosingLimiter::return_rate_per_s`]; NaN or
+    /// 0: none), itself under the approach cap. −∞ when off. Never above `u_last`: the
+    /// limiter only holds a closing back, it never opens.
+    #[allow(clippy::too_many_arguments)] // one cycle's inputs, each a named quantity
     pub fn floor(
         &self,
         u_last: f64,
@@ -80,15 +88,21 @@ impl ClosingLimiter {
         q: f64,
         c: f64,
         approach_cap_per_s: f64,
+        return_rate_per_s: f64,
         dt_s: f64,
     ) -> f64 {
         if !self.enabled || !u_last.is_finite() {
             return f64::NEG_INFINITY;
         }
-        let rate = if approach_cap_per_s >= 0.0 {
-            self.rate_per_s.min(approach_cap_per_s)
+        let base = if return_rate_per_s > self.rate_per_s {
+            return_rate_per_s
         } else {
             self.rate_per_s
+        };
+        let rate = if approach_cap_per_s >= 0.0 {
+            base.min(approach_cap_per_s)
+        } else {
+            base
         };
         let by_rate = u_last - rate * dt_s.max(0.0);
         let by_line = if self.stop_at_line {
@@ -112,6 +126,27 @@ impl ClosingLimiter {
             return f64::INFINITY;
         }
         u_pos.max(0.0) * (margin - trip_line).max(0.0) / (2.0 * (1.0 + margin) * horizon_s)
+    }
+
+    /// The closing rate after a trip taken on the observer's flow estimate is released by the
+    /// flow transmitter's return, 1/s: the rate at which the conservative bound of the line
+    /// opening (closing at r takes at most the fraction r/u_pos of the compressor flow per
+    /// second, so the margin m falls at most at (1 + m)·r/u_pos) carries the point from its
+    /// measured margin to the control line `line` in no less than `answer_s`, the time the
+    /// pressures take to answer a valve move (the trip's hold time, one period of the slowest
+    /// surge): u_pos (m − line)/((1 + m) answer_s). The opening was taken on an estimate the
+    /// trusted transmitter now contradicts, not on an approach it saw; the closing that
+    /// brings it back is paced by the distance the transmitter shows, not by the 0.1/s meant
+    /// for settling after a measured approach (campaign cases 155 and 120: a frozen Δp under
+    /// a feed drop, the valve fully open on the fallback, 0.1/s took 9 s back to the line).
+    /// 0 at or left of the line; 0 without a usable point.
+    pub fn return_rate_per_s(u_pos: f64, margin: f64, line: f64, answer_s: f64) -> f64 {
+        if !(u_pos.is_finite() && margin.is_finite() && line.is_finite() && answer_s > 0.0)
+            || margin <= -1.0
+        {
+            return 0.0;
+        }
+        u_pos.max(0.0) * (margin - line).max(0.0) / ((1.0 + margin) * answer_s)
     }
 
     /// The opening that keeps the point at or right of the control line (see the module
@@ -141,10 +176,10 @@ mod tests {
     fn closing_is_rate_limited_and_opening_is_not() {
         let l = limiter();
         // far right of the line: the rate limits (0.1/s × 0.01 s)
-        let f = l.floor(0.5, 0.5, 3.0, 1.0, f64::INFINITY, 0.01);
+        let f = l.floor(0.5, 0.5, 3.0, 1.0, f64::INFINITY, f64::NAN, 0.01);
         assert!((f - 0.499).abs() < 1e-12, "{f}");
         // never above the last output: it cannot open
-        assert!(l.floor(0.5, 0.9, 0.5, 1.0, f64::INFINITY, 0.01) <= 0.5);
+        assert!(l.floor(0.5, 0.9, 0.5, 1.0, f64::INFINITY, f64::NAN, 0.01) <= 0.5);
     }
 
     #[test]
@@ -160,11 +195,11 @@ mod tests {
         let need = 0.5 * 0.99 / 0.8;
         let mut u = 0.99;
         for _ in 0..100_000 {
-            u = l.floor(u, u, q(u), 1.0, f64::INFINITY, 0.01).max(0.0);
+            u = l.floor(u, u, q(u), 1.0, f64::INFINITY, f64::NAN, 0.01).max(0.0);
         }
         assert!(u >= need - 1e-9 && u < need + 0.01, "{u} vs {need}");
         // on or left of the line: no closing at all
-        assert_eq!(l.floor(0.4, 0.4, 0.95, 1.0, f64::INFINITY, 0.01), 0.4);
+        assert_eq!(l.floor(0.4, 0.4, 0.95, 1.0, f64::INFINITY, f64::NAN, 0.01), 0.4);
     }
 
     #[test]
@@ -192,7 +227,28 @@ mod tests {
             0.0
         );
         let l = limiter();
-        assert!((l.floor(0.2, 0.2, 3.0, 1.0, cap, 0.01) - (0.2 - cap * 0.01)).abs() < 1e-12);
+        assert!((l.floor(0.2, 0.2, 3.0, 1.0, cap, f64::NAN, 0.01) - (0.2 - cap * 0.01)).abs() < 1e-12);
+    }
+
+    #[test]
+    fn the_return_rate_carries_the_bound_to_the_line_in_one_answer_time() {
+        // fully open, 120 % right of the surge line, line at 10 %, answer time 1 s
+        let r = ClosingLimiter::return_rate_per_s(1.0, 1.2, 0.1, 1.0);
+        // at r the margin falls at most (1 + m) r/u_pos: the distance to the line in 1 s
+        assert!(((1.0 + 1.2) * r / 1.0 - (1.2 - 0.1)).abs() < 1e-12, "{r}");
+        assert!(r > 0.1, "faster than the default rate: {r}");
+        // at or left of the line: none
+        assert_eq!(ClosingLimiter::return_rate_per_s(1.0, 0.1, 0.1, 1.0), 0.0);
+        assert_eq!(ClosingLimiter::return_rate_per_s(1.0, f64::NAN, 0.1, 1.0), 0.0);
+        // the floor takes it in place of the default rate, under the approach cap
+        let l = limiter();
+        let f = l.floor(1.0, 1.0, 2.2, 1.1, f64::INFINITY, r, 0.01);
+        assert!((f - (1.0 - r * 0.01)).abs() < 1e-12, "{f}");
+        let f = l.floor(1.0, 1.0, 2.2, 1.1, 0.2, r, 0.01);
+        assert!((f - (1.0 - 0.2 * 0.01)).abs() < 1e-12, "{f}");
+        // a return rate below the default rate changes nothing
+        let f = l.floor(1.0, 1.0, 2.2, 1.1, f64::INFINITY, 0.01, 0.01);
+        assert!((f - 0.999).abs() < 1e-12, "{f}");
     }
 
     #[test]
@@ -203,7 +259,7 @@ mod tests {
         };
         let l = ClosingLimiter::new(&cfg, Characteristic::Linear);
         assert_eq!(
-            l.floor(0.5, 0.5, 1.0, 1.0, f64::INFINITY, 0.01),
+            l.floor(0.5, 0.5, 1.0, 1.0, f64::INFINITY, f64::NAN, 0.01),
             f64::NEG_INFINITY
         );
     }

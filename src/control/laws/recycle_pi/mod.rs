@@ -177,6 +177,10 @@ pub struct RecyclePi {
     /// Whether the last cycle's flow came from the fallback (a switch of flow source is a
     /// step in the margin, not an approach: the trip forgets its samples).
     last_fallback: bool,
+    /// Whether the closing may take the return rate: set when the flow transmitter's return
+    /// released a trip ([`ClosingLimiter::return_rate_per_s`]), cleared when the PI's own
+    /// demand is selected again or a trip fires.
+    returning: bool,
     started: bool,
 }
 
@@ -289,6 +293,7 @@ impl RecyclePi {
             u_last: f64::NAN,
             part: OutputPart::Hold,
             last_fallback: false,
+            returning: false,
             started: false,
         })
     }
@@ -375,6 +380,7 @@ impl RecyclePi {
         self.u_last = old.u_last;
         self.part = old.part;
         self.last_fallback = old.last_fallback;
+        self.returning = old.returning;
         self.started = true;
         true
     }
@@ -410,6 +416,7 @@ impl SurgeLaw for RecyclePi {
         self.esd.restart();
         self.part = OutputPart::Pi;
         self.last_fallback = m.flow_fallback;
+        self.returning = false;
         self.started = true;
     }
 
@@ -445,24 +452,36 @@ impl SurgeLaw for RecyclePi {
         }
         let dt = dt_s.max(0.0);
         let (lo, hi) = self.limits();
+        // a switch of flow source is a step between two sources, not a change of the flow:
+        // the PI's filter restarts at the new source's z, the trip forgets its samples
+        let switched = m.flow_fallback != self.last_fallback;
+        let back_on_transmitter = switched && !m.flow_fallback;
+        if switched {
+            self.pi.restart_filter(z);
+        }
 
         // the PI (its own demand, conditional integration against the static limits)
         let z_f = self.pi.filter(z, dt);
         let pi_demand = self.pi.step(z_f, dt, lo, hi);
 
         // the recycle trip, on the surge margin against the trip line
-        if m.flow_fallback != self.last_fallback {
+        if switched {
             self.trip.forget_samples();
             self.last_fallback = m.flow_fallback;
         }
         let margin = inputs.model.surge_margin(q, r);
         let trip_line = trip_margin_at(self.cfg.trip.margin_pct, &self.scl, r);
         let j = self.scl.surge_line().flow_at_ratio(r);
-        let gap = if j > 0.0 {
-            (c - j) / j - trip_line
-        } else {
-            f64::NAN
-        };
+        // the control line as a surge margin
+        let line = if j > 0.0 { (c - j) / j } else { f64::NAN };
+        let gap = line - trip_line;
+        // the flow transmitter is trusted again and shows the point right of the control
+        // line: a trip held on the observer's estimate has no measured approach behind it;
+        // the hold ends, and the closing back is paced by the distance the transmitter shows
+        if back_on_transmitter && self.trip.holding() && margin > line {
+            self.trip.release();
+            self.returning = true;
+        }
         // the sample's own time: a value held by a slower poll is one sample, not several
         let age_s = inputs.history.sample_age_s;
         let t_sample_s = m.t_s
@@ -496,6 +515,9 @@ impl SurgeLaw for RecyclePi {
             throttle,
             dt,
         );
+        if trip_fired.is_some() {
+            self.returning = false;
+        }
         if trip_fired == Some(TripKind::Throttle) {
             self.throttle.stepped();
         } else if !self.trip.holding() {
@@ -516,7 +538,6 @@ impl SurgeLaw for RecyclePi {
             } else {
                 self.u_last
             };
-            let line = if j > 0.0 { (c - j) / j } else { f64::NAN };
             if self.trip.drifting_below(line) {
                 // the point still drifts towards the control line and would pass it within a
                 // hold time (the plant answering an earlier closing, or a disturbance):
@@ -534,9 +555,19 @@ impl SurgeLaw for RecyclePi {
         } else {
             f64::INFINITY
         };
+        let return_rate = if self.returning {
+            let u_pos = if m.recycle_position.is_finite() {
+                m.recycle_position
+            } else {
+                self.u_last
+            };
+            ClosingLimiter::return_rate_per_s(u_pos, margin, line, self.trip.hold_s())
+        } else {
+            f64::NAN
+        };
         let floor = self
             .closing
-            .floor(self.u_last, m.recycle_position, q, c, cap, dt);
+            .floor(self.u_last, m.recycle_position, q, c, cap, return_rate, dt);
 
         // high-select
         let mut u = pi_demand;
@@ -555,6 +586,9 @@ impl SurgeLaw for RecyclePi {
         self.pi.follow(u, pi_demand, z_f);
         self.u_last = u;
         self.part = part;
+        if part == OutputPart::Pi {
+            self.returning = false;
+        }
 
         out.event = if esd_started {
             Some(LawEvent::RecycleTrip {

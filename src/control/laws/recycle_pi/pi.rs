@@ -169,6 +169,17 @@ impl Pi {
         };
     }
 
+    /// Restart the z filter at `z` (the flow source switched between the transmitter and the
+    /// observer: the jump between two sources is no change of the flow, and the filter, whose
+    /// purpose is the transmitter's noise, must not carry one source's value over to the
+    /// other for its time constant; on campaign case 155 the filter carried the fallback's
+    /// reversed flow into the returned Δp's and held the PI's demand up for a second).
+    pub fn restart_filter(&mut self, z: f64) {
+        if z.is_finite() {
+            self.z_f = z;
+        }
+    }
+
     /// The filtered z of the last step.
     pub fn z_filtered(&self) -> f64 {
         self.z_f
@@ -283,6 +294,20 @@ mod tests {
         let d = pi.step(-0.1, 0.01, 0.0, 1.0);
         pi.follow(0.4, d, -0.1);
         assert!((pi.integrator() - i0).abs() < 1e-12);
+    }
+
+    #[test]
+    fn a_restarted_filter_carries_nothing_of_the_old_source() {
+        let mut pi = Pi::new(1.0, 2.0, 1.0);
+        pi.start(1.0, 2.0);
+        // the new source reads -0.5: without the restart the 1-Hz filter would still be
+        // near +2 after one step
+        pi.restart_filter(-0.5);
+        let z = pi.filter(-0.5, 0.001);
+        assert!((z + 0.5).abs() < 1e-12, "{z}");
+        // a NaN (no usable point) leaves the filter as it was
+        pi.restart_filter(f64::NAN);
+        assert!((pi.z_filtered() + 0.5).abs() < 1e-12);
     }
 
     #[test]

@@ -220,6 +220,23 @@ impl RecycleTrip {
         self.pending = None;
     }
 
+    /// Release a held trip now (the PI and the closing limiter take over from the held
+    /// opening). The samples and the noise estimate are kept.
+    pub fn release(&mut self) {
+        self.hold_left_s = 0.0;
+        self.level = 0.0;
+        self.firing = None;
+        self.pending = None;
+        self.since_s = f64::NAN;
+        self.since_step_s = f64::INFINITY;
+    }
+
+    /// The hold time, s (one period of the slowest surge: the time the pressures take to
+    /// answer a valve move).
+    pub fn hold_s(&self) -> f64 {
+        self.hold_s
+    }
+
     /// Carry the running trip's state over (a change of settings).
     pub fn take_over(&mut self, old: &RecycleTrip) {
         let keep = *self;
@@ -496,6 +513,36 @@ mod tests {
         x = x.wrapping_mul(0xff51_afd7_ed55_8ccd);
         x ^= x >> 33;
         (x as f64 / u64::MAX as f64) * 2.0 - 1.0
+    }
+
+    #[test]
+    fn a_released_trip_holds_nothing_and_fires_again_on_a_new_crossing() {
+        let mut trip = RecycleTrip::new(&TripConfig::default(), 2.0);
+        let dt = 1e-3;
+        let none = ThrottlePrediction::NONE;
+        let mut k = 0u32;
+        let mut step = |trip: &mut RecycleTrip, margin: f64| {
+            k += 1;
+            // (a hair of noise: a real margin is never exactly still)
+            let m = margin + 1e-5 * noise(3, k as f64 * dt);
+            trip.update(m, k as f64 * dt, LINE, GAP, 0.1, 0.0, none, dt)
+        };
+        // past the trip line: it fires within the confirmation and holds
+        let fired = (0..50).find_map(|_| step(&mut trip, 0.0).1);
+        assert_eq!(fired, Some(TripKind::Level));
+        // back right of the line: still held (the hold time)
+        for _ in 0..50 {
+            step(&mut trip, 0.2);
+        }
+        assert!(trip.holding());
+        // released: nothing held from the next cycle on
+        trip.release();
+        assert!(!trip.holding());
+        let (d, fired) = step(&mut trip, 0.2);
+        assert!(d.is_nan() && fired.is_none(), "{d} {fired:?}");
+        // and a new crossing fires it again
+        let fired = (0..50).find_map(|_| step(&mut trip, 0.0).1);
+        assert_eq!(fired, Some(TripKind::Level));
     }
 
     #[test]
