@@ -63,6 +63,10 @@ mod tests {
         let mut b = Backoff::new(Duration::ZERO, Duration::ZERO);
         assert_eq!(b.next_delay(), ms(1), "never zero: no busy loop");
         let mut b = Backoff::new(ms(100), ms(10));
-        assert_eq!((b.next_delay(), b.next_delay()), (ms(100), ms(100)), "cap below start");
+        assert_eq!(
+            (b.next_delay(), b.next_delay()),
+            (ms(100), ms(100)),
+            "cap below start"
+        );
     }
 }

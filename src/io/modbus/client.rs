@@ -439,15 +439,16 @@ impl ModbusClient {
     /// A client for `config`. No I/O happens until the first call.
     pub fn new(config: ClientConfig) -> Result<ModbusClient, ConfigError> {
         config.validate()?;
+        let backoff = crate::io::link::Backoff::new(
+            Duration::from_millis(config.backoff_initial_ms),
+            Duration::from_millis(config.backoff_max_ms),
+        );
         Ok(ModbusClient {
             timeout: Duration::from_millis(config.timeout_ms),
             config,
             ctx: None,
             failures: 0,
-            backoff: crate::io::link::Backoff::new(
-                Duration::from_millis(config.backoff_initial_ms),
-                Duration::from_millis(config.backoff_max_ms),
-            ),
+            backoff,
             next_attempt: None,
             ever_connected: false,
             in_flight: false,
