@@ -1,4 +1,4 @@
-//! Helpers for the robustness campaign tests (issue 22, tests/campaign.rs): the base plants,
+//! Helpers for the robustness campaign tests (issue 22, tests/control/campaign.rs): the base plants,
 //! the reduced campaign run once per test binary and shared, and the failing-case lines.
 
 use antisurge::campaign::{self, report, Campaign, CampaignOptions, CaseResult};

@@ -12,8 +12,10 @@ mod common;
 static GLOBAL: common::counting_alloc::Counting = common::counting_alloc::Counting;
 
 mod bumpless_gain_change;
+mod campaign;
 mod conservation_and_fit;
 mod cycle_no_alloc;
+mod drift_check;
 mod esd_stroke_check;
 mod input_freshness;
 mod law_drive_torque;

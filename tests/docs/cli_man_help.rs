@@ -4,7 +4,7 @@
 //! and `antisurge --help` lists the operator's commands before the engineer's tools and the
 //! developer's benchmarks.
 
-mod common;
+use crate::common;
 
 use std::process::Command;
 

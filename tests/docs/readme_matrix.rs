@@ -1,7 +1,7 @@
 //! docs/benchmarks.md's control benchmark section is the output of `antisurge bench-matrix`, and the
 //! safety lines of the matrix hold (zero surge cycles where the valve can do it).
 
-mod common;
+use crate::common;
 
 use antisurge::control::LawId;
 use antisurge::sim::bench::{self, CaseResult};

@@ -4,7 +4,7 @@
 //! the matrix's other cases on a compressor map that is slightly wrong (the controller is not
 //! told the machine exactly), nor pressure and Δp noise with other seeds.
 
-mod common;
+use crate::common;
 
 use antisurge::control::LawId;
 use antisurge::scenario::Scenario;

@@ -5,7 +5,7 @@
 //!
 //! The reduced campaign (32 cases) runs once per test binary ([`common::campaign::reduced`]).
 
-mod common;
+use crate::common;
 
 use antisurge::campaign::runner::{self, Controller, RunResult};
 use antisurge::campaign::skid::{self, DisturbanceKind};

@@ -4,7 +4,7 @@
 //! tracker number ("issue 12") or a path outside the repository (`../shared/...`): they say
 //! what the thing is instead.
 
-mod common;
+use crate::common;
 
 use std::collections::HashMap;
 use std::path::{Component, Path, PathBuf};

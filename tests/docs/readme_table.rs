@@ -1,7 +1,7 @@
 //! docs/benchmarks.md's results table is the output of `antisurge table`, not a copy that can drift:
 //! this test reruns the command and compares it with the block between the markers.
 
-mod common;
+use crate::common;
 
 use std::process::Command;
 
