@@ -12,12 +12,25 @@ fn rust_files(dir: &Path) -> Vec<PathBuf> {
         let p = e.expect("entry").path();
         if p.is_dir() {
             out.extend(rust_files(&p));
-        } else if p.extension().is_some_and(|x| x == "rs") {
+        } else if p.extension().is_some_and(|x| x == "rs") && !is_test_module(&p) {
             out.push(p);
         }
     }
     out.sort();
     out
+}
+
+/// Whether `p` is a test module in a file of its own: a `tests.rs` its parent module declares
+/// under `#[cfg(test)]` (`mod.rs` beside it, or `<dir>.rs` beside its folder).
+fn is_test_module(p: &Path) -> bool {
+    if p.file_name().is_none_or(|n| n != "tests.rs") {
+        return false;
+    }
+    let Some(dir) = p.parent() else { return false };
+    [dir.join("mod.rs"), dir.with_extension("rs")]
+        .iter()
+        .filter_map(|f| std::fs::read_to_string(f).ok())
+        .any(|t| t.contains("#[cfg(test)]\nmod tests;"))
 }
 
 /// The file's text before its test module (a `#[cfg(test)]` line followed by `mod`), with
@@ -95,6 +108,18 @@ fn the_plant_models_do_not_use_the_controller() {
         "plant/ uses the controller (the sim/runner or daemon composes plant + controller):\n{}",
         v.join("\n")
     );
+}
+
+#[test]
+fn a_test_module_in_a_file_of_its_own_is_skipped_and_only_that() {
+    let src = Path::new(env!("CARGO_MANIFEST_DIR")).join("src");
+    assert!(is_test_module(&src.join("control/core/tests.rs")));
+    assert!(is_test_module(&src.join("io/modbus/link/tests.rs")));
+    assert!(!is_test_module(&src.join("control/core/mod.rs")));
+    assert!(!is_test_module(&src.join("io/can/bus/tests_missing.rs")));
+    let files = rust_files(&src.join("control"));
+    assert!(files.iter().any(|f| f.ends_with("control/core/mod.rs")));
+    assert!(!files.iter().any(|f| f.ends_with("control/core/tests.rs")));
 }
 
 #[test]
