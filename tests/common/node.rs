@@ -4,9 +4,24 @@
 use antisurge::control::core::{ControlCore, Reconfiguration};
 use antisurge::control::measurements::OperatorInputs;
 use antisurge::node::control::{ControlNode, ControlUpdate, ControlWiring, Health};
+use antisurge::plant::{PlantInputs, SimPlant};
 use antisurge::runtime::handoff::{OutputBoard, SensorBoard, Wakeup};
 use antisurge::runtime::rt_loop::CycleStats;
+use antisurge::sim::case::PlantCase;
 use std::sync::Arc;
+
+/// The simulated plant at its file's initial operating point (throttle, recycle valve, feed)
+/// and the inputs that hold it there.
+pub fn plant_at_initial_point(desc: &PlantCase) -> (SimPlant, PlantInputs) {
+    let init = desc.file.initial;
+    let inputs = PlantInputs {
+        throttle_process: init.throttle,
+        recycle_manual: init.recycle_valve,
+        feed: init.feed,
+        ..PlantInputs::default()
+    };
+    (SimPlant::new(desc, &inputs).expect("plant"), inputs)
+}
 
 /// The node and the test's ends of its wiring.
 pub struct BareNode {

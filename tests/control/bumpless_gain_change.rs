@@ -17,7 +17,6 @@ use antisurge::control::measurements::OperatorInputs;
 use antisurge::control::model::ControlModel;
 use antisurge::control::{ControllerConfig, LawId};
 use antisurge::node::control::ControlUpdate;
-use antisurge::plant::{PlantInputs, SimPlant};
 use antisurge::runtime::handoff::monotonic_ns;
 use antisurge::runtime::rt_loop::Tick;
 use antisurge::sim::case::PlantCase;
@@ -75,14 +74,7 @@ fn run(
     law: LawId,
     reloads: &[(u64, ControllerConfig)],
 ) -> Vec<[f64; ActuatorId::COUNT]> {
-    let init = desc.file.initial;
-    let inputs = PlantInputs {
-        throttle_process: init.throttle,
-        recycle_manual: init.recycle_valve,
-        feed: init.feed,
-        ..PlantInputs::default()
-    };
-    let mut plant = SimPlant::new(desc, &inputs).expect("plant");
+    let (mut plant, inputs) = common::node::plant_at_initial_point(desc);
     let model = antisurge::sim::control_model(desc);
     let settings = CoreSettings::defaults_for(&model);
     let torque = plant.truth().load_torque_nm;
@@ -96,9 +88,9 @@ fn run(
     .expect("core");
     let op = OperatorInputs {
         speed_setpoint_rad_s: desc.file.drive.nominal_speed_rad_s,
-        throttle_demand: init.throttle,
+        throttle_demand: inputs.throttle_process,
         flow_setpoint_kg_s: f64::NAN,
-        recycle_manual: init.recycle_valve,
+        recycle_manual: inputs.recycle_manual,
     };
     let common::node::BareNode {
         mut node,
@@ -137,7 +129,7 @@ fn run(
         let o = outputs.latest().expect("outputs");
         plant_inputs.commands = o.commands;
         // the process closes its throttle towards surge: the law is working at the reloads
-        plant_inputs.throttle_process = (init.throttle - 0.1 * k as f64 * dt).max(0.45);
+        plant_inputs.throttle_process = (inputs.throttle_process - 0.1 * k as f64 * dt).max(0.45);
         plant.step(&plant_inputs, dt);
         out.push(o.commands.values);
     }

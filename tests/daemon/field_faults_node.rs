@@ -8,7 +8,7 @@ use crate::common;
 use antisurge::control::core::{ControlCore, CoreSettings};
 use antisurge::control::measurements::OperatorInputs;
 use antisurge::control::LawId;
-use antisurge::plant::{PlantInputs, SimPlant};
+use antisurge::plant::SimPlant;
 use antisurge::runtime::handoff::monotonic_ns;
 use antisurge::runtime::rt_loop::Tick;
 use antisurge::vocab::faults::{FaultCategory, FieldLinkKind};
@@ -16,14 +16,7 @@ use antisurge::vocab::signals::SensorId;
 
 fn node() -> (common::node::BareNode, SimPlant) {
     let desc = common::plant("kvangardsnes2009_recycle");
-    let init = desc.file.initial;
-    let inputs = PlantInputs {
-        throttle_process: init.throttle,
-        recycle_manual: init.recycle_valve,
-        feed: init.feed,
-        ..PlantInputs::default()
-    };
-    let plant = SimPlant::new(&desc, &inputs).expect("plant");
+    let (plant, inputs) = common::node::plant_at_initial_point(&desc);
     let model = antisurge::sim::control_model(&desc);
     let settings = CoreSettings::defaults_for(&model);
     let core = ControlCore::new(
@@ -36,9 +29,9 @@ fn node() -> (common::node::BareNode, SimPlant) {
     .expect("core");
     let op = OperatorInputs {
         speed_setpoint_rad_s: desc.file.drive.nominal_speed_rad_s,
-        throttle_demand: init.throttle,
+        throttle_demand: inputs.throttle_process,
         flow_setpoint_kg_s: f64::NAN,
-        recycle_manual: init.recycle_valve,
+        recycle_manual: inputs.recycle_manual,
     };
     (common::node::bare_node(core, op, 1_000_000), plant)
 }

@@ -9,7 +9,6 @@ use antisurge::control::core::{ControlCore, CoreSettings};
 use antisurge::control::LawId;
 use antisurge::live::snapshot::LiveBoard;
 use antisurge::node::control::{ControlNode, ControlWiring, Health};
-use antisurge::plant::{PlantInputs, SimPlant};
 use antisurge::runtime::handoff::{monotonic_ns, OutputBoard, SensorBoard, Wakeup};
 use antisurge::runtime::rt_loop::{CycleStats, Tick};
 use antisurge::vocab::signals::SensorId;
@@ -20,14 +19,7 @@ use std::sync::Arc;
 #[test]
 fn control_node_cycle_with_live_snapshot_allocates_nothing_while_polled() {
     let desc = common::plant("kvangardsnes2009_recycle");
-    let init = desc.file.initial;
-    let inputs = PlantInputs {
-        throttle_process: init.throttle,
-        recycle_manual: init.recycle_valve,
-        feed: init.feed,
-        ..PlantInputs::default()
-    };
-    let mut plant = SimPlant::new(&desc, &inputs).expect("plant");
+    let (mut plant, inputs) = common::node::plant_at_initial_point(&desc);
     let model = antisurge::sim::control_model(&desc);
     let settings = CoreSettings::defaults_for(&model);
     let cfg = model.controller.clone();
@@ -136,7 +128,7 @@ fn control_node_cycle_with_live_snapshot_allocates_nothing_while_polled() {
             counted += 1;
         }
         plant_inputs.commands = outputs.latest().expect("outputs").commands;
-        plant_inputs.throttle_process = (init.throttle - 1e-4 * k as f64).max(0.45);
+        plant_inputs.throttle_process = (inputs.throttle_process - 1e-4 * k as f64).max(0.45);
         plant.step(&plant_inputs, 1e-3);
     }
     stop.store(true, Ordering::Relaxed);
