@@ -28,8 +28,8 @@ use std::time::{Duration, Instant};
 
 use antisurge::io::can::bus::{
     run_controller, run_plant, BusCodec, BusHandles, BusState, CanBusConfig, CanCounters,
-    CanCountersSnapshot, ControllerBoards, DownCause, FrameEncoder, HeartbeatTx, IoOp, PlantBoards,
-    RxHandler, StateHook,
+    CanCountersSnapshot, CanTrouble, ControllerBoards, DownCause, FrameEncoder, HeartbeatTx, IoOp,
+    PlantBoards, RxHandler, StateHook,
 };
 use antisurge::io::can::{skid_bindings, FrameId};
 use antisurge::runtime::handoff::{
@@ -677,7 +677,9 @@ async fn scenario() {
         ))
         .expect("inject error-passive");
     wait_until("both nodes error-passive", LONG, || {
-        nodes.iter().all(|n| n.state() == BusState::ErrorPassive)
+        nodes
+            .iter()
+            .all(|n| n.state() == BusState::Degraded(CanTrouble::ErrorPassive))
     })
     .await;
     injector
@@ -693,7 +695,7 @@ async fn scenario() {
             "[3] {}: state '{}' after an error-passive frame, 'up' after error-active \
              (error frames +{}, error-passive entries +{}, link down +{})",
             n.name,
-            BusState::ErrorPassive,
+            BusState::Degraded(CanTrouble::ErrorPassive),
             a.error_frames - b.error_frames,
             a.error_passive - b.error_passive,
             a.link_down - b.link_down
@@ -740,10 +742,10 @@ async fn scenario() {
         assert_eq!(
             seen,
             [
-                BusState::Down(DownCause::BusOff),
-                BusState::Reconnecting {
+                BusState::down(DownCause::BusOff),
+                BusState::Down {
                     attempt: 1,
-                    delay_ms: 50,
+                    backoff_ms: 50,
                     cause: DownCause::BusOff
                 },
                 BusState::Up
@@ -807,11 +809,14 @@ async fn scenario() {
         assert!(
             matches!(
                 seen.first(),
-                Some(BusState::Down(DownCause::Io {
-                    op: IoOp::Receive,
-                    errno: Some(libc::ENETDOWN),
+                Some(BusState::Down {
+                    cause: DownCause::Io {
+                        op: IoOp::Receive,
+                        errno: Some(libc::ENETDOWN),
+                        ..
+                    },
                     ..
-                }))
+                })
             ),
             "{}: the receive path must notice: {seen:?}",
             n.name
@@ -829,10 +834,7 @@ async fn scenario() {
         assert!(
             seen.iter().any(|s| matches!(
                 s,
-                BusState::Down(DownCause::Io {
-                    errno: Some(libc::ENETDOWN),
-                    ..
-                }) | BusState::Reconnecting {
+                BusState::Down {
                     cause: DownCause::Io {
                         errno: Some(libc::ENETDOWN),
                         ..
@@ -904,10 +906,7 @@ async fn scenario() {
         assert!(
             seen.iter().any(|s| matches!(
                 s,
-                BusState::Down(DownCause::Io {
-                    errno: Some(libc::ENODEV),
-                    ..
-                }) | BusState::Reconnecting {
+                BusState::Down {
                     cause: DownCause::Io {
                         errno: Some(libc::ENODEV),
                         ..

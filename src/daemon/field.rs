@@ -217,18 +217,6 @@ pub fn input_link_kinds(
     kinds
 }
 
-/// A CAN link state's name in the status (`up`, `down`, `idle`, `stopped`): warning and
-/// error-passive count as up (traffic still passes), reconnecting as down.
-fn can_state_name(s: &crate::io::can::bus::BusState) -> &'static str {
-    use crate::io::can::bus::BusState as S;
-    match s {
-        S::Starting => "idle",
-        S::Up | S::ErrorWarning | S::ErrorPassive => "up",
-        S::Down(_) | S::Reconnecting { .. } => "down",
-        S::Stopped => "stopped",
-    }
-}
-
 /// What a link's quality is judged against: its configured poll period and the freshness
 /// budget of the inputs it carries (the smallest input timeout among them; `None` when it
 /// carries no supervised input).
@@ -347,7 +335,7 @@ pub async fn report_modbus(
                 reporter.state(BusState::Up, "");
                 reporter.fault(FaultCategory::SensorTimeout, false, "reads answered");
             }
-            LinkState::Exception(x) => {
+            LinkState::Degraded(x) => {
                 reporter.state(BusState::Up, "");
                 if x.function == 3 || x.function == 4 {
                     reporter.fault(
@@ -361,14 +349,12 @@ pub async fn report_modbus(
                 }
             }
             LinkState::Down {
-                consecutive_failures,
+                attempt,
                 backoff_ms,
                 cause,
             } => reporter.state(
                 BusState::Down,
-                &format!(
-                    "down: {cause:?} ({consecutive_failures} failures, next attempt in {backoff_ms} ms)"
-                ),
+                &format!("down: {cause:?} ({attempt} failures, next attempt in {backoff_ms} ms)"),
             ),
             LinkState::Idle | LinkState::Stopped => {}
         }
@@ -425,30 +411,12 @@ pub async fn report_modbus(
     }
 }
 
-/// A link state's name in the status (`up`, `down`, `exception`, `idle`, `stopped`).
-fn link_state_name(s: LinkState) -> &'static str {
-    match s {
-        LinkState::Up => "up",
-        LinkState::Down { .. } => "down",
-        LinkState::Exception(_) => "exception",
-        LinkState::Idle => "idle",
-        LinkState::Stopped => "stopped",
-    }
-}
-
-/// Counters of the controller's links, for the statistics written at exit.
+/// The controller's links, for the status and the statistics written at exit: each through
+/// the one [`FieldLink`](crate::io::link::FieldLink) face, whatever its transport.
 #[derive(Debug, Clone, Default)]
 pub struct LinkCounters {
-    /// CAN frame counters (unknown ids, wrong DLC, bad CRC, bus-off, reconnects, …).
-    pub can: Option<Arc<crate::io::can::bus::CanCounters>>,
-    /// The CAN link's state, as its task publishes it.
-    pub can_state: Option<watch::Receiver<crate::io::can::bus::BusState>>,
-    /// The CAN link's name in the status (`can:<interface>`).
-    pub can_name: Option<String>,
-    /// Modbus link monitor.
-    pub modbus: Option<Arc<LinkMonitor>>,
-    /// The Modbus link's name in events (`modbus:<address>`).
-    pub modbus_name: Option<String>,
+    /// The links the daemon started.
+    pub links: crate::io::link::FieldLinks,
     /// The actuators whose feedback is supervised (`[feedback]` of the signal map), by name:
     /// the HMI's feedback lamp says which (none: "not supervised").
     pub feedback: Vec<&'static str>,
@@ -457,27 +425,7 @@ pub struct LinkCounters {
 impl LinkCounters {
     /// JSON view.
     pub fn to_json(&self) -> serde_json::Value {
-        serde_json::json!({
-            "feedback": self.feedback,
-            "can": self.can.as_ref().map(|c| {
-                let mut v = serde_json::to_value(c.snapshot()).unwrap_or_default();
-                if let Some(o) = v.as_object_mut() {
-                    o.insert("name".into(), self.can_name.clone().unwrap_or_else(|| "can".into()).into());
-                    if let Some(rx) = &self.can_state {
-                        o.insert("state".into(), can_state_name(&rx.borrow()).into());
-                    }
-                }
-                v
-            }),
-            "modbus": self.modbus.as_ref().map(|m| {
-                let mut v = serde_json::to_value(m.counters().snapshot()).unwrap_or_default();
-                if let Some(o) = v.as_object_mut() {
-                    o.insert("name".into(), self.modbus_name.clone().unwrap_or_else(|| "modbus".into()).into());
-                    o.insert("state".into(), link_state_name(m.state()).into());
-                }
-                v
-            }),
-        })
+        self.links.to_json(&self.feedback)
     }
 }
 
@@ -498,6 +446,7 @@ pub fn spawn_controller_links(
         trigger,
     } = boards;
     let mut counters = LinkCounters::default();
+    let mut modbus_view = None;
     let map = &l.signal_map;
     let mut sup = FeedbackSupervisor::new(&map.feedback);
     if let Some(v) = l.model.recycle_valve {
@@ -531,9 +480,13 @@ pub fn spawn_controller_links(
     if map.uses_can() {
         let (can, codec) = can_codec(l)?;
         let (handles, state) = BusHandles::new(shutdown.clone());
-        counters.can = Some(Arc::clone(&handles.counters));
-        counters.can_state = Some(state);
-        counters.can_name = Some(can_link_name(&can.interface));
+        counters
+            .links
+            .push(Arc::new(crate::io::can::bus::CanLinkView {
+                name: can_link_name(&can.interface),
+                counters: Arc::clone(&handles.counters),
+                state,
+            }));
         let handles = handles.with_hook(bus_event_hook(&reports, can.interface.clone()));
         let boards = ControllerBoards {
             sensors: Arc::clone(&sensors),
@@ -554,9 +507,12 @@ pub fn spawn_controller_links(
         })?;
         let map = map.clone();
         let monitor = Arc::new(LinkMonitor::new());
-        counters.modbus = Some(Arc::clone(&monitor));
-        counters.modbus_name = Some(modbus_link_name(&cfg));
-        crate::live::metrics::register_modbus_link(modbus_link_name(&cfg), Arc::clone(&monitor));
+        let view = Arc::new(crate::io::modbus::ModbusLinkView {
+            name: modbus_link_name(&cfg),
+            monitor: Arc::clone(&monitor),
+        });
+        counters.links.push(view.clone());
+        modbus_view = Some(view);
         let reporter = reports.reporter(modbus_link_name(&cfg));
         let freshness_s = map
             .modbus_sensors()
@@ -598,6 +554,7 @@ pub fn spawn_controller_links(
             }
         });
     }
+    crate::live::metrics::register_links(counters.links.clone(), modbus_view);
     Ok(counters)
 }
 
@@ -688,26 +645,53 @@ mod tests {
     }
 
     #[test]
-    fn the_can_link_is_named_and_its_state_shown_like_the_modbus_link() {
-        use crate::io::can::bus::{BusState, CanCounters, DownCause};
+    fn both_links_show_the_one_face_name_state_and_traffic() {
+        use crate::io::can::bus::{BusState, CanCounters, CanLinkView, CanTrouble, DownCause};
+        use std::sync::atomic::Ordering;
         let (tx, rx) = tokio::sync::watch::channel(BusState::Up);
-        let counters = super::LinkCounters {
-            can: Some(std::sync::Arc::new(CanCounters::default())),
-            can_state: Some(rx),
-            can_name: Some(super::can_link_name("can0")),
-            ..super::LinkCounters::default()
-        };
+        let can = std::sync::Arc::new(CanCounters::default());
+        can.tx_frames.store(7, Ordering::Relaxed);
+        can.rx_frames.store(9, Ordering::Relaxed);
+        can.bad_crc.store(2, Ordering::Relaxed);
+        can.link_down.store(1, Ordering::Relaxed);
+        let mut counters = super::LinkCounters::default();
+        counters.links.push(std::sync::Arc::new(CanLinkView {
+            name: super::can_link_name("can0"),
+            counters: can,
+            state: rx,
+        }));
         let j = counters.to_json();
         assert_eq!(j["can"]["name"], "can:can0");
         assert_eq!(j["can"]["state"], "up");
-        tx.send_replace(BusState::Down(DownCause::BusOff));
+        assert_eq!(
+            j["can"]["traffic"],
+            serde_json::json!({"sent": 7, "received": 9, "errors": 2, "down": 1, "reconnects": 0})
+        );
+        assert_eq!(
+            j["can"]["bad_crc"], 2,
+            "the transport's own counters beside"
+        );
+        assert_eq!(j["modbus"], serde_json::Value::Null, "no Modbus link run");
+        tx.send_replace(BusState::down(DownCause::BusOff));
         assert_eq!(counters.to_json()["can"]["state"], "down");
-        tx.send_replace(BusState::ErrorPassive);
+        tx.send_replace(BusState::Degraded(CanTrouble::ErrorPassive));
         assert_eq!(
             counters.to_json()["can"]["state"],
             "up",
             "traffic still passes"
         );
+        counters
+            .links
+            .push(std::sync::Arc::new(crate::io::modbus::ModbusLinkView {
+                name: "modbus:127.0.0.1:502".into(),
+                monitor: std::sync::Arc::new(crate::io::modbus::LinkMonitor::new()),
+            }));
+        let j = counters.to_json();
+        assert_eq!(j["modbus"]["name"], "modbus:127.0.0.1:502");
+        assert_eq!(j["modbus"]["state"], "idle");
+        assert_eq!(j["modbus"]["traffic"]["sent"], 0);
+        assert_eq!(j["modbus"]["link_down"], 0);
+        assert_eq!(j["can"]["state"], "up");
     }
 
     #[test]

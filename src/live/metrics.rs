@@ -237,40 +237,80 @@ impl Collector for LiveCollector {
 }
 
 /// The DCS block's server counters (only while the block is on).
-/// The controller's Modbus link, as the daemon started it: its name in events and its
-/// monitor (a scrape reads the monitor's atomics; `None` without a Modbus link).
-type ModbusLinkSlot = std::sync::Mutex<Option<(String, Arc<crate::io::modbus::LinkMonitor>)>>;
-static MODBUS_LINK: ModbusLinkSlot = std::sync::Mutex::new(None);
+/// The controller's field links, as the daemon started them (a scrape reads their watch
+/// channels and atomics through the one [`FieldLink`](crate::io::link::FieldLink) face), and
+/// its Modbus link's monitor for the poll period, latency and heartbeats only a polled link has.
+#[derive(Default)]
+struct Links {
+    all: crate::io::link::FieldLinks,
+    modbus: Option<Arc<crate::io::modbus::ModbusLinkView>>,
+}
+static LINKS: std::sync::Mutex<Option<Links>> = std::sync::Mutex::new(None);
 
-/// Expose the controller's Modbus link in the metrics (the daemon, when it starts the link).
-pub fn register_modbus_link(name: String, monitor: Arc<crate::io::modbus::LinkMonitor>) {
-    *MODBUS_LINK
+/// Expose the controller's field links in the metrics (the daemon, once it started them):
+/// every link's state and traffic, and the Modbus link's quality.
+pub fn register_links(
+    all: crate::io::link::FieldLinks,
+    modbus: Option<Arc<crate::io::modbus::ModbusLinkView>>,
+) {
+    *LINKS
         .lock()
-        .unwrap_or_else(std::sync::PoisonError::into_inner) = Some((name, monitor));
+        .unwrap_or_else(std::sync::PoisonError::into_inner) = Some(Links { all, modbus });
 }
 
-/// Link quality and counters of the controller's Modbus link, labelled with its name.
+/// Every field link's state and traffic ([`crate::io::link::LinkTraffic`]), labelled with its
+/// name; the Modbus link's quality and heartbeats.
 fn link_metrics(e: &mut DescriptorEncoder) -> std::fmt::Result {
-    let Some((name, monitor)) = MODBUS_LINK
+    use crate::io::link::{FieldLink, LinkTraffic};
+    let Some(Links { all, modbus }) = LINKS
         .lock()
         .unwrap_or_else(std::sync::PoisonError::into_inner)
-        .clone()
+        .as_ref()
+        .map(|l| Links {
+            all: l.all.clone(),
+            modbus: l.modbus.clone(),
+        })
     else {
         return Ok(());
     };
-    let c = monitor.counters().snapshot();
-    let up = matches!(monitor.state(), crate::io::modbus::LinkState::Up);
-    let link = [("link", name.as_str())];
-    let g = ConstGauge::new(i64::from(up));
-    g.encode(
-        e.encode_descriptor(
+    if all.iter().next().is_some() {
+        let mut fam = e.encode_descriptor(
             "antisurge_link_up",
-            "Field link up and answering (1)",
+            "Field link up and passing traffic (1)",
             None,
-            g.metric_type(),
-        )?
-        .encode_family(&link)?,
-    )?;
+            ConstGauge::new(0i64).metric_type(),
+        )?;
+        for l in all.iter() {
+            ConstGauge::new(i64::from(l.is_up()))
+                .encode(fam.encode_family(&[("link", l.name())])?)?;
+        }
+        type Pick = fn(&LinkTraffic) -> u64;
+        let traffic: [(&str, &str, Pick); 5] = [
+            ("antisurge_link_sent", "Field link: frames written (CAN) or requests sent (Modbus)", |t| t.sent),
+            ("antisurge_link_received", "Field link: frames read (CAN) or answers received (Modbus)", |t| t.received),
+            ("antisurge_link_errors", "Field link: frames refused, error frames and refused writes (CAN); timeouts, exceptions, I/O and protocol errors (Modbus)", |t| t.errors),
+            ("antisurge_link_down", "Field link: times the link went down", |t| t.down),
+            ("antisurge_link_reconnects", "Field link: reconnects after the first open", |t| t.reconnects),
+        ];
+        let figures: Vec<(String, LinkTraffic)> = all
+            .iter()
+            .map(|l| (l.name().to_string(), l.traffic()))
+            .collect();
+        for (metric, help, pick) in traffic {
+            let mut fam =
+                e.encode_descriptor(metric, help, None, ConstCounter::new(0u64).metric_type())?;
+            for (name, t) in &figures {
+                ConstCounter::new(pick(t))
+                    .encode(fam.encode_family(&[("link", name.as_str())])?)?;
+            }
+        }
+    }
+    let Some(view) = modbus else {
+        return Ok(());
+    };
+    let c = view.monitor.counters().snapshot();
+    let name = view.name();
+    let link = [("link", name)];
     let g = ConstGauge::new(c.poll_period_us as f64 * 1e-6);
     g.encode(
         e.encode_descriptor(
@@ -291,7 +331,7 @@ fn link_metrics(e: &mut DescriptorEncoder) -> std::fmt::Result {
         )?;
         for (q, v) in [("0.5", c.latency_p50_us), ("0.99", c.latency_p99_us)] {
             ConstGauge::new(v as f64 * 1e-6)
-                .encode(fam.encode_family(&[("link", name.as_str()), ("quantile", q)])?)?;
+                .encode(fam.encode_family(&[("link", name), ("quantile", q)])?)?;
         }
     }
     for (metric, help, v) in [
@@ -309,11 +349,6 @@ fn link_metrics(e: &mut DescriptorEncoder) -> std::fmt::Result {
             "antisurge_link_exceptions",
             "Field link: exception answers",
             c.exceptions,
-        ),
-        (
-            "antisurge_link_reconnects",
-            "Field link: reconnects after the first connect",
-            c.reconnects,
         ),
         (
             "antisurge_link_heartbeats",
@@ -476,14 +511,33 @@ mod tests {
     use crate::live::snapshot::LiveSnapshot;
 
     #[test]
-    fn the_modbus_links_quality_is_exposed_with_its_name() {
-        let monitor = Arc::new(crate::io::modbus::LinkMonitor::new());
-        register_modbus_link("modbus:10.0.0.5:502".into(), monitor);
+    fn every_links_state_and_traffic_and_the_modbus_links_quality_are_exposed_with_their_names() {
+        use crate::io::can::bus::{BusState, CanCounters, CanLinkView};
+        let view = Arc::new(crate::io::modbus::ModbusLinkView {
+            name: "modbus:10.0.0.5:502".into(),
+            monitor: Arc::new(crate::io::modbus::LinkMonitor::new()),
+        });
+        let can = Arc::new(CanCounters::default());
+        can.rx_frames
+            .store(12, std::sync::atomic::Ordering::Relaxed);
+        let (_tx, rx) = tokio::sync::watch::channel(BusState::Up);
+        let mut all = crate::io::link::FieldLinks::default();
+        all.push(Arc::new(CanLinkView {
+            name: "can:vcan0".into(),
+            counters: can,
+            state: rx,
+        }));
+        all.push(view.clone());
+        register_links(all, Some(view));
         let live = Arc::new(LiveBoard::default());
         let stats = Arc::new(CycleStats::default());
         let text = render_classic(&live, &stats);
         for want in [
             "antisurge_link_up{link=\"modbus:10.0.0.5:502\"} 0",
+            "antisurge_link_up{link=\"can:vcan0\"} 1",
+            "antisurge_link_received_total{link=\"can:vcan0\"} 12",
+            "antisurge_link_down_total{link=\"modbus:10.0.0.5:502\"} 0",
+            "antisurge_link_reconnects_total{link=\"can:vcan0\"} 0",
             "antisurge_link_poll_period_seconds{link=\"modbus:10.0.0.5:502\"} 0",
             "antisurge_link_latency_seconds{link=\"modbus:10.0.0.5:502\",quantile=\"0.99\"} 0",
             "antisurge_link_timeouts_total{link=\"modbus:10.0.0.5:502\"} 0",
@@ -492,6 +546,10 @@ mod tests {
         ] {
             assert!(text.contains(want), "{want} missing from\n{text}");
         }
+        assert!(
+            !text.contains("antisurge_link_poll_period_seconds{link=\"can:vcan0\"}"),
+            "a CAN link is not polled"
+        );
     }
 
     #[test]

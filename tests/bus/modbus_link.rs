@@ -516,7 +516,7 @@ async fn server_loss_makes_sensors_stale_and_reconnect_recovers() {
     assert_eq!(ctl.sensors.get(SensorId::PSuction).1, t_frozen);
     assert_eq!(plant.commands.get(ActuatorId::RecycleValve).1, t_cmd_frozen);
     let LinkState::Down {
-        consecutive_failures,
+        attempt: consecutive_failures,
         cause,
         ..
     } = ctl.monitor.state()
@@ -631,7 +631,7 @@ async fn plant_refuses_sensors_it_has_no_value_for() {
     assert!(
         wait_for(Duration::from_secs(1), || matches!(
             ctl.monitor.state(),
-            LinkState::Exception(x) if x.code == ExceptionCode::ServerDeviceBusy
+            LinkState::Degraded(x) if x.code == ExceptionCode::ServerDeviceBusy
         ))
         .await,
         "{:?}",
@@ -654,7 +654,7 @@ async fn plant_refuses_sensors_it_has_no_value_for() {
     assert!(
         wait_for(Duration::from_secs(1), || matches!(
             ctl.monitor.state(),
-            LinkState::Exception(x) if x.code == ExceptionCode::ServerDeviceFailure && x.unit_id == 2
+            LinkState::Degraded(x) if x.code == ExceptionCode::ServerDeviceFailure && x.unit_id == 2
         ))
         .await,
         "{:?}",

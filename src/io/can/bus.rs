@@ -39,7 +39,7 @@ use std::fmt;
 use std::io;
 use std::os::fd::{AsRawFd, RawFd};
 use std::path::{Path, PathBuf};
-use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
+use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::Arc;
 use std::time::Duration;
 
@@ -418,111 +418,53 @@ impl fmt::Display for DownCause {
     }
 }
 
-/// State of a CAN link, published on a [`watch`] channel and to the optional [`StateHook`].
-///
-/// A failure reads `Up` → `Down(cause)` → `Reconnecting { attempt: 1, .. }` →
-/// (`Reconnecting { attempt: 2, .. }` → … while reopening fails) → `Up`. A watch channel keeps
-/// only the latest value, so a watcher may miss the short-lived `Down`; `Reconnecting` repeats
-/// the cause, the hook sees every change, and [`CanCounters`] count every event.
+/// What a CAN controller reports while the link still passes traffic: its error state.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
-pub enum BusState {
-    /// The task started and has not opened a socket yet.
-    Starting,
-    /// Socket open; the CAN controller is error-active (or did not say otherwise).
-    Up,
-    /// Socket open; an error counter passed the warning level (error frame).
+pub enum CanTrouble {
+    /// An error counter passed the warning level (error frame).
     ErrorWarning,
-    /// Socket open; the controller is error-passive (error frame). Traffic may still pass.
+    /// The controller is error-passive (error frame). Traffic may still pass.
     ErrorPassive,
-    /// Socket closed after a failure; a reconnect follows.
-    Down(DownCause),
-    /// Waiting `delay_ms` before reconnect attempt `attempt` (1 = first after the failure).
-    Reconnecting {
-        /// Reconnect attempt number since the link was last up.
-        attempt: u32,
-        /// Delay before this attempt, ms.
-        delay_ms: u64,
-        /// Why the link is down (the last failure).
-        cause: DownCause,
-    },
-    /// The task ended on shutdown.
-    Stopped,
 }
 
-impl BusState {
-    /// Whether a socket is open.
-    pub fn is_up(&self) -> bool {
-        matches!(
-            self,
-            BusState::Up | BusState::ErrorWarning | BusState::ErrorPassive
-        )
-    }
-
-    /// The event-log vocabulary for this state, for one entry per outage: `bus_off` or `down`,
-    /// `reconnecting` (first attempt only; later attempts give `None`), `up`. `None` also for
-    /// start and stop, which the daemon logs itself. Warning and error-passive count as up:
-    /// the link still passes traffic.
-    pub fn to_event(&self) -> Option<crate::events::event::BusState> {
-        use crate::events::event::BusState as E;
-        match self {
-            BusState::Starting | BusState::Stopped => None,
-            BusState::Up | BusState::ErrorWarning | BusState::ErrorPassive => Some(E::Up),
-            BusState::Down(DownCause::BusOff) => Some(E::BusOff),
-            BusState::Down(_) => Some(E::Down),
-            BusState::Reconnecting { attempt: 1, .. } => Some(E::Reconnecting),
-            BusState::Reconnecting { .. } => None,
-        }
-    }
-}
-
-impl fmt::Display for BusState {
+impl fmt::Display for CanTrouble {
     fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
-        match self {
-            BusState::Starting => f.write_str("starting"),
-            BusState::Up => f.write_str("up"),
-            BusState::ErrorWarning => f.write_str("up, error warning"),
-            BusState::ErrorPassive => f.write_str("up, error passive"),
-            BusState::Down(c) => write!(f, "down: {c}"),
-            BusState::Reconnecting {
-                attempt,
-                delay_ms,
-                cause,
-            } => write!(
-                f,
-                "reconnect attempt {attempt} in {delay_ms} ms (down: {cause})"
-            ),
-            BusState::Stopped => f.write_str("stopped"),
-        }
+        f.write_str(match self {
+            CanTrouble::ErrorWarning => "error warning",
+            CanTrouble::ErrorPassive => "error passive",
+        })
     }
 }
 
-macro_rules! counters {
-    ($( $(#[$doc:meta])* $name:ident, )*) => {
-        /// Lock-free event counters of one bus node (monotonic since start; relaxed atomics,
-        /// so a [`CanCounters::snapshot`] taken while the task runs is not one instant).
-        #[derive(Debug, Default)]
-        pub struct CanCounters {
-            $( $(#[$doc])* pub $name: AtomicU64, )*
-        }
-
-        /// A copy of [`CanCounters`] for statistics and logs.
-        #[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize)]
-        pub struct CanCountersSnapshot {
-            $( $(#[$doc])* pub $name: u64, )*
-        }
-
-        impl CanCounters {
-            /// Current values.
-            pub fn snapshot(&self) -> CanCountersSnapshot {
-                CanCountersSnapshot {
-                    $( $name: self.$name.load(Ordering::Relaxed), )*
-                }
-            }
-        }
-    };
+impl crate::io::link::Degradation for CanTrouble {
+    /// Warning and error-passive count as up in the status: traffic still passes.
+    fn status_name(&self) -> &'static str {
+        "up"
+    }
 }
 
-counters! {
+impl crate::io::link::DownReason for DownCause {
+    fn is_bus_off(&self) -> bool {
+        *self == DownCause::BusOff
+    }
+}
+
+/// State of a CAN link: the field links' one [`LinkState`](crate::io::link::LinkState), its
+/// degradation the controller's error state and its cause a [`DownCause`]. Published on a
+/// [`watch`] channel and to the optional [`StateHook`].
+///
+/// A failure reads `Up` → `Down { attempt: 0, .. }` → `Down { attempt: 1, .. }` → (`2`, …
+/// while reopening fails) → `Up`. A watch channel keeps only the latest value, so a watcher may
+/// miss the short-lived first `Down`; later ones repeat the cause, the hook sees every change,
+/// and [`CanCounters`] count every event.
+pub type BusState = crate::io::link::LinkState<CanTrouble, DownCause>;
+
+crate::io::link::link_counters! {
+    /// Lock-free event counters of one CAN node (monotonic since start).
+    atomic CanCounters;
+    /// A copy of [`CanCounters`] for statistics and logs.
+    plain CanCountersSnapshot;
+    {
     /// Frames read from the socket, of any kind.
     rx_frames,
     /// Data frames decoded and published to a board.
@@ -575,16 +517,50 @@ counters! {
     open_failures,
     /// Successful socket opens after the first one.
     reconnects,
+    }
 }
 
-impl CanCounters {
-    #[inline]
-    fn inc(c: &AtomicU64) {
-        c.fetch_add(1, Ordering::Relaxed);
+/// A running CAN link as the daemon sees it ([`FieldLink`](crate::io::link::FieldLink)): its
+/// counters and its state channel.
+pub struct CanLinkView {
+    /// `can:<interface>`.
+    pub name: String,
+    /// The task's counters.
+    pub counters: Arc<CanCounters>,
+    /// The task's state.
+    pub state: watch::Receiver<BusState>,
+}
+
+impl crate::io::link::FieldLink for CanLinkView {
+    fn kind(&self) -> crate::vocab::faults::FieldLinkKind {
+        crate::vocab::faults::FieldLinkKind::Can
     }
-    #[inline]
-    fn add(c: &AtomicU64, n: u64) {
-        c.fetch_add(n, Ordering::Relaxed);
+    fn name(&self) -> &str {
+        &self.name
+    }
+    fn status_name(&self) -> &'static str {
+        self.state.borrow().status_name()
+    }
+    fn is_up(&self) -> bool {
+        self.state.borrow().is_up()
+    }
+    fn traffic(&self) -> crate::io::link::LinkTraffic {
+        let c = self.counters.snapshot();
+        crate::io::link::LinkTraffic {
+            sent: c.tx_frames,
+            received: c.rx_frames,
+            errors: c.unknown_id
+                + c.wrong_dlc
+                + c.bad_crc
+                + c.invalid_value
+                + c.error_frames
+                + c.tx_errors,
+            down: c.link_down,
+            reconnects: c.reconnects,
+        }
+    }
+    fn counters_json(&self) -> serde_json::Value {
+        serde_json::to_value(self.counters.snapshot()).unwrap_or_default()
     }
 }
 
@@ -619,10 +595,10 @@ impl fmt::Debug for BusHandles {
 }
 
 impl BusHandles {
-    /// Fresh counters, a state channel starting at [`BusState::Starting`], no hook, and the
+    /// Fresh counters, a state channel starting at [`BusState::Idle`], no hook, and the
     /// given shutdown receiver. Returns the handles and a state receiver.
     pub fn new(shutdown: watch::Receiver<bool>) -> (BusHandles, watch::Receiver<BusState>) {
-        let (state, rx) = watch::channel(BusState::Starting);
+        let (state, rx) = watch::channel(BusState::Idle);
         (
             BusHandles {
                 counters: Arc::new(CanCounters::default()),
@@ -821,20 +797,20 @@ impl Reporter<'_> {
         }
         let iface = self.interface;
         match new {
-            BusState::Up | BusState::Stopped | BusState::Starting => {
+            BusState::Up | BusState::Stopped | BusState::Idle => {
                 tracing::info!(target: "can", interface = iface, "CAN link {new}")
             }
-            BusState::ErrorPassive => {
+            BusState::Degraded(CanTrouble::ErrorPassive) => {
                 CanCounters::inc(&self.counters.error_passive);
                 tracing::warn!(target: "can", interface = iface, "CAN link {new}")
             }
-            BusState::ErrorWarning | BusState::Down(_) => {
+            BusState::Degraded(CanTrouble::ErrorWarning) | BusState::Down { attempt: 0, .. } => {
                 tracing::warn!(target: "can", interface = iface, "CAN link {new}")
             }
-            BusState::Reconnecting { attempt, .. } if attempt <= 1 => {
+            BusState::Down { attempt: 1, .. } => {
                 tracing::info!(target: "can", interface = iface, "CAN link {new}")
             }
-            BusState::Reconnecting { .. } => {
+            BusState::Down { .. } => {
                 tracing::debug!(target: "can", interface = iface, "CAN link {new}")
             }
         }
@@ -887,8 +863,12 @@ impl Session<'_> {
                 RxOutcome::Rejected(_) => {}
                 RxOutcome::Bus(c) => match c {
                     BusCondition::BusOff => return Err(DownCause::BusOff),
-                    BusCondition::Passive => self.report.set(BusState::ErrorPassive),
-                    BusCondition::Warning => self.report.set(BusState::ErrorWarning),
+                    BusCondition::Passive => self
+                        .report
+                        .set(BusState::Degraded(CanTrouble::ErrorPassive)),
+                    BusCondition::Warning => self
+                        .report
+                        .set(BusState::Degraded(CanTrouble::ErrorWarning)),
                     BusCondition::Active => self.report.set(BusState::Up),
                     BusCondition::Other => {}
                 },
@@ -1083,8 +1063,8 @@ fn open_link(interface: &str) -> Result<(CanLink, BusState), DownCause> {
     let link = CanLink::open(interface).map_err(|e| DownCause::io(IoOp::Open, &e))?;
     match link::controller_state(interface) {
         Some(CanState::BusOff) => Err(DownCause::BusOff),
-        Some(CanState::ErrorPassive) => Ok((link, BusState::ErrorPassive)),
-        Some(CanState::ErrorWarning) => Ok((link, BusState::ErrorWarning)),
+        Some(CanState::ErrorPassive) => Ok((link, BusState::Degraded(CanTrouble::ErrorPassive))),
+        Some(CanState::ErrorWarning) => Ok((link, BusState::Degraded(CanTrouble::ErrorWarning))),
         _ => Ok((link, BusState::Up)),
     }
 }
@@ -1148,14 +1128,14 @@ async fn run_link<R: Role>(cfg: &CanBusConfig, role: &mut R, handles: BusHandles
         };
         if attempt == 0 {
             // First failure since the link was up (or since start); later failed reopen
-            // attempts only update `Reconnecting`.
-            report.set(BusState::Down(cause));
+            // attempts only update the attempt and its backoff.
+            report.set(BusState::down(cause));
         }
         let delay = backoff.next_delay();
         attempt = attempt.saturating_add(1);
-        report.set(BusState::Reconnecting {
+        report.set(BusState::Down {
             attempt,
-            delay_ms: u64::try_from(delay.as_millis()).unwrap_or(u64::MAX),
+            backoff_ms: u64::try_from(delay.as_millis()).unwrap_or(u64::MAX),
             cause,
         });
         tokio::select! {

@@ -125,14 +125,20 @@ impl FieldLinkReporter {
             interface: self.link.clone(),
             state,
         });
-        let down = matches!(state, BusState::Down | BusState::BusOff);
-        if let Some(field) = self.field.as_ref().filter(|_| down != self.down) {
+        // reconnecting is still down: the link stays the root of its stale inputs until it
+        // is up again
+        let down = matches!(
+            state,
+            BusState::Down | BusState::BusOff | BusState::Reconnecting
+        );
+        let was_down = self.down;
+        if let Some(field) = self.field.as_ref().filter(|_| down != was_down) {
             // the root cause the control thread names when the inputs this link carries go
             // stale ("Modbus link down", not "p_suction stale")
             field.link_down(FieldLinkKind::of_link_name(&self.link), down);
         }
         self.down = down;
-        if down {
+        if down && (!was_down || state != BusState::Reconnecting) {
             self.fault(FaultCategory::FieldLinkDown, true, detail);
         } else if state == BusState::Up {
             self.fault(FaultCategory::FieldLinkDown, false, "link up");
@@ -242,6 +248,20 @@ mod tests {
         let (mut d, _) = reporter();
         d.fault(FaultCategory::FieldWriteFailed, true, "exception 2");
         assert_eq!(field.word(), 0, "a detached reporter counts nowhere");
+    }
+
+    #[test]
+    fn a_reconnecting_link_stays_down_and_the_root_of_its_stale_inputs() {
+        let field = Arc::new(FieldFaults::default());
+        let mut r = FieldLinkReporter::new("can0", Arc::new(|_| {}), Arc::clone(&field));
+        r.state(BusState::Up, "");
+        r.state(BusState::Down, "down: receive failed");
+        r.state(BusState::Reconnecting, "reconnect attempt 1 in 50 ms");
+        assert_eq!(field.down_link(), Some(FieldLinkKind::Can));
+        assert_eq!(field.word(), FaultCategory::FieldLinkDown.bit());
+        r.state(BusState::Up, "");
+        assert_eq!(field.down_link(), None);
+        assert_eq!(field.word(), 0);
     }
 
     #[test]

@@ -662,12 +662,12 @@ impl Controller {
                 consecutive_failures,
                 backoff_ms,
             } => LinkState::Down {
-                consecutive_failures,
+                attempt: consecutive_failures,
                 backoff_ms,
                 cause: self.last_cause,
             },
             ConnectionState::Connected => match (out.exception, out.answered) {
-                (Some(x), _) => LinkState::Exception(x),
+                (Some(x), _) => LinkState::Degraded(x),
                 (None, true) => LinkState::Up,
                 (None, false) => return,
             },

@@ -30,8 +30,8 @@ pub use client::{
 pub use link::{
     run_controller, run_controller_triggering, run_plant_server, AnotherWriter, CommandConnection,
     ExceptionInfo, FailureCause, HeartbeatRegister, HeartbeatWords, LinkCounters, LinkCounts,
-    LinkError, LinkMonitor, LinkState, ModbusLinkConfig, ModbusServerConfig, Pacing, PlantCounters,
-    PlantCounts, PlantServer, WriteFailure, WriteHealth,
+    LinkError, LinkMonitor, LinkState, ModbusLinkConfig, ModbusLinkView, ModbusServerConfig,
+    Pacing, PlantCounters, PlantCounts, PlantServer, WriteFailure, WriteHealth,
 };
 pub use plan::{PlanError, PlannedRequest, ReadPlan, WritePlan};
 pub use register::{

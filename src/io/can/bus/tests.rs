@@ -922,15 +922,15 @@ fn bus_state_text_and_event_mapping() {
     use crate::events::event::BusState as E;
     let down = DownCause::io(IoOp::Receive, &io::Error::from_raw_os_error(libc::ENETDOWN));
     assert_eq!(
-        BusState::Down(down).to_string(),
+        BusState::down(down).to_string(),
         format!(
             "down: receive failed: {}",
             io::Error::from_raw_os_error(libc::ENETDOWN)
         )
     );
-    let r = BusState::Reconnecting {
+    let r = BusState::Down {
         attempt: 2,
-        delay_ms: 100,
+        backoff_ms: 100,
         cause: DownCause::BusOff,
     };
     assert_eq!(
@@ -938,25 +938,28 @@ fn bus_state_text_and_event_mapping() {
         "reconnect attempt 2 in 100 ms (down: bus-off)"
     );
     assert_eq!(
-        BusState::Down(DownCause::BusOff).to_event(),
+        BusState::down(DownCause::BusOff).to_event(),
         Some(E::BusOff)
     );
-    assert_eq!(BusState::Down(down).to_event(), Some(E::Down));
+    assert_eq!(BusState::down(down).to_event(), Some(E::Down));
     assert_eq!(r.to_event(), None, "only the first attempt is an event");
-    let r1 = BusState::Reconnecting {
+    let r1 = BusState::Down {
         attempt: 1,
-        delay_ms: 50,
+        backoff_ms: 50,
         cause: DownCause::BusOff,
     };
     assert_eq!(r1.to_event(), Some(E::Reconnecting));
-    assert_eq!(BusState::ErrorPassive.to_event(), Some(E::Up));
+    assert_eq!(
+        BusState::Degraded(CanTrouble::ErrorPassive).to_event(),
+        Some(E::Up)
+    );
     assert_eq!(BusState::Stopped.to_event(), None);
-    assert!(BusState::ErrorWarning.is_up() && !r.is_up());
+    assert!(BusState::Degraded(CanTrouble::ErrorWarning).is_up() && !r.is_up());
 }
 
 #[test]
 fn reporter_counts_error_passive_entries_once() {
-    let (tx, rx) = watch::channel(BusState::Starting);
+    let (tx, rx) = watch::channel(BusState::Idle);
     let counters = CanCounters::default();
     let seen = Arc::new(std::sync::Mutex::new(Vec::new()));
     let log = Arc::clone(&seen);
@@ -970,20 +973,20 @@ fn reporter_counts_error_passive_entries_once() {
         counters: &counters,
     };
     r.set(BusState::Up);
-    r.set(BusState::ErrorPassive);
-    r.set(BusState::ErrorPassive);
+    r.set(BusState::Degraded(CanTrouble::ErrorPassive));
+    r.set(BusState::Degraded(CanTrouble::ErrorPassive));
     r.set(BusState::Up);
-    r.set(BusState::ErrorPassive);
-    assert_eq!(*rx.borrow(), BusState::ErrorPassive);
+    r.set(BusState::Degraded(CanTrouble::ErrorPassive));
+    assert_eq!(*rx.borrow(), BusState::Degraded(CanTrouble::ErrorPassive));
     assert_eq!(counters.snapshot().error_passive, 2);
     // The hook sees every change once, in order.
     assert_eq!(
         *seen.lock().expect("log"),
         [
             BusState::Up,
-            BusState::ErrorPassive,
+            BusState::Degraded(CanTrouble::ErrorPassive),
             BusState::Up,
-            BusState::ErrorPassive
+            BusState::Degraded(CanTrouble::ErrorPassive)
         ]
     );
 }
@@ -1048,26 +1051,31 @@ async fn missing_interface_backs_off_and_stops_on_shutdown() {
     let enodev = |s: &BusState| {
         matches!(
             s,
-            BusState::Down(DownCause::Io {
-                op: IoOp::Open,
-                errno: Some(_),
+            BusState::Down {
+                cause: DownCause::Io {
+                    op: IoOp::Open,
+                    errno: Some(_),
+                    ..
+                },
                 ..
-            })
+            }
         )
     };
     assert!(enodev(&seen[0]), "{seen:?}");
     assert_eq!(
         seen.iter()
-            .filter(|s| matches!(s, BusState::Down(_)))
+            .filter(|s| matches!(s, BusState::Down { attempt: 0, .. }))
             .count(),
         1
     );
     let attempts: Vec<(u32, u64)> = seen
         .iter()
         .filter_map(|s| match s {
-            BusState::Reconnecting {
-                attempt, delay_ms, ..
-            } => Some((*attempt, *delay_ms)),
+            BusState::Down {
+                attempt,
+                backoff_ms,
+                ..
+            } if *attempt > 0 => Some((*attempt, *backoff_ms)),
             _ => None,
         })
         .collect();

@@ -7,7 +7,7 @@ use crate::io::modbus::register::{find_overlaps, RegisterBinding};
 use crate::io::signal_map::SignalMap;
 use crate::vocab::signals::ActuatorId;
 use std::io;
-use std::sync::atomic::{AtomicU64, Ordering};
+use std::sync::Arc;
 use thiserror::Error;
 use tokio::sync::watch;
 use tokio_modbus::ExceptionCode;
@@ -127,7 +127,7 @@ impl FailureCause {
     }
 }
 
-/// A Modbus exception answer, as reported in [`LinkState::Exception`].
+/// A Modbus exception answer, as reported in a degraded [`LinkState`].
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub struct ExceptionInfo {
     /// Unit that answered.
@@ -200,56 +200,49 @@ pub enum WriteHealth {
     },
 }
 
-/// State of a controller link, published on change through [`LinkMonitor::subscribe`].
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
-pub enum LinkState {
-    /// No exchange yet.
-    Idle,
-    /// Every request of the last cycle was answered normally.
-    Up,
-    /// Connected, but the device refused at least one request of the last cycle with an
-    /// exception (the first one is shown). Values of the refused requests go stale.
-    Exception(ExceptionInfo),
-    /// The link failed and the client is reconnecting with backoff. Sensor values go stale.
-    Down {
-        /// Failures since the last good exchange (connect attempts included).
-        consecutive_failures: u32,
-        /// Current backoff before the next connect attempt, ms.
-        backoff_ms: u64,
-        /// The last failure.
-        cause: FailureCause,
-    },
-    /// The task has stopped (shutdown).
-    Stopped,
+/// State of a controller link: the field links' one [`LinkState`](crate::io::link::LinkState),
+/// degraded by a device's exception answers ([`ExceptionInfo`]: connected, but the device
+/// refused at least one request of the last cycle; the first one is shown, the values of the
+/// refused requests go stale), down for a [`FailureCause`] (the client reconnects with backoff;
+/// `attempt` counts the failures since the last good exchange, connect attempts included;
+/// sensor values go stale). Published on change through [`LinkMonitor::subscribe`].
+pub type LinkState = crate::io::link::LinkState<ExceptionInfo, FailureCause>;
+
+impl crate::io::link::Degradation for ExceptionInfo {
+    fn status_name(&self) -> &'static str {
+        "exception"
+    }
 }
 
-macro_rules! counters {
-    (
-        $(#[$atomic_meta:meta])* atomic $atomic:ident;
-        $(#[$plain_meta:meta])* plain $plain:ident;
-        { $( $(#[doc = $doc:literal])* $field:ident ),* $(,)? }
-    ) => {
-        $(#[$atomic_meta])*
-        #[derive(Debug, Default)]
-        pub struct $atomic {
-            $( $(#[doc = $doc])* pub(super) $field: AtomicU64, )*
-        }
-
-        $(#[$plain_meta])*
-        #[derive(Debug, Clone, Copy, PartialEq, Eq, Default, serde::Serialize)]
-        pub struct $plain {
-            $( $(#[doc = $doc])* pub $field: u64, )*
-        }
-
-        impl $atomic {
-            /// A consistent-enough copy of every counter (each read atomically, relaxed).
-            pub fn snapshot(&self) -> $plain {
-                $plain { $( $field: self.$field.load(Ordering::Relaxed), )* }
-            }
-        }
-    };
+impl std::fmt::Display for ExceptionInfo {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        write!(
+            f,
+            "exception {} ({:?}) at unit {} function 0x{:02X} address {}",
+            u8::from(self.code),
+            self.code,
+            self.unit_id,
+            self.function,
+            self.address
+        )
+    }
 }
-pub(crate) use counters;
+
+impl crate::io::link::DownReason for FailureCause {}
+
+impl std::fmt::Display for FailureCause {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str(match self {
+            FailureCause::Timeout => "no answer within the timeout",
+            FailureCause::ConnectTimeout => "connect timed out",
+            FailureCause::Connect => "connect failed",
+            FailureCause::Transport => "I/O error",
+            FailureCause::Protocol => "malformed or mismatched answer",
+        })
+    }
+}
+
+pub(crate) use crate::io::link::link_counters as counters;
 
 counters! {
     /// Controller link counters (atomics, updated by the link task, read by anyone).
@@ -307,14 +300,10 @@ counters! {
         connect_failures,
         /// Successful connects after the first (client counter).
         reconnects,
+        /// Times the link went down (up, degraded or idle to down).
+        link_down,
         /// Setpoints saturated to the register type's range (client counter).
         clamped_values,
-    }
-}
-
-impl LinkCounters {
-    pub(super) fn add(c: &AtomicU64, n: u64) {
-        c.fetch_add(n, Ordering::Relaxed);
     }
 }
 
@@ -364,7 +353,7 @@ impl Default for LinkMonitor {
 }
 
 impl LinkMonitor {
-    /// Counters at zero, state [`LinkState::Idle`].
+    /// Counters at zero, state idle.
     pub fn new() -> LinkMonitor {
         LinkMonitor {
             counters: LinkCounters::default(),
@@ -432,9 +421,49 @@ impl LinkMonitor {
             if *s == new {
                 false
             } else {
+                if new.is_down() && !s.is_down() {
+                    LinkCounters::inc(&self.counters.link_down);
+                }
                 *s = new;
                 true
             }
         });
+    }
+}
+
+/// A running Modbus controller link as the daemon sees it
+/// ([`FieldLink`](crate::io::link::FieldLink)): its monitor.
+pub struct ModbusLinkView {
+    /// `modbus:<address>` or `modbus:<serial device>`.
+    pub name: String,
+    /// The link's monitor.
+    pub monitor: Arc<LinkMonitor>,
+}
+
+impl crate::io::link::FieldLink for ModbusLinkView {
+    fn kind(&self) -> crate::vocab::faults::FieldLinkKind {
+        crate::vocab::faults::FieldLinkKind::Modbus
+    }
+    fn name(&self) -> &str {
+        &self.name
+    }
+    fn status_name(&self) -> &'static str {
+        self.monitor.state().status_name()
+    }
+    fn is_up(&self) -> bool {
+        self.monitor.state().is_up()
+    }
+    fn traffic(&self) -> crate::io::link::LinkTraffic {
+        let c = self.monitor.counters().snapshot();
+        crate::io::link::LinkTraffic {
+            sent: c.requests,
+            received: c.requests.saturating_sub(c.timeouts + c.transport_errors),
+            errors: c.timeouts + c.exceptions + c.transport_errors + c.protocol_errors,
+            down: c.link_down,
+            reconnects: c.reconnects,
+        }
+    }
+    fn counters_json(&self) -> serde_json::Value {
+        serde_json::to_value(self.monitor.counters().snapshot()).unwrap_or_default()
     }
 }
