@@ -104,6 +104,14 @@ pub struct RunResult {
     /// Whether the compressor flow reversed before the disturbance (the controller was
     /// recovering from a surge of its own, not holding the control line, when it came).
     pub reversed_before_event: bool,
+    /// The part of [`RunResult::recycle_energy_j`] from the disturbance on, J: the window the
+    /// surge count and the closest approach are judged on (the rest is the start from the
+    /// skid's initial opening to the control line, before any disturbance). A diagnostic:
+    /// the campaign's energy line sums the whole run.
+    pub recycle_energy_from_event_j: f64,
+    /// Recycle trips (each step, repeats included; ESD openings too), from the core's law
+    /// events; 0 for the oracle and the held valve.
+    pub recycle_trips: u32,
 }
 
 /// Window of [`RunResult::opening_at_event`], s: one second, many samples of the noisiest
@@ -332,6 +340,7 @@ pub fn run_traced(
     let mut delivered = ActuatorCommands::default();
     let (mut opening_sum, mut opening_n) = (0.0, 0u32);
     let mut reversed_before_event = false;
+    let mut energy_from_event = 0.0;
     for k in 0..=n {
         let t = k as f64 * dt;
         let (st, mut raw) = pr.sense(t);
@@ -401,6 +410,14 @@ pub fn run_traced(
             ),
         );
         pr.record(k, t, dt, &raw, &delivered, &view);
+        // (the simulator's own sum, `PlantRun::record`, over the disturbance's window)
+        if t >= EVENT_AT_S && truth.recycle_flow_kg_s > 0.0 {
+            let head = desc
+                .file
+                .gas
+                .polytropic_head_j_kg(truth.t_suction_k, truth.pressure_ratio());
+            energy_from_event += truth.recycle_flow_kg_s * head * dt;
+        }
         if k == n {
             break;
         }
@@ -420,6 +437,8 @@ pub fn run_traced(
             f64::NAN
         },
         reversed_before_event,
+        recycle_energy_from_event_j: energy_from_event,
+        recycle_trips: s.law_events.recycle_trips,
     };
     Ok((r, sim))
 }

@@ -308,6 +308,41 @@ fn one_case_reruns_and_writes_json() {
     assert!(text.contains("case 5"), "{text}");
 }
 
+/// The energy from the disturbance on is the part of the run's recycle energy the
+/// simulator sums from the disturbance's instant: positive, and less than the whole run's
+/// wherever the valve returned gas before the disturbance (every law starts from the skid's
+/// initial opening); the trips are counted for the laws only.
+#[test]
+fn the_energy_from_the_disturbance_on_is_part_of_the_runs() {
+    for c in &reduced().cases {
+        for (name, r) in [
+            ("recycle-pi", &c.recycle_pi),
+            ("baseline-pi", &c.baseline_pi),
+        ] {
+            let (all, from) = (r.recycle_energy_j, r.recycle_energy_from_event_j);
+            assert!(
+                from >= 0.0 && from <= all,
+                "case {} {name}: {from} J from the disturbance of {all} J",
+                c.case
+            );
+            if r.opening_at_event > 0.01 {
+                assert!(from < all, "case {} {name}: no energy before it", c.case);
+            }
+        }
+        assert_eq!(
+            c.baseline_pi.recycle_trips, 0,
+            "case {}: baseline-pi has no trip",
+            c.case
+        );
+        assert_eq!(c.oracle.recycle_trips, 0, "case {}", c.case);
+    }
+    // the reduced campaign has recycle trips
+    assert!(reduced()
+        .cases
+        .iter()
+        .any(|c| c.recycle_pi.recycle_trips > 0));
+}
+
 /// The oracle's open command reaches the valve when the runner says: issued one latency and
 /// one sample period after the disturbance (two periods more for the late oracle), delivered
 /// one latency plus the valve's dead time later; the valve does not move before.
