@@ -27,17 +27,11 @@ fn control_cycle_does_not_allocate_for_any_law() {
     for stem in common::PLANTS {
         let desc = common::plant(stem);
         let init = desc.file.initial;
-        let inputs = PlantInputs {
-            throttle_process: init.throttle,
-            recycle_manual: init.recycle_valve,
-            feed: init.feed,
-            ..PlantInputs::default()
-        };
         for law in LawId::ALL {
             if !law.supports(desc.file.model) {
                 continue;
             }
-            let mut plant = SimPlant::new(&desc, &inputs).expect("plant");
+            let (mut plant, inputs) = common::node::plant_at_initial_point(&desc);
             let model = antisurge::sim::control_model(&desc);
             let settings = CoreSettings::defaults_for(&model);
             let cfg = model.controller.clone();

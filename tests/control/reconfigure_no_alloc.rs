@@ -11,7 +11,6 @@ use antisurge::control::core::{ControlCore, CoreSettings};
 use antisurge::control::measurements::OperatorInputs;
 use antisurge::control::LawId;
 use antisurge::node::control::ControlUpdate;
-use antisurge::plant::{PlantInputs, SimPlant};
 use antisurge::runtime::handoff::monotonic_ns;
 use antisurge::runtime::rt_loop::Tick;
 use antisurge::vocab::signals::SensorId;
@@ -25,18 +24,12 @@ fn reloads_allocate_nothing_on_the_control_thread_for_every_law_and_plant() {
     for stem in common::PLANTS {
         let desc = common::plant(stem);
         let init = desc.file.initial;
-        let inputs = PlantInputs {
-            throttle_process: init.throttle,
-            recycle_manual: init.recycle_valve,
-            feed: init.feed,
-            ..PlantInputs::default()
-        };
         let laws: Vec<LawId> = LawId::ALL
             .into_iter()
             .filter(|l| l.supports(desc.file.model))
             .collect();
         for &law in &laws {
-            let mut plant = SimPlant::new(&desc, &inputs).expect("plant");
+            let (mut plant, inputs) = common::node::plant_at_initial_point(&desc);
             let model = antisurge::sim::control_model(&desc);
             let settings = CoreSettings::defaults_for(&model);
             let cfg = model.controller.clone();

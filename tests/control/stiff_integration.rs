@@ -6,7 +6,7 @@
 use crate::common;
 
 use antisurge::plant::recycle_system::{RecyclePlant, N};
-use antisurge::plant::{PlantInputs, SimPlant};
+use antisurge::plant::SimPlant;
 use antisurge::solver::{dormand_prince, rk4, rosenbrock, AdaptiveStats, Tolerance};
 use nalgebra::SVector;
 
@@ -16,13 +16,7 @@ const H: f64 = 1e-3;
 fn setup() -> (RecyclePlant, SVector<f64, N>) {
     let desc = common::plant("kvangardsnes2009_recycle");
     let init = desc.file.initial;
-    let inputs = PlantInputs {
-        throttle_process: init.throttle,
-        recycle_manual: init.recycle_valve,
-        feed: init.feed,
-        ..PlantInputs::default()
-    };
-    let SimPlant::Recycle(mut p) = SimPlant::new(&desc, &inputs).expect("plant") else {
+    let SimPlant::Recycle(mut p) = common::node::plant_at_initial_point(&desc).0 else {
         panic!("recycle plant expected")
     };
     let x0 = p.x;

@@ -23,7 +23,6 @@ use antisurge::events::{EventLog, EventLogConfig};
 use antisurge::live::server::LiveContext;
 use antisurge::live::snapshot::LiveBoard;
 use antisurge::node::control::ControlNode;
-use antisurge::plant::{PlantInputs, SimPlant};
 use antisurge::runtime::handoff::monotonic_ns;
 use antisurge::runtime::rt_loop::Tick;
 use antisurge::sparkplug::catalogue::Ranges;
@@ -86,14 +85,7 @@ async fn stuck_broker(listener: tokio::net::TcpListener, rx: Arc<Received>) {
 fn the_cycle_never_waits_on_a_node_whose_broker_acknowledges_nothing() {
     let dir = tempfile::tempdir().expect("tmp");
     let desc = common::plant("kvangardsnes2009_recycle");
-    let init = desc.file.initial;
-    let inputs = PlantInputs {
-        throttle_process: init.throttle,
-        recycle_manual: init.recycle_valve,
-        feed: init.feed,
-        ..PlantInputs::default()
-    };
-    let mut plant = SimPlant::new(&desc, &inputs).expect("plant");
+    let (mut plant, inputs) = common::node::plant_at_initial_point(&desc);
     let model = antisurge::sim::control_model(&desc);
     let settings = CoreSettings::defaults_for(&model);
     let cfg = model.controller.clone();
